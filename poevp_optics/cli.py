@@ -1,0 +1,159 @@
+"""`poevp` command line: render, validate, info (DESIGN.md "Command line")."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+from pathlib import Path
+
+from . import __version__
+
+
+def _add_run_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("scene", help="scene folder (holding scene.toml) or a .toml file")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a scene key, TOML value syntax (repeatable): render.spp=64")
+    p.add_argument("--frames", type=int, help="shorthand for --set timing.frames=N")
+    p.add_argument("--spp", type=int, help="shorthand for --set render.spp=N")
+    p.add_argument("--resolution", help="HxW, shorthand for --set render.resolution=[H,W]")
+    p.add_argument("--seed", type=int, help="shorthand for --set render.seed=S")
+
+
+def _overrides(args) -> list[str]:
+    from .scene import SceneError
+
+    out = list(args.overrides)
+    if getattr(args, "frames", None) is not None:
+        out.append(f"timing.frames={args.frames}")
+    if getattr(args, "spp", None) is not None:
+        out.append(f"render.spp={args.spp}")
+    if getattr(args, "seed", None) is not None:
+        out.append(f"render.seed={args.seed}")
+    if getattr(args, "resolution", None):
+        try:
+            h, w = (int(v) for v in args.resolution.lower().split("x"))
+        except ValueError:
+            raise SceneError(f"--resolution {args.resolution}: expected HxW, e.g. 368x640") from None
+        out.append(f"render.resolution=[{h},{w}]")
+    return out
+
+
+def cmd_render(args) -> int:
+    from . import runtime
+    from .io import staged_dir
+    from .loop import run_render
+    from .scene import load_scene
+
+    spec = load_scene(args.scene, _overrides(args))
+    runtime.set_threads(args.threads)
+    out = Path(args.out) if args.out else Path("out") / spec.name
+    with staged_dir(out) as stage:
+        report = run_render(spec, stage, progress=not args.quiet)
+    r = report["stages"]["render"]
+    roi = r["rel_error_roi"]
+    print(f"poevp: rendered {report['frames']} frames of {spec.name} at "
+          f"{report['resolution'][0]}x{report['resolution'][1]} ({r['path']}, {r['variant']}) in "
+          f"{report['total_seconds']:.1f} s; MC rel. error {r['rel_error']:.2%} frame"
+          + (f", {roi:.2%} ROI" if roi is not None else "") + f" -> {out}/report.json")
+    return 0
+
+
+def cmd_validate(args) -> int:
+    from .render import plan_spectra
+    from .scene import load_scene
+
+    spec = load_scene(args.scene, _overrides(args))
+    plan = plan_spectra(spec)
+    if args.load:
+        from .render import Renderer
+
+        Renderer(spec)  # loads the XML in Mitsuba and checks moving ids / ROI shape
+    print(f"poevp: {spec.toml_path} is valid: {spec.timing.frames} frames, "
+          f"{spec.render.resolution[0]}x{spec.render.resolution[1]}, "
+          f"{'static' if spec.is_static else 'moving: ' + ', '.join(spec.motion)}; "
+          f"render path {plan.mode} ({plan.reason})")
+    return 0
+
+
+def info_dict() -> dict:
+    import drjit as dr
+    import mitsuba as mi
+    import numpy as np
+
+    from . import runtime
+
+    out = {"poevp_optics": __version__, "python": platform.python_version(),
+           "mitsuba": mi.__version__, "drjit": dr.__version__, "numpy": np.__version__}
+    for mod in ("torch", "OpenEXR", "colour", "colour_hdri", "cv2"):
+        try:
+            out[mod] = __import__(mod).__version__
+        except Exception as e:  # noqa: BLE001
+            out[mod] = f"unavailable ({type(e).__name__})"
+    out["cuda_available"] = runtime.backend_available("cuda")
+    out["llvm_available"] = runtime.backend_available("llvm")
+    out["variant_spectral"] = runtime.choose_variant("spectral")[0]
+    out["variant_mono"] = runtime.choose_variant("mono")[0]
+    out["DRJIT_LIBLLVM_PATH"] = os.environ.get("DRJIT_LIBLLVM_PATH")
+    out["libllvm_loaded"] = runtime.libllvm_in_use()
+    out["drjit_threads"] = dr.thread_count()
+    out["cpu_count"] = os.cpu_count()
+    return out
+
+
+def cmd_info(args) -> int:
+    info = info_dict()
+    if args.json:
+        print(json.dumps(info, indent=2))
+    elif args.short:
+        print(f"poevp_optics {info['poevp_optics']}: mitsuba {info['mitsuba']} "
+              f"({info['variant_spectral']}), libLLVM {info['libllvm_loaded']}, torch {info['torch']}")
+    else:
+        for k, v in info.items():
+            print(f"{k:20s} {v}")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="poevp", description="POE-VP DMD camera simulator")
+    parser.add_argument("--version", action="version", version=f"poevp_optics {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("render", help="render a scene: radiance frames, previews, report.json")
+    _add_run_options(p)
+    p.add_argument("--out", help="output folder (default out/<scene>); replaced whole on success")
+    p.add_argument("--threads", type=int, help="DrJit/torch threads (default: all cores)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_render)
+
+    p = sub.add_parser("validate", help="parse and check a scene without rendering")
+    _add_run_options(p)
+    p.add_argument("--load", action="store_true", help="also load the XML in Mitsuba")
+    p.set_defaults(func=cmd_validate)
+
+    p = sub.add_parser("info", help="versions, Mitsuba variant, libLLVM, devices")
+    p.add_argument("--json", action="store_true")
+    p.add_argument("--short", action="store_true")
+    p.set_defaults(func=cmd_info)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    from .scene import SceneError
+    from .spectra import SpectrumError
+
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except (SceneError, SpectrumError) as e:
+        print(f"poevp: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("poevp: interrupted; existing outputs left untouched", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,105 @@
+"""The one place that sets process-wide state: Mitsuba variant, DrJit and torch threads.
+
+STYLE.md 12: nothing else calls `mi.set_variant`, `dr.set_thread_count` or
+`torch.set_num_threads`.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import warnings
+from pathlib import Path
+
+_LLVM_CANDIDATES = ("/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1", "/usr/lib/x86_64-linux-gnu/libLLVM-19.so",
+                    "/usr/lib/aarch64-linux-gnu/libLLVM.so.19.1")
+
+
+def _prefer_llvm19() -> None:
+    """Point DrJit at Debian's libLLVM 19 when present and nothing else was chosen: DrJit 1.5
+    emits llvm.minimum/maximum, which libLLVM 14/15 cannot select (FACTS.md)."""
+    if "DRJIT_LIBLLVM_PATH" in os.environ:
+        return
+    for cand in _LLVM_CANDIDATES:
+        if Path(cand).exists():
+            os.environ["DRJIT_LIBLLVM_PATH"] = cand
+            return
+
+
+_prefer_llvm19()
+
+
+def set_threads(n: int | None) -> None:
+    """Thread count for DrJit's LLVM backend and torch (None: leave the defaults)."""
+    if n is None:
+        return
+    import drjit as dr
+
+    dr.set_thread_count(int(n))
+    try:
+        import torch
+
+        torch.set_num_threads(int(n))
+    except ImportError:
+        pass
+
+
+def backend_available(name: str) -> bool:
+    """Whether DrJit's 'cuda' or 'llvm' backend initialises on this machine."""
+    import drjit as dr
+
+    backend = {"cuda": dr.JitBackend.CUDA, "llvm": dr.JitBackend.LLVM}[name]
+    try:
+        return bool(dr.has_backend(backend))
+    except Exception:  # noqa: BLE001 - a broken driver/LLVM just means "not available"
+        return False
+
+
+def choose_variant(mode: str, requested: str = "auto") -> tuple[str, str]:
+    """Pick a Mitsuba variant for `mode` ('spectral' or 'mono'): cuda > llvm > scalar.
+
+    Returns (variant, reason). `requested` other than 'auto' is used as given (checked).
+    """
+    import mitsuba as mi
+
+    if requested != "auto":
+        if requested not in mi.variants():
+            raise ValueError(f"render.variant: {requested!r} is not a Mitsuba variant here "
+                             f"(have {', '.join(mi.variants())})")
+        return requested, "requested in the scene file"
+    suffix = "spectral" if mode == "spectral" else "mono"
+    if backend_available("cuda") and f"cuda_ad_{suffix}" in mi.variants():
+        return f"cuda_ad_{suffix}", "CUDA GPU available"
+    if backend_available("llvm") and f"llvm_ad_{suffix}" in mi.variants():
+        return f"llvm_ad_{suffix}", "no CUDA GPU; LLVM backend available"
+    warnings.warn("poevp: neither CUDA nor LLVM backend works; falling back to scalar_spectral "
+                  "(about 10x slower). Install Debian's libllvm19.", RuntimeWarning, stacklevel=2)
+    return "scalar_spectral", "no CUDA or LLVM backend: scalar fallback"
+
+
+def set_variant(variant: str) -> None:
+    """Activate a Mitsuba variant (the only call site of mi.set_variant)."""
+    import mitsuba as mi
+
+    if mi.variant() != variant:
+        mi.set_variant(variant)
+        mi.set_log_level(mi.LogLevel.Error)  # Mitsuba's warnings are not ours to print
+
+
+def register_asset_dir(path) -> None:
+    """Let Mitsuba XML name files relative to `assets/` (e.g. plates/plate_F9H28.png)."""
+    import mitsuba as mi
+
+    fr = mi.Thread.thread().file_resolver()
+    if str(path) not in [str(p) for p in fr]:
+        fr.append(str(path))
+
+
+def libllvm_in_use() -> str | None:
+    """Path of the libLLVM shared library DrJit loaded (read from /proc/self/maps), if any."""
+    try:
+        maps = Path("/proc/self/maps").read_text()
+    except OSError:
+        return os.environ.get("DRJIT_LIBLLVM_PATH")
+    hits = sorted(set(re.findall(r"(/\S*libLLVM[^\s/]*\.so[^\s/]*)", maps)))
+    return hits[0] if hits else None

@@ -1,0 +1,67 @@
+"""Tone mapping for previews, by name, through colour-hdri's operators.
+
+| name           | operator                                   | reference |
+|----------------|--------------------------------------------|-----------|
+| reinhard2004   | `tonemapping_operator_Reinhard2004`        | Reinhard & Devlin (2005), IEEE TVCG 11(1) |
+| filmic         | `tonemapping_operator_filmic`              | Hable (2010), Uncharted 2 filmic curve |
+| logarithmic    | `tonemapping_operator_logarithmic`         | Drago et al. (2003) family, colour-hdri |
+| linear         | clip(L / L_99.9 %), no compression         | - |
+
+Input is any non-negative linear radiance image; output is an sRGB-encoded uint8 grey image.
+Previews are for eyes only: measurements live in the EXR files.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+
+
+def _rgb(x):
+    return np.repeat(x[..., None], 3, axis=-1)
+
+
+def _reinhard2004(x):
+    import colour_hdri
+
+    return colour_hdri.tonemapping_operator_Reinhard2004(_rgb(x))[..., 0]
+
+
+def _filmic(x):
+    import colour_hdri
+
+    return colour_hdri.tonemapping_operator_filmic(_rgb(x / np.mean(x)))[..., 0]
+
+
+def _logarithmic(x):
+    import colour_hdri
+
+    return colour_hdri.tonemapping_operator_logarithmic(_rgb(x))[..., 0]
+
+
+def _linear(x):
+    top = float(np.percentile(x, 99.9))
+    return np.clip(x / top, 0, 1) if top > 0 else np.zeros_like(x)
+
+
+TONEMAP_METHODS = {"reinhard2004": _reinhard2004, "filmic": _filmic,
+                   "logarithmic": _logarithmic, "linear": _linear}
+
+
+def tonemap(radiance: np.ndarray, method: str = "reinhard2004") -> np.ndarray:
+    """Tone-map a linear (H, W) image to sRGB-encoded uint8 with the named operator."""
+    if method not in TONEMAP_METHODS:
+        raise ValueError(f"unknown tone mapper {method!r}; known: {', '.join(TONEMAP_METHODS)}")
+    x = np.nan_to_num(np.asarray(radiance, dtype=np.float64), nan=0.0, posinf=0.0)
+    x = np.maximum(x, 0.0)
+    peak = float(x.max())
+    if peak <= 0:
+        return np.zeros(x.shape, np.uint8)
+    x = x / peak                                   # operators see values in (0, 1]
+    x = np.maximum(x, 1e-12)                       # log-average needs positive values
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        y = np.clip(np.nan_to_num(TONEMAP_METHODS[method](x)), 0.0, 1.0)
+    srgb = np.where(y <= 0.0031308, 12.92 * y, 1.055 * np.power(y, 1 / 2.4) - 0.055)  # IEC 61966-2-1
+    return np.round(srgb * 255).astype(np.uint8)
