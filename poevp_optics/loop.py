@@ -15,8 +15,14 @@ from tqdm import tqdm
 
 from . import __version__
 from .frame import Frame, Quantity
+from .camera import Camera
+from .dmd import attenuation_floor
 from .io import write_exr, write_png
+from .masks import mask_levels
+from .metrics import crop, entropy_8bit, relative_error, saturated_fraction, to_8bit
+from .reconstruct import reconstruct
 from .render import Renderer
+from .scene import MaskSpec, SceneError
 from .report import write_report
 from .scene import SceneSpec
 from .tonemap import tonemap
@@ -95,83 +101,267 @@ def render_exposures(spec: SceneSpec, renderer: Renderer, progress: bool = True)
                                _rel_error(mean, var), _rel_error(mean, var, roi))
 
 
-def _exr_attrs(spec: SceneSpec, renderer: Renderer, ex: RenderedExposure, quantity: str) -> dict:
-    return {"poevp_quantity": quantity, "poevp_unit": PHOTON_RADIANCE_UNIT,
+def _exr_attrs(spec: SceneSpec, renderer: Renderer, ex: RenderedExposure, quantity: str,
+               unit: str = PHOTON_RADIANCE_UNIT) -> dict:
+    return {"poevp_quantity": quantity, "poevp_unit": unit,
             "poevp_scene": spec.name, "poevp_version": __version__, "poevp_frame": str(ex.index),
             "poevp_t_start_s": repr(ex.t_start_s), "poevp_exposure_s": repr(ex.exposure_s),
             "poevp_render_path": renderer.plan.mode, "poevp_variant": renderer.variant,
             "poevp_spp": str(spec.render.spp)}
 
 
+#: Mask laws compared beside the scene's own on every oracle run: the paper's two readings of
+#: Eq. 2 at its simulation (a, b) = (0.9, 0) and hardware (0.7, 0.2) settings, Vs = 200.
+PAPER_LAWS = {
+    "threshold_exp(0.9,0)": ("threshold_exp", 0.9, 0.0),
+    "threshold_exp(0.7,0.2)": ("threshold_exp", 0.7, 0.2),
+    "threshold_ratio(0.9,0)": ("threshold_ratio", 0.9, 0.0),
+    "threshold_ratio(0.7,0.2)": ("threshold_ratio", 0.7, 0.2),
+}
+
+
+def _frame_seed(spec: SceneSpec, index: int, stream: int) -> int:
+    return int(np.random.SeedSequence([spec.sensor.seed, spec.render.seed, index, stream])
+               .generate_state(1)[0])
+
+
+def oracle_mask(spec: SceneSpec, camera: Camera, radiance_mean: np.ndarray, index: int,
+                mask_spec: MaskSpec | None = None) -> np.ndarray:
+    """The mask law applied to the true frame (the upper bound of any predictor)."""
+    ms = mask_spec or spec.mask
+    white_e = radiance_mean.astype(np.float64) * camera.electrons_per_radiance() * camera.white_exposure_s(index)
+    ldr8 = to_8bit(camera.noise_free_dn(white_e), camera.params.max_dn)
+    return mask_levels(ms, spec.dmd.bits, pred_8bit=ldr8, pred_electrons=white_e,
+                       full_well_e=camera.params.full_well_e,
+                       level_exposure=camera.level_exposure_s(index))
+
+
+def _png_dn(dn: np.ndarray, bits: int) -> np.ndarray:
+    return dn.astype(np.uint8) if bits <= 8 else dn.astype(np.uint16)
+
+
+def _mask_png(levels: np.ndarray, top: int) -> np.ndarray:
+    return np.clip(np.rint(levels * 255.0 / top), 0, 255).astype(np.uint8)
+
+
+def _contact_sheet(rows: list[list[np.ndarray]], labels: list[str]) -> np.ndarray:
+    """Tile uint8 grey images (rows of frames x columns of kinds) with column labels."""
+    import cv2
+
+    h, w = rows[0][0].shape
+    scale = min(1.0, 320.0 / w)
+    th, tw = int(round(h * scale)), int(round(w * scale))
+    band = 18
+    sheet = np.full((band + len(rows) * (th + 4), len(labels) * (tw + 4)), 255, np.uint8)
+    for c, lab in enumerate(labels):
+        cv2.putText(sheet, lab, (c * (tw + 4) + 4, 13), cv2.FONT_HERSHEY_SIMPLEX, 0.42, 0, 1, cv2.LINE_AA)
+    for r, row in enumerate(rows):
+        for c, img in enumerate(row):
+            y, x = band + r * (th + 4), c * (tw + 4)
+            sheet[y:y + th, x:x + tw] = cv2.resize(img, (tw, th), interpolation=cv2.INTER_AREA)
+    return sheet
+
+
 def run_render(spec: SceneSpec, out_dir: Path, progress: bool = True) -> dict:
-    """Render `spec` into `out_dir` (an empty staging folder); return the report dict."""
+    """Render `spec` and run the camera into `out_dir` (an empty staging folder); return the report."""
     out_dir = Path(out_dir)
+    if spec.dmd.enabled and spec.predictor.name != "oracle":
+        raise SceneError(f"{spec.toml_path}: predictor.name: {spec.predictor.name!r} needs the closed "
+                         "loop, which this build does not have yet; use 'oracle'")
     t_run = time.perf_counter()
     t_setup = time.perf_counter()
     renderer = Renderer(spec)
+    camera = Camera(spec)
     setup_s = time.perf_counter() - t_setup
+    bits = camera.params.bits
+    max_dn = camera.params.max_dn
     per_frame = []
+    stage_s = {"dmd": 0.0, "relay": 0.0, "sensor": 0.0, "reconstruct": 0.0, "mask": 0.0}
     t_write = 0.0
+    sheet_rows = []
+    sheet_every = max(1, spec.timing.frames // 4)
+    law_cmp = {name: {"saturated": [], "entropy": []} for name in ["scene_law", *PAPER_LAWS]}
     for ex in render_exposures(spec, renderer, progress):
+        i = ex.index
+        name = f"frame_{i:04d}"
+        truth = ex.radiance.data
+        box = ex.roi
+        subs = list(ex.subframes) if not spec.is_static else [truth]
+        # ---- camera: LDR twin (DMD all white) and the encoded capture
+        white = np.full(camera.shape, float(camera.top_level)) if camera.dmd else None
+        ldr = camera.capture(subs, white, i, _frame_seed(spec, i, 1))
+        rec = {"index": i}
+        if camera.dmd:
+            tm = time.perf_counter()
+            mask = oracle_mask(spec, camera, truth, i)
+            stage_s["mask"] += time.perf_counter() - tm
+            enc = camera.capture(subs, mask, i, _frame_seed(spec, i, 2))
+        else:
+            mask, enc = None, ldr
+        for k in ("dmd", "relay", "sensor"):
+            stage_s[k] += enc.seconds[k]
+        tr = time.perf_counter()
+        est, flags, _ = reconstruct(enc.dn, enc.exposure_s, camera.params, camera.etendue_m2_sr,
+                                    camera.throughput, spec.timing.exposure_s,
+                                    camera.sensor.switches.dark_current)
+        stage_s["reconstruct"] += time.perf_counter() - tr
+        valid = flags == 0
+        rec.update({
+            "saturated_fraction_roi": {"ldr": saturated_fraction(crop(ldr.dn, box), max_dn),
+                                       "encoded": saturated_fraction(crop(enc.dn, box), max_dn)},
+            "entropy_roi": {"ldr": entropy_8bit(to_8bit(crop(ldr.dn, box), max_dn)),
+                            "encoded": entropy_8bit(to_8bit(crop(enc.dn, box), max_dn))},
+            "saturated_fraction": {"ldr": saturated_fraction(ldr.dn, max_dn),
+                                   "encoded": saturated_fraction(enc.dn, max_dn)},
+            "recon_rel_error": relative_error(est, truth, valid),
+            "valid_fraction": float(np.mean(valid)),
+        })
+        if camera.dmd:
+            rec["mask_mean"] = float(np.mean(mask) / camera.top_level)
+            law_cmp["scene_law"]["saturated"].append(rec["saturated_fraction_roi"]["encoded"])
+            law_cmp["scene_law"]["entropy"].append(rec["entropy_roi"]["encoded"])
+            if spec.mask.law != "white":
+                for lname, (law, a, b) in PAPER_LAWS.items():
+                    ms = MaskSpec(law=law, vs=200.0, a=a, b=b, smooth_px=spec.mask.smooth_px)
+                    m2 = oracle_mask(spec, camera, truth, i, ms)
+                    c2 = camera.capture(subs, m2, i, _frame_seed(spec, i, 2))
+                    law_cmp[lname]["saturated"].append(saturated_fraction(crop(c2.dn, box), max_dn))
+                    law_cmp[lname]["entropy"].append(entropy_8bit(to_8bit(crop(c2.dn, box), max_dn)))
+        # ---- outputs
         tw = time.perf_counter()
-        name = f"frame_{ex.index:04d}"
+        attrs = _exr_attrs(spec, renderer, ex, "")
         if spec.outputs.radiance_exr:
             write_exr(out_dir / "radiance" / f"{name}.exr",
-                      {"Y": ex.radiance.data, "mc_stderr": np.sqrt(ex.variance)},
-                      _exr_attrs(spec, renderer, ex, "sensor-weighted photon radiance, exposure mean; "
-                                 "mc_stderr = Monte Carlo standard error"))
+                      {"Y": truth, "mc_stderr": np.sqrt(ex.variance)},
+                      {**attrs, "poevp_quantity": "sensor-weighted photon radiance, exposure mean; "
+                                                  "mc_stderr = Monte Carlo standard error"})
         if spec.outputs.subframes_exr and not spec.is_static:
             for k, sub in enumerate(ex.subframes):
                 write_exr(out_dir / "subframes" / f"{name}_sub{k:03d}.exr", {"Y": sub},
-                          _exr_attrs(spec, renderer, ex, f"photon radiance at t = {ex.subframe_times_s[k]!r} s"))
+                          {**attrs, "poevp_quantity": f"photon radiance at t = {ex.subframe_times_s[k]!r} s"})
+        write_png(out_dir / "capture" / f"{name}.png", _png_dn(enc.dn, bits))
+        if camera.dmd:
+            write_png(out_dir / "ldr" / f"{name}.png", _png_dn(ldr.dn, bits))
+            write_png(out_dir / "mask" / f"{name}.png", _mask_png(mask, camera.top_level))
+        write_exr(out_dir / "exposure" / f"{name}.exr", {"Y": enc.exposure_s},
+                  {**attrs, "poevp_quantity": "effective exposure (DMD duty x throughput incl. leakage)",
+                   "poevp_unit": "s"})
+        write_exr(out_dir / "reconstruction" / f"{name}.exr", {"Y": est, "flags": flags},
+                  {**attrs, "poevp_quantity": "radiance estimate; flags: 1 saturated, 2 SNR<1, 4 unexposed"})
         if spec.outputs.previews:
-            write_png(out_dir / "preview" / f"{name}.png", tonemap(ex.radiance.data, spec.outputs.tonemap))
+            write_png(out_dir / "preview" / f"{name}.png", tonemap(truth, spec.outputs.tonemap))
+            write_png(out_dir / "preview_reconstruction" / f"{name}.png", tonemap(est, spec.outputs.tonemap))
+        if spec.outputs.contact_sheet and i % sheet_every == 0 and len(sheet_rows) < 4:
+            row = [tonemap(truth, spec.outputs.tonemap), to_8bit(ldr.dn, max_dn).astype(np.uint8)]
+            if camera.dmd:
+                row.append(_mask_png(mask, camera.top_level))
+            row += [to_8bit(enc.dn, max_dn).astype(np.uint8), tonemap(est, spec.outputs.tonemap)]
+            sheet_rows.append(row)
         t_write += time.perf_counter() - tw
-        d = ex.radiance.data
-        box = ex.roi
-        roi_mean = float(np.mean(d[box[0]:box[2], box[1]:box[3]])) if box else None
-        per_frame.append({"index": ex.index, "t_start_s": ex.t_start_s, "exposure_s": ex.exposure_s,
-                          "subframe_times_s": ex.subframe_times_s, "roi": list(box) if box else None,
-                          "radiance_mean": float(np.mean(d)), "radiance_max": float(np.max(d)),
-                          "radiance_min": float(np.min(d)), "roi_radiance_mean": roi_mean,
-                          "rel_error": ex.rel_error, "rel_error_roi": ex.rel_error_roi})
+        rec.update({"t_start_s": ex.t_start_s, "exposure_s": ex.exposure_s,
+                    "subframe_times_s": ex.subframe_times_s, "roi": list(box) if box else None,
+                    "radiance_mean": float(np.mean(truth)), "radiance_max": float(np.max(truth)),
+                    "radiance_min": float(np.min(truth)),
+                    "roi_radiance_mean": float(np.mean(crop(truth, box))) if box else None,
+                    "rel_error": ex.rel_error, "rel_error_roi": ex.rel_error_roi})
+        per_frame.append(rec)
+    if sheet_rows:
+        labels = ["scene (tone-mapped)", "LDR twin"] + (["mask"] if camera.dmd else []) + \
+                 ["encoded capture", "reconstruction"]
+        write_png(out_dir / "contact_sheet.png", _contact_sheet(sheet_rows, labels))
+    report = _report(spec, renderer, camera, per_frame, stage_s, setup_s, t_write, t_run, law_cmp)
+    write_report(out_dir, report)
+    return report
 
-    def _avg(key):
-        vals = [f[key] for f in per_frame if f[key] is not None]
-        return float(np.mean(vals)) if vals else None
 
-    skipped = {
-        "dmd": "camera stages (DMD, relay, sensor, reconstruct) are not part of this build yet",
-        "relay": "camera stages are not part of this build yet",
-        "sensor": "camera stages are not part of this build yet",
-        "reconstruct": "camera stages are not part of this build yet",
-        "predict": "closed loop is not part of this build yet",
-    }
+def _mean(vals):
+    vals = [v for v in vals if v is not None]
+    return float(np.mean(vals)) if vals else None
+
+
+def _report(spec, renderer, camera, per_frame, stage_s, setup_s, t_write, t_run, law_cmp) -> dict:
+    skipped = {}
     if spec.is_static:
         skipped["render_repeat"] = (f"static scene: rendered once and reused for all "
                                     f"{spec.timing.frames} frames; sub-frames not needed")
+    if camera.psf is None:
+        skipped["relay"] = "psf = 'delta': no convolution"
+    if camera.dmd is None:
+        skipped["dmd"] = "dmd.enabled = false: plain LDR camera"
+        skipped["predict"] = "no DMD: no mask to predict"
+    else:
+        skipped["predict"] = "predictor 'oracle' uses the rendered ground truth: no predictor runs"
+        if camera.taps is None:
+            skipped["registration"] = "identity mirror-to-sensor map: no resampling"
     stats = renderer.stats
+    sched = camera.schedule(0)
+    floor = attenuation_floor(spec.dmd, sched) if camera.dmd else None
+    metrics = {
+        "saturated_fraction_roi": {k: _mean([f["saturated_fraction_roi"][k] for f in per_frame]) for k in ("ldr", "encoded")},
+        "entropy_roi": {k: _mean([f["entropy_roi"][k] for f in per_frame]) for k in ("ldr", "encoded")},
+        "saturated_fraction": {k: _mean([f["saturated_fraction"][k] for f in per_frame]) for k in ("ldr", "encoded")},
+        "recon_rel_error": _mean([f["recon_rel_error"] for f in per_frame]),
+        "valid_fraction": _mean([f["valid_fraction"] for f in per_frame]),
+    }
+    if camera.dmd and any(v["saturated"] for k, v in law_cmp.items() if k != "scene_law"):
+        metrics["mask_law_comparison"] = {
+            (f"scene:{spec.mask.law}" if k == "scene_law" else k):
+                {"saturated_fraction_roi": _mean(v["saturated"]), "entropy_roi": _mean(v["entropy"])}
+            for k, v in law_cmp.items()}
+    p = camera.params
+    notes = []
+    if floor is not None and floor["white_fill_fraction"] > 0.01:
+        ldr_sat = metrics["saturated_fraction_roi"]["ldr"]
+        enc_sat = metrics["saturated_fraction_roi"]["encoded"]
+        notes.append(
+            f"DMD timing imposes an attenuation floor: outside the {spec.timing.dmd_window_s * 1e3:.2f} ms "
+            f"display window the mirrors are {spec.timing.outside_window} for "
+            f"{floor['white_fill_fraction']:.0%} of the {spec.timing.exposure_s * 1e3:.2f} ms exposure, "
+            f"so no mask can pass less than {floor['floor']:.1%} of the light ({floor['floor_db']:.1f} dB "
+            f"of suppression at most). Plate pixels brighter than 1/{floor['floor']:.2f} = "
+            f"{1 / floor['floor']:.2f}x full well stay saturated: saturated plate fraction "
+            f"{ldr_sat:.1%} (LDR) -> {enc_sat:.1%} (encoded).")
     total = time.perf_counter() - t_run
     report = {
         "scene": spec.name, "scene_file": str(spec.toml_path), "description": spec.description,
         "version": __version__, "seed": spec.render.seed, "resolution": list(spec.render.resolution),
         "frames": spec.timing.frames, "unit": PHOTON_RADIANCE_UNIT,
         "timing": {"fps": spec.timing.fps, "exposure_s": spec.timing.exposure_s,
-                   "exposure_offset_s": spec.timing.exposure_offset_s},
+                   "exposure_offset_s": spec.timing.exposure_offset_s,
+                   "dmd_window_s": spec.timing.dmd_window_s,
+                   "dmd_window_offset_s": spec.timing.dmd_window_offset_s,
+                   "outside_window": spec.timing.outside_window},
         "accuracy": {"spp": spec.render.spp, "subframes": 1 if spec.is_static else spec.render.subframes,
                      "mc_splits": spec.render.mc_splits},
-        "stages": {"render": {
-            "seconds": stats.seconds + setup_s, "mitsuba_seconds": stats.seconds,
-            "setup_seconds": setup_s, "calls": stats.calls,
-            "rel_error": _avg("rel_error"), "rel_error_roi": _avg("rel_error_roi"),
-            "rel_error_definition": "RMS per-pixel Monte Carlo standard error / mean radiance "
-                                    "(frame or ROI), from independent-seed renders; mean over frames",
-            "path": renderer.plan.mode, "path_reason": renderer.plan.reason,
-            "variant": renderer.variant, "variant_reason": renderer.variant_reason,
-            "static": spec.is_static}},
+        "sensor": {"preset": p.name, "bits": p.bits, "full_well_e": p.full_well_e,
+                   "read_noise_e": p.read_noise_e, "gain_dn_per_e": p.gain_dn_per_e,
+                   "offset_dn": p.offset_dn, "f_number": p.f_number,
+                   "pixel_pitch_m": p.pixel_pitch_m, "etendue_m2_sr": camera.etendue_m2_sr,
+                   "noise": camera.sensor.switches.__dict__},
+        "dmd": ({"bits": spec.dmd.bits, "bit_order": spec.dmd.bit_order,
+                 "contrast_ratio": spec.dmd.contrast_ratio,
+                 "throughput_on": spec.dmd.fill_factor * spec.dmd.reflectance,
+                 "attenuation_floor": floor} if camera.dmd else None),
+        "mask": ({"law": spec.mask.law, "vs": spec.mask.vs, "a": spec.mask.a, "b": spec.mask.b,
+                  "target": spec.mask.target, "smooth_px": spec.mask.smooth_px,
+                  "predictor": spec.predictor.name} if camera.dmd else None),
+        "stages": {
+            "render": {
+                "seconds": stats.seconds + setup_s, "mitsuba_seconds": stats.seconds,
+                "setup_seconds": setup_s, "calls": stats.calls,
+                "rel_error": _mean([f["rel_error"] for f in per_frame]),
+                "rel_error_roi": _mean([f["rel_error_roi"] for f in per_frame]),
+                "rel_error_definition": "RMS per-pixel Monte Carlo standard error / mean radiance "
+                                        "(frame or ROI), from independent-seed renders; mean over frames",
+                "path": renderer.plan.mode, "path_reason": renderer.plan.reason,
+                "variant": renderer.variant, "variant_reason": renderer.variant_reason,
+                "static": spec.is_static},
+            **{k: {"seconds": v} for k, v in stage_s.items()},
+        },
+        "metrics": metrics,
+        "notes": notes,
         "skipped_stages": skipped,
         "io_seconds": t_write, "total_seconds": total,
         "per_frame": per_frame,
     }
-    write_report(out_dir, report)
     return report

@@ -183,7 +183,7 @@ class MaskSpec:
     a: float = _f(0.9, min=0, max=1)
     b: float = _f(0.0, min=0, max=1)
     target: float = _f(0.5, gt=0, max=1)
-    smooth_px: float = _f(8.0, min=0, max=1000)
+    smooth_px: float = _f(4.0, min=0, max=1000)
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,108 @@
+"""Mask laws by name: predicted frame -> grayscale DMD mask levels in [0, 2^B - 1].
+
+| law              | formula (x: predicted 8-bit value, 0-255)                      | reference |
+|------------------|----------------------------------------------------------------|-----------|
+| threshold_exp    | M = 255 if x < Vs, else 255 a^((x - b Vs) / (255 - x))          | paper Eq. 2, reading 1 |
+| threshold_ratio  | M = 255 if x < Vs, else 255 (a Vs / x + b)                      | paper Eq. 2, reading 2 |
+| target           | the largest level whose exposure brings the predicted signal to `target` x full well | ours |
+| white            | M = 255 everywhere (the LDR twin)                               | - |
+
+The paper's Eq. 2 is garbled in our copy (its second branch's symbols read, in order,
+"255 a x b Vs 255 x"). Two readings fit its settings (Vs = 200; (a, b) = (0.9, 0) in
+simulation, (0.7, 0.2) in hardware): the exponential one matches the symbol order and tends to
+0 as x -> 255; the ratio one is the plain physical law (dim by Vs/x) and has a + b = 0.9 in both
+settings. Both are shipped; at x = 255 the exponential law is taken at its limit (0 for a < 1).
+Outputs are finite and clipped to [0, 255] everywhere, then scaled to the DMD's 2^B - 1 levels.
+
+Masks are computed from a band-limited picture of the frame (DESIGN.md, FACTS.md): an exact
+per-pixel mask flattens the capture to a constant and destroys the characters' contrast. Before
+any law, the predicted frame is replaced by its smooth upper envelope: a grey dilation of radius
+R = ceil(3 smooth_px) (square window) followed by a Gaussian blur of sigma smooth_px truncated at the same R.
+Every tap of the blur kernel around a pixel then lies inside that pixel's dilated neighbourhood,
+so the envelope is >= the frame everywhere: the mask is smooth and never under-attenuates.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .scene import MaskSpec
+
+
+def smooth_envelope(frame: np.ndarray, smooth_px: float) -> np.ndarray:
+    """Smooth upper envelope (>= frame): dilation of radius ceil(3 sigma), then a Gaussian of
+    sigma = smooth_px truncated at that radius (see module docstring)."""
+    import cv2
+
+    if smooth_px <= 0:
+        return np.asarray(frame, dtype=np.float64)
+    f = np.asarray(frame, dtype=np.float64)
+    r = int(np.ceil(3 * smooth_px))
+    size = 2 * r + 1
+    square = np.ones((size, size), np.uint8)        # covers the square blur window exactly
+    dil = cv2.dilate(f, square, borderType=cv2.BORDER_REPLICATE)
+    return cv2.GaussianBlur(dil, (size, size), sigmaX=smooth_px, borderType=cv2.BORDER_REPLICATE)
+
+
+def threshold_exp(x: np.ndarray, vs: float, a: float, b: float) -> np.ndarray:
+    """Paper Eq. 2, exponential reading: 255 a^((x - b Vs) / (255 - x)) above Vs."""
+    x = np.clip(np.asarray(x, dtype=np.float64), 0.0, 255.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        expo = (x - b * vs) / np.maximum(255.0 - x, 0.0)
+        expo = np.where(255.0 - x > 0, expo, np.inf)
+        if a >= 1.0:
+            att = np.ones_like(x)
+        elif a <= 0.0:
+            att = np.where(expo > 0, 0.0, 1.0)
+        else:
+            att = np.exp(np.minimum(expo, 1e6) * np.log(a))   # a^inf -> 0, finite everywhere
+    m = np.where(x < vs, 255.0, 255.0 * np.clip(att, 0.0, 1.0))
+    return np.clip(m, 0.0, 255.0)
+
+
+def threshold_ratio(x: np.ndarray, vs: float, a: float, b: float) -> np.ndarray:
+    """Paper Eq. 2, ratio reading: 255 (a Vs / x + b) above Vs."""
+    x = np.clip(np.asarray(x, dtype=np.float64), 0.0, 255.0)
+    m = np.where(x < vs, 255.0, 255.0 * (a * vs / np.maximum(x, 1e-12) + b))
+    return np.clip(m, 0.0, 255.0)
+
+
+def target_levels(pred_electrons: np.ndarray, full_well_e: float, target: float,
+                  level_exposure: np.ndarray) -> np.ndarray:
+    """Largest-exposure level keeping predicted electrons <= target x full well.
+
+    pred_electrons: electrons the pixel would collect with the all-white mask.
+    level_exposure: effective exposure of each level (any unit; index = level), e.g. from
+    `dmd.transmission_table(...).sum(1)`. Works for non-monotone tables (partial window overlap).
+    Where even the darkest level is too bright, that darkest level is used.
+    """
+    e = np.asarray(pred_electrons, dtype=np.float64)
+    white = float(level_exposure[-1])
+    rel = level_exposure / white                               # exposure relative to white
+    order = np.argsort(rel, kind="stable")
+    rel_sorted = rel[order]
+    need = np.where(e > 0, target * full_well_e / np.maximum(e, 1e-300), np.inf)
+    pos = np.searchsorted(rel_sorted, need, side="right") - 1
+    pos = np.clip(pos, 0, len(order) - 1)
+    return order[pos].astype(np.float64)
+
+
+def mask_levels(spec: MaskSpec, bits: int, *, pred_8bit: np.ndarray | None = None,
+                pred_electrons: np.ndarray | None = None, full_well_e: float | None = None,
+                level_exposure: np.ndarray | None = None) -> np.ndarray:
+    """Apply the scene's mask law; returns integer-valued float64 levels in [0, 2^bits - 1]."""
+    top = (1 << bits) - 1
+    if spec.law == "white":
+        shape = (pred_8bit if pred_8bit is not None else pred_electrons).shape
+        return np.full(shape, float(top))
+    if spec.law == "target":
+        if pred_electrons is None or level_exposure is None or full_well_e is None:
+            raise ValueError("mask law 'target' needs predicted electrons and the level table")
+        env = smooth_envelope(pred_electrons, spec.smooth_px)
+        return target_levels(env, full_well_e, spec.target, level_exposure)
+    if pred_8bit is None:
+        raise ValueError(f"mask law {spec.law!r} needs a predicted 8-bit frame")
+    env = smooth_envelope(pred_8bit, spec.smooth_px)
+    law = {"threshold_exp": threshold_exp, "threshold_ratio": threshold_ratio}[spec.law]
+    m255 = law(env, spec.vs, spec.a, spec.b)
+    return np.clip(np.rint(m255 * top / 255.0), 0, top)
