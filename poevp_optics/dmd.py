@@ -149,9 +149,26 @@ def attenuation_floor(dmd: DMDSpec, sched: Schedule) -> dict:
 class DMD:
     """Per-mirror effective exposure of a mask (DrJit gather from the exact level table)."""
 
+    #: Full per-level tables are used up to this many entries (levels x K), else only the
+    #: levels present in the mask are tabulated.
+    FULL_TABLE_MAX = 1 << 22
+
     def __init__(self, dmd: DMDSpec):
         self.spec = dmd
         self.levels = (1 << dmd.bits) - 1
+        self._cache = {}
+
+    def _full_table(self, sched: Schedule, k: int):
+        """Float32 DrJit table of all levels x K, cached: it depends only on the schedule
+        relative to the frame start, which is the same for every frame."""
+        from drjit.auto import Float
+
+        key = (round(sched.exposure_start_s - sched.window_start_s, 15), sched.exposure_s,
+               sched.window_s, sched.outside_on, sched.bits, sched.msb_first, sched.settle_s, k)
+        if key not in self._cache:
+            table = transmission_table(np.arange(self.levels + 1), self.spec, sched, k)
+            self._cache = {key: (Float(table.T.astype(np.float32).ravel()), table)}
+        return self._cache[key]
 
     def exposure_weights(self, mask_levels: np.ndarray, sched: Schedule, k: int):
         """Effective exposure (s) of each mirror in each sub-interval: list of K DrJit Float
@@ -164,6 +181,11 @@ class DMD:
             raise ValueError(f"mask levels must lie in [0, {self.levels}], got "
                              f"[{m.min()}, {m.max()}]")
         mi = np.rint(m).astype(np.uint32).ravel()
+        if (self.levels + 1) * k <= self.FULL_TABLE_MAX:
+            flat, table = self._full_table(sched, k)
+            idx = UInt32(mi)
+            u = self.levels + 1
+            return [dr.gather(Float, flat, idx + j * u) for j in range(k)], table
         uniq, inverse = np.unique(mi, return_inverse=True)
         table = transmission_table(uniq, self.spec, sched, k)          # (U, K)
         idx = UInt32(inverse.astype(np.uint32))

@@ -1,0 +1,18 @@
+"""`python -m benchmarks`: run every benchmark script in turn (tables + plots in results/)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+SCRIPTS = ["render_error_vs_time", "subframes_error", "camera_throughput"]
+
+if __name__ == "__main__":
+    failed = []
+    for name in SCRIPTS:
+        print(f"== benchmarks.{name}", flush=True)
+        rc = subprocess.call([sys.executable, "-m", f"benchmarks.{name}"])
+        if rc:
+            failed.append(name)
+    if failed:
+        sys.exit(f"benchmarks failed: {', '.join(failed)}")
