@@ -5,7 +5,8 @@ from __future__ import annotations
 import subprocess
 import sys
 
-SCRIPTS = ["render_error_vs_time", "subframes_error", "camera_throughput"]
+SCRIPTS = ["render_error_vs_time", "subframes_error", "camera_throughput", "predictor_latency",
+           "loop_comparison"]
 
 if __name__ == "__main__":
     failed = []

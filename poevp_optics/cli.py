@@ -78,6 +78,50 @@ def cmd_validate(args) -> int:
     return 0
 
 
+def cmd_compare(args) -> int:
+    from . import runtime
+    from .compare import compare
+    from .io import staged_dir
+    from .scene import SceneError, load_scene
+
+    spec = load_scene(args.scene, _overrides(args))
+    preds = [p.strip() for p in args.predictors.split(",") if p.strip()]
+    modes = [m.strip() for m in args.modes.split(",") if m.strip()]
+    for m in modes:
+        if m not in ("open", "raw", "demodulated"):
+            raise SceneError(f"--modes: unknown loop mode {m!r}")
+    runtime.set_threads(args.threads)
+    out = Path(args.out) if args.out else Path("out") / f"{spec.name}-compare"
+    with staged_dir(out) as stage:
+        rows = compare(args.scene, preds, modes, stage, _overrides(args), progress=not args.quiet)
+    for r in rows:
+        print(f"{r['predictor']:>11s} {r['mode']:>12s}  mask IoU {_f(r['mask_iou'])}  plate saturated "
+              f"{_f(r['sat_loop_after_init'])} (LDR {_f(r['sat_ldr'])})  entropy {_f(r['entropy_loop_after_init'])}")
+    print(f"poevp: comparison -> {out}/comparison.md")
+    return 0
+
+
+def _f(v):
+    return "-" if v is None else f"{v:.3f}"
+
+
+def cmd_train(args) -> int:
+    from . import runtime
+    from .predict.dmvfn import default_weights
+    from .predict.train import train
+
+    runtime.set_threads(args.threads)
+    weights = Path(args.weights_out) if args.weights_out else default_weights(args.name)
+    rec = train(args.name, minutes=args.minutes, sequences=args.sequences, frames=args.frames,
+                val_sequences=args.val_sequences, batch=args.batch, lr=args.lr, seed=args.seed,
+                out=Path(args.out), weights_out=weights, max_steps=args.max_steps)
+    v = rec["validation"]
+    print(f"poevp: trained {args.name} for {rec['steps']} steps ({rec['train_seconds']:.0f} s); "
+          f"validation highlight IoU {v['model']['highlight_iou']:.3f} (hold {v['hold']['highlight_iou']:.3f}, "
+          f"flow {v['flow']['highlight_iou']:.3f}), PSNR {v['model']['psnr_db']:.2f} dB -> {weights}")
+    return 0
+
+
 def info_dict() -> dict:
     import drjit as dr
     import mitsuba as mi
@@ -132,6 +176,30 @@ def build_parser() -> argparse.ArgumentParser:
     _add_run_options(p)
     p.add_argument("--load", action="store_true", help="also load the XML in Mitsuba")
     p.set_defaults(func=cmd_validate)
+
+    p = sub.add_parser("compare", help="one render, several predictors x loop modes: table + figure")
+    _add_run_options(p)
+    p.add_argument("--predictors", default="oracle,hold,flow,dmvfn", help="comma-separated names")
+    p.add_argument("--modes", default="open,raw,demodulated", help="comma-separated loop modes")
+    p.add_argument("--out", help="default out/<scene>-compare")
+    p.add_argument("--threads", type=int)
+    p.add_argument("--quiet", action="store_true")
+    p.set_defaults(func=cmd_compare)
+
+    p = sub.add_parser("train-predictor", help="train dmvfn_lite (or dmvfn) on rendered sequences")
+    p.add_argument("--name", default="dmvfn_lite", choices=("dmvfn_lite", "dmvfn"))
+    p.add_argument("--minutes", type=float, default=10.0, help="training time budget")
+    p.add_argument("--sequences", type=int, default=48)
+    p.add_argument("--val-sequences", type=int, default=8)
+    p.add_argument("--frames", type=int, default=6)
+    p.add_argument("--batch", type=int, default=4)
+    p.add_argument("--lr", type=float, default=2e-3)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--max-steps", type=int)
+    p.add_argument("--out", default="out/train", help="checkpoints (resumable)")
+    p.add_argument("--weights-out", help="default: assets/predictor/<name>.safetensors")
+    p.add_argument("--threads", type=int)
+    p.set_defaults(func=cmd_train)
 
     p = sub.add_parser("info", help="versions, Mitsuba variant, libLLVM, devices")
     p.add_argument("--json", action="store_true")

@@ -18,8 +18,8 @@ from .frame import Frame, Quantity
 from .camera import Camera
 from .dmd import attenuation_floor
 from .io import write_exr, write_png
-from .masks import mask_levels
-from .metrics import crop, entropy_8bit, relative_error, saturated_fraction, to_8bit
+from .masks import mask_levels, predicted_electrons
+from .metrics import crop, entropy_8bit, mask_iou, relative_error, saturated_fraction, to_8bit
 from .reconstruct import reconstruct
 from .render import Renderer
 from .scene import MaskSpec, SceneError
@@ -136,6 +136,40 @@ def oracle_mask(spec: SceneSpec, camera: Camera, radiance_mean: np.ndarray, inde
                        level_exposure=camera.level_exposure_s(index))
 
 
+def predicted_mask(spec: SceneSpec, camera: Camera, pred_8bit: np.ndarray, index: int) -> np.ndarray:
+    """The mask law applied to a predicted frame on the 8-bit scale (mirror grid)."""
+    sat = camera.params.saturation_capacity_e
+    e = predicted_electrons(pred_8bit, sat, spec.mask.clipped_gain)
+    return mask_levels(spec.mask, spec.dmd.bits, pred_8bit=np.clip(pred_8bit, 0, 255),
+                       pred_electrons=e, full_well_e=camera.params.full_well_e,
+                       level_exposure=camera.level_exposure_s(index))
+
+
+def _resize(img: np.ndarray, shape) -> np.ndarray:
+    import cv2
+
+    h, w = shape
+    if img.shape == (h, w):
+        return img.astype(np.float32)
+    interp = cv2.INTER_AREA if img.shape[0] > h else cv2.INTER_LINEAR
+    return cv2.resize(img.astype(np.float32), (w, h), interpolation=interp)
+
+
+def predictor_input(mode: str, camera: Camera, ldr, enc, est, flags, index: int) -> np.ndarray:
+    """What the predictor sees (8-bit scale, float32), per loop mode (DESIGN.md)."""
+    max_dn = camera.params.max_dn
+    if mode == "open":
+        return to_8bit(ldr.dn, max_dn).astype(np.float32)
+    if mode == "raw":
+        return to_8bit(enc.dn, max_dn).astype(np.float32)
+    # demodulated: reconstruction re-expressed as the signal an all-white mask would give,
+    # on the 8-bit scale, unclipped; saturated (lower-bound) pixels are marked as clipped (255)
+    e_white = est.astype(np.float64) * camera.electrons_per_radiance() * camera.white_exposure_s(index)
+    x = 255.0 * e_white / camera.params.saturation_capacity_e
+    x = np.where((flags.astype(np.int64) & 1) > 0, 255.0, np.where(np.abs(x - 255.0) <= 0.5, 254.4, x))
+    return x.astype(np.float32)
+
+
 def _png_dn(dn: np.ndarray, bits: int) -> np.ndarray:
     return dn.astype(np.uint8) if bits <= 8 else dn.astype(np.uint16)
 
@@ -162,26 +196,44 @@ def _contact_sheet(rows: list[list[np.ndarray]], labels: list[str]) -> np.ndarra
     return sheet
 
 
-def run_render(spec: SceneSpec, out_dir: Path, progress: bool = True) -> dict:
-    """Render `spec` and run the camera into `out_dir` (an empty staging folder); return the report."""
+def run_render(spec: SceneSpec, out_dir: Path, progress: bool = True, *, renderer: Renderer | None = None,
+               exposures: list | None = None, write_images: bool = True,
+               keep_frames: tuple[int, ...] = ()) -> dict:
+    """Render `spec` and run the camera into `out_dir` (an empty staging folder); return the report.
+
+    renderer/exposures: reuse an already loaded scene and already rendered exposures (the
+    comparison runs many camera loops over one render). write_images=False writes only
+    report.json. keep_frames: frame indices whose mask and captures are returned in
+    report["_kept"] (not written to JSON).
+    """
     out_dir = Path(out_dir)
-    if spec.dmd.enabled and spec.predictor.name != "oracle":
-        raise SceneError(f"{spec.toml_path}: predictor.name: {spec.predictor.name!r} needs the closed "
-                         "loop, which this build does not have yet; use 'oracle'")
     t_run = time.perf_counter()
     t_setup = time.perf_counter()
-    renderer = Renderer(spec)
+    renderer = renderer or Renderer(spec)
     camera = Camera(spec)
+    predictor = None
+    if camera.dmd is not None and spec.predictor.name != "oracle":
+        from .predict import make_predictor
+        from .predict.dmvfn import WeightsError
+
+        try:
+            predictor = make_predictor(spec.predictor.name, spec.predictor.weights,
+                                       spec.predictor.resolution)
+        except WeightsError as e:
+            raise SceneError(f"{spec.toml_path}: predictor.weights: {e}") from None
     setup_s = time.perf_counter() - t_setup
     bits = camera.params.bits
     max_dn = camera.params.max_dn
     per_frame = []
     stage_s = {"dmd": 0.0, "relay": 0.0, "sensor": 0.0, "reconstruct": 0.0, "mask": 0.0}
+    predict_s = []
+    history: list[np.ndarray] = []
     t_write = 0.0
     sheet_rows = []
     sheet_every = max(1, spec.timing.frames // 4)
     law_cmp = {name: {"saturated": [], "entropy": []} for name in ["scene_law", *PAPER_LAWS]}
-    for ex in render_exposures(spec, renderer, progress):
+    kept = {}
+    for ex in (exposures if exposures is not None else render_exposures(spec, renderer, progress)):
         i = ex.index
         name = f"frame_{i:04d}"
         truth = ex.radiance.data
@@ -191,10 +243,22 @@ def run_render(spec: SceneSpec, out_dir: Path, progress: bool = True) -> dict:
         white = np.full(camera.shape, float(camera.top_level)) if camera.dmd else None
         ldr = camera.capture(subs, white, i, _frame_seed(spec, i, 1))
         rec = {"index": i}
+        oracle = None
         if camera.dmd:
             tm = time.perf_counter()
-            mask = oracle_mask(spec, camera, truth, i)
+            oracle = oracle_mask(spec, camera, truth, i)
             stage_s["mask"] += time.perf_counter() - tm
+            if predictor is None:
+                mask = oracle
+            elif i < spec.loop.init_frames or len(history) < predictor.needs_frames:
+                mask = white                      # initialisation frames (paper Sec. 3)
+                rec["init"] = True
+            else:
+                tp = time.perf_counter()
+                pred = predictor(history[-2:])
+                mask = predicted_mask(spec, camera, _resize(pred, camera.shape), i)
+                predict_s.append(time.perf_counter() - tp)
+                rec["predict_seconds"] = predict_s[-1]
             enc = camera.capture(subs, mask, i, _frame_seed(spec, i, 2))
         else:
             mask, enc = None, ldr
@@ -214,19 +278,41 @@ def run_render(spec: SceneSpec, out_dir: Path, progress: bool = True) -> dict:
             "saturated_fraction": {"ldr": saturated_fraction(ldr.dn, max_dn),
                                    "encoded": saturated_fraction(enc.dn, max_dn)},
             "recon_rel_error": relative_error(est, truth, valid),
+            "recon_rel_error_roi": relative_error(crop(est, box), crop(truth, box), crop(valid, box)) if box else None,
             "valid_fraction": float(np.mean(valid)),
         })
+        if predictor is not None:
+            history.append(_resize(predictor_input(spec.loop.mode, camera, ldr, enc, est, flags, i),
+                                   spec.predictor.resolution))
+            history = history[-4:]
+            oc = camera.capture(subs, oracle, i, _frame_seed(spec, i, 2))
+            rec["saturated_fraction_roi"]["oracle"] = saturated_fraction(crop(oc.dn, box), max_dn)
+            rec["entropy_roi"]["oracle"] = entropy_8bit(to_8bit(crop(oc.dn, box), max_dn))
+            if not rec.get("init"):
+                top = camera.top_level
+                rec["mask_error"] = {"iou": mask_iou(mask, oracle, top),
+                                     "mean_abs": float(np.mean(np.abs(mask - oracle)) / top)}
         if camera.dmd:
             rec["mask_mean"] = float(np.mean(mask) / camera.top_level)
             law_cmp["scene_law"]["saturated"].append(rec["saturated_fraction_roi"]["encoded"])
             law_cmp["scene_law"]["entropy"].append(rec["entropy_roi"]["encoded"])
-            if spec.mask.law != "white":
+            if spec.mask.law != "white" and predictor is None:
                 for lname, (law, a, b) in PAPER_LAWS.items():
                     ms = MaskSpec(law=law, vs=200.0, a=a, b=b, smooth_px=spec.mask.smooth_px)
                     m2 = oracle_mask(spec, camera, truth, i, ms)
                     c2 = camera.capture(subs, m2, i, _frame_seed(spec, i, 2))
                     law_cmp[lname]["saturated"].append(saturated_fraction(crop(c2.dn, box), max_dn))
                     law_cmp[lname]["entropy"].append(entropy_8bit(to_8bit(crop(c2.dn, box), max_dn)))
+        if i in keep_frames:
+            kept[i] = {"ldr": to_8bit(ldr.dn, max_dn).astype(np.uint8),
+                       "capture": to_8bit(enc.dn, max_dn).astype(np.uint8),
+                       "mask": _mask_png(mask, camera.top_level) if mask is not None else None,
+                       "oracle_mask": _mask_png(oracle, camera.top_level) if oracle is not None else None,
+                       "roi": box}
+        if not write_images:
+            per_frame.append({**rec, "roi": list(box) if box else None, "rel_error": ex.rel_error,
+                              "rel_error_roi": ex.rel_error_roi})
+            continue
         # ---- outputs
         tw = time.perf_counter()
         attrs = _exr_attrs(spec, renderer, ex, "")
@@ -269,8 +355,10 @@ def run_render(spec: SceneSpec, out_dir: Path, progress: bool = True) -> dict:
         labels = ["scene (tone-mapped)", "LDR twin"] + (["mask"] if camera.dmd else []) + \
                  ["encoded capture", "reconstruction"]
         write_png(out_dir / "contact_sheet.png", _contact_sheet(sheet_rows, labels))
-    report = _report(spec, renderer, camera, per_frame, stage_s, setup_s, t_write, t_run, law_cmp)
+    report = _report(spec, renderer, camera, per_frame, stage_s, setup_s, t_write, t_run, law_cmp,
+                     predictor, predict_s)
     write_report(out_dir, report)
+    report["_kept"] = kept
     return report
 
 
@@ -279,7 +367,8 @@ def _mean(vals):
     return float(np.mean(vals)) if vals else None
 
 
-def _report(spec, renderer, camera, per_frame, stage_s, setup_s, t_write, t_run, law_cmp) -> dict:
+def _report(spec, renderer, camera, per_frame, stage_s, setup_s, t_write, t_run, law_cmp,
+            predictor=None, predict_s=()) -> dict:
     skipped = {}
     if spec.is_static:
         skipped["render_repeat"] = (f"static scene: rendered once and reused for all "
@@ -290,7 +379,8 @@ def _report(spec, renderer, camera, per_frame, stage_s, setup_s, t_write, t_run,
         skipped["dmd"] = "dmd.enabled = false: plain LDR camera"
         skipped["predict"] = "no DMD: no mask to predict"
     else:
-        skipped["predict"] = "predictor 'oracle' uses the rendered ground truth: no predictor runs"
+        if predictor is None:
+            skipped["predict"] = "predictor 'oracle' uses the rendered ground truth: no predictor runs"
         if camera.taps is None:
             skipped["registration"] = "identity mirror-to-sensor map: no resampling"
     stats = renderer.stats
@@ -301,8 +391,21 @@ def _report(spec, renderer, camera, per_frame, stage_s, setup_s, t_write, t_run,
         "entropy_roi": {k: _mean([f["entropy_roi"][k] for f in per_frame]) for k in ("ldr", "encoded")},
         "saturated_fraction": {k: _mean([f["saturated_fraction"][k] for f in per_frame]) for k in ("ldr", "encoded")},
         "recon_rel_error": _mean([f["recon_rel_error"] for f in per_frame]),
+        "recon_rel_error_roi": _mean([f["recon_rel_error_roi"] for f in per_frame]),
         "valid_fraction": _mean([f["valid_fraction"] for f in per_frame]),
     }
+    if predictor is not None:
+        loop_frames = [f for f in per_frame if not f.get("init")]
+        for key in ("saturated_fraction_roi", "entropy_roi"):
+            metrics[key]["oracle"] = _mean([f[key]["oracle"] for f in per_frame])
+            metrics[key]["encoded_after_init"] = _mean([f[key]["encoded"] for f in loop_frames])
+            metrics[key]["oracle_after_init"] = _mean([f[key]["oracle"] for f in loop_frames])
+        metrics["mask_error"] = {"iou": _mean([f["mask_error"]["iou"] for f in loop_frames]),
+                                 "mean_abs": _mean([f["mask_error"]["mean_abs"] for f in loop_frames])}
+        # lag artifact: saturated plate fraction in the first two loop frames in which the LDR
+        # twin's plate is saturated (the highlight "arrives" and the mask must catch it)
+        lit = [f for f in loop_frames if f["saturated_fraction_roi"]["ldr"] > 0.1][:2]
+        metrics["lag_artifact"] = _mean([f["saturated_fraction_roi"]["encoded"] for f in lit])
     if camera.dmd and any(v["saturated"] for k, v in law_cmp.items() if k != "scene_law"):
         metrics["mask_law_comparison"] = {
             (f"scene:{spec.mask.law}" if k == "scene_law" else k):
@@ -357,6 +460,14 @@ def _report(spec, renderer, camera, per_frame, stage_s, setup_s, t_write, t_run,
                 "variant": renderer.variant, "variant_reason": renderer.variant_reason,
                 "static": spec.is_static},
             **{k: {"seconds": v} for k, v in stage_s.items()},
+            **({"predict": {
+                "seconds": float(np.median(predict_s)) if predict_s else None,
+                "seconds_definition": "median per frame, predictor + mask law",
+                "total_seconds": float(np.sum(predict_s)), "frames": len(predict_s),
+                "predictor": predictor.describe(), "mode": spec.loop.mode,
+                "init_frames": spec.loop.init_frames,
+                "reference": {"paper_vp_plus_mask_ms_rtx3090": 16.9,
+                              "dlpc900_8bit_pattern_min_ms": 4.046}}} if predictor is not None else {}),
         },
         "metrics": metrics,
         "notes": notes,

@@ -308,7 +308,7 @@ class Renderer:
     def render_once(self, seed: int, spp: int) -> np.ndarray:
         """One mi.render call: (H, W) float32 photon radiance."""
         t0 = time.perf_counter()
-        img = self.mi.render(self.scene, sensor=self.sensor, seed=int(seed), spp=int(spp))
+        img = self.mi.render(self.scene, sensor=self.sensor, seed=int(seed) & 0x7FFFFFFF, spp=int(spp))
         arr = np.array(img, dtype=np.float32)
         self.stats.seconds += time.perf_counter() - t0
         self.stats.calls += 1

@@ -184,6 +184,7 @@ class MaskSpec:
     b: float = _f(0.0, min=0, max=1)
     target: float = _f(0.5, gt=0, max=1)
     smooth_px: float = _f(4.0, min=0, max=1000)
+    clipped_gain: float = _f(32.0, min=1, max=1e9)   # target law: assumed x saturation where clipped
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,132 @@
+"""Predictors, weights files, loop modes and initialisation (issue 4)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from poevp_optics.cli import main
+from poevp_optics.predict import make_predictor
+from poevp_optics.predict.dmvfn import (FULL, LITE, DMVFN, WeightsError, count_parameters,
+                                        load_weights, save_weights)
+from poevp_optics.predict.flow import FlowExtrapolation, forward_splat
+from poevp_optics.predict.metrics import highlight_iou, ms_ssim, psnr
+from tests.conftest import SCENES
+
+
+def _square(x0, h=64, w=96):
+    img = np.full((h, w), 40.0, np.float32)
+    rng = np.random.default_rng(0)
+    img += rng.uniform(0, 30, (h, w)).astype(np.float32)     # texture for the flow
+    img[20:40, x0:x0 + 16] = 255.0
+    return img
+
+
+def test_flow_extrapolates_a_moving_highlight_better_than_hold():
+    frames = [_square(10), _square(16), _square(22)]
+    pred_flow = FlowExtrapolation()(frames[:2])
+    pred_hold = make_predictor("hold")(frames[:2])
+    assert highlight_iou(pred_flow, frames[2]) > highlight_iou(pred_hold, frames[2])
+
+
+def test_forward_splat_brightest_wins():
+    frame = np.array([[10.0, 200.0, 30.0]], np.float32)
+    flow = np.zeros((1, 3, 2), np.float32)
+    flow[0, 1, 0] = 1.0                                   # the bright pixel moves onto the 30
+    out = forward_splat(frame, flow)
+    assert out[0, 2] == 200.0
+
+
+def test_dmvfn_shapes_params_and_deterministic_inference():
+    full, lite = DMVFN(FULL).eval(), DMVFN(LITE).eval()
+    assert 3.0e6 < count_parameters(full) < 5.0e6          # paper: about 3.56 M
+    assert 0.2e6 < count_parameters(lite) < 0.4e6          # about 0.28 M
+    x = torch.rand(1, 3, 64, 96)
+    with torch.no_grad():
+        a, _, _ = full(x, x.roll(2, -1))
+        b, _, _ = full(x, x.roll(2, -1))
+    assert a.shape == x.shape and torch.equal(a, b)       # routing thresholded: no sampling
+
+
+def test_weights_round_trip_and_clear_errors(tmp_path):
+    m = DMVFN(LITE)
+    p = tmp_path / "w.safetensors"
+    save_weights(m, p, {"note": "test"})
+    m2, meta = load_weights(p, expect=LITE)
+    for (k, v), (_, v2) in zip(m.state_dict().items(), m2.state_dict().items()):
+        assert torch.equal(v, v2), k
+    assert meta["note"] == "test"
+    with pytest.raises(WeightsError, match="expected"):
+        load_weights(p, expect=FULL)
+    bad = tmp_path / "bad.safetensors"
+    bad.write_bytes(p.read_bytes()[:200])
+    with pytest.raises(WeightsError, match="not a readable safetensors"):
+        load_weights(bad)
+    with pytest.raises(WeightsError, match="not found"):
+        load_weights(tmp_path / "missing.safetensors")
+
+
+def test_scene_with_corrupt_weights_gives_one_line_error(tmp_path, capsys):
+    bad = tmp_path / "bad.safetensors"
+    bad.write_bytes(b"\x00" * 64)
+    rc = main(["render", str(SCENES / "smoke"), "--out", str(tmp_path / "o"), "--quiet",
+               "--set", "predictor.name='dmvfn_lite'", "--set", f"predictor.weights='{bad}'"])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and "predictor.weights" in err and len(err.splitlines()) == 1
+    assert not (tmp_path / "o").exists()
+
+
+def test_prediction_metrics():
+    a = np.random.default_rng(1).uniform(0, 255, (64, 64))
+    assert psnr(a, a) == float("inf") and ms_ssim(a, a) == pytest.approx(1.0)
+    assert ms_ssim(a, a + 20) < 1.0 and psnr(a, a + 5) == pytest.approx(20 * np.log10(255 / 5))
+
+
+@pytest.mark.parametrize("mode", ["open", "raw", "demodulated"])
+def test_loop_initialisation_and_modes(tmp_path, mode):
+    out = tmp_path / mode
+    assert main(["render", str(SCENES / "smoke"), "--out", str(out), "--quiet", "--frames", "4",
+                 "--resolution", "48x64", "--set", "predictor.name='hold'",
+                 "--set", f"loop.mode='{mode}'"]) == 0
+    r = json.loads((out / "report.json").read_text())
+    pf = r["per_frame"]
+    assert [f.get("init", False) for f in pf] == [True, True, False, False]
+    assert all(f["mask_mean"] == 1.0 for f in pf[:2])              # white masks while initialising
+    assert r["stages"]["predict"]["frames"] == 2 and r["stages"]["predict"]["mode"] == mode
+    assert "predict" not in r["skipped_stages"]
+    assert 0 <= r["metrics"]["mask_error"]["iou"] <= 1
+
+
+def test_no_predictor_without_dmd(tmp_path):
+    out = tmp_path / "nodmd"
+    assert main(["render", str(SCENES / "smoke"), "--out", str(out), "--quiet", "--frames", "2",
+                 "--resolution", "24x32", "--set", "dmd.enabled=false",
+                 "--set", "predictor.name='flow'"]) == 0
+    r = json.loads((out / "report.json").read_text())
+    assert "predict" in r["skipped_stages"] and "predict" not in r["stages"]
+
+
+def test_predictor_input_per_mode():
+    from types import SimpleNamespace
+
+    from poevp_optics.camera import Camera
+    from poevp_optics.loop import predictor_input
+    from poevp_optics.scene import load_scene
+
+    spec = load_scene(SCENES / "smoke", ["render.resolution=[8,8]"])
+    cam = Camera(spec)
+    ldr = SimpleNamespace(dn=np.full((8, 8), float(cam.params.max_dn)))
+    enc = SimpleNamespace(dn=np.full((8, 8), 100.0))
+    assert np.all(predictor_input("open", cam, ldr, enc, None, None, 0) == 255)
+    assert np.allclose(predictor_input("raw", cam, ldr, enc, None, None, 0), 100.0 * 255 / cam.params.max_dn)
+    # demodulated: a radiance giving 2x saturation with the white mask reads 510 (unclipped)
+    est = np.full((8, 8), 2 * cam.params.saturation_capacity_e /
+                  (cam.electrons_per_radiance() * cam.white_exposure_s(0)), np.float32)
+    flags = np.zeros((8, 8), np.float32)
+    x = predictor_input("demodulated", cam, ldr, enc, est, flags, 0)
+    assert np.allclose(x, 510.0, rtol=1e-5)
+    flags[0, 0] = 1                                         # saturated: a lower bound -> clipped
+    assert predictor_input("demodulated", cam, ldr, enc, est, flags, 0)[0, 0] == 255.0
