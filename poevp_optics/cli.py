@@ -1,4 +1,4 @@
-"""`poevp` command line: render, validate, info (DESIGN.md "Command line")."""
+"""`poevp` command line: render, validate, compare, chart, train-predictor, info (DESIGN.md)."""
 
 from __future__ import annotations
 
@@ -105,6 +105,32 @@ def _f(v):
     return "-" if v is None else f"{v:.3f}"
 
 
+def cmd_chart(args) -> int:
+    from . import runtime
+    from .chart_run import run_chart
+    from .io import staged_dir
+    from .scene import load_scene
+
+    spec = load_scene(args.scene, _overrides(args))
+    runtime.set_threads(args.threads)
+    out = Path(args.out) if args.out else Path("out") / f"{spec.name}-chart"
+    with staged_dir(out) as stage:
+        r = run_chart(spec, stage, progress=not args.quiet)
+    dr = r["dynamic_range_db"]
+    line = "  ".join(f"{mode} {dr[mode]['iso15739']:.1f} dB" for mode in dr if dr[mode].get("iso15739") is not None)
+    print(f"poevp: {spec.name} ISO 15739 DR: {line} (EMVA sensor {dr['ldr']['emva']:.1f} dB)")
+    if "limits" in r:
+        print(f"poevp: {r['limits']['explanation']}")
+    if "reference_camera" in r:
+        c = r["reference_camera"]["comparison"]
+        enc = c["encoded"]["simulated"]
+        print(f"poevp: with {r['reference_camera']['scene']}'s camera: LDR {c['ldr']['simulated']:.1f} dB "
+              f"(paper {c['ldr']['paper']}), encoded {'-' if enc is None else f'{enc:.1f}'} dB "
+              f"(paper {c['encoded']['paper']})")
+    print(f"poevp: chart done in {r['total_seconds']:.1f} s -> {out}/report.json")
+    return 0
+
+
 def cmd_train(args) -> int:
     from . import runtime
     from .predict.dmvfn import default_weights
@@ -185,6 +211,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--threads", type=int)
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=cmd_compare)
+
+    p = sub.add_parser("chart", help="dynamic range on a rendered DR test chart (ISO 15739, EMVA)")
+    _add_run_options(p)
+    p.add_argument("--out", help="default out/<scene>-chart")
+    p.add_argument("--threads", type=int)
+    p.add_argument("--quiet", action="store_true")
+    p.set_defaults(func=cmd_chart)
 
     p = sub.add_parser("train-predictor", help="train dmvfn_lite (or dmvfn) on rendered sequences")
     p.add_argument("--name", default="dmvfn_lite", choices=("dmvfn_lite", "dmvfn"))

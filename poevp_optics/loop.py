@@ -163,10 +163,16 @@ def predictor_input(mode: str, camera: Camera, ldr, enc, est, flags, index: int)
     if mode == "raw":
         return to_8bit(enc.dn, max_dn).astype(np.float32)
     # demodulated: reconstruction re-expressed as the signal an all-white mask would give,
-    # on the 8-bit scale, unclipped; saturated (lower-bound) pixels are marked as clipped (255)
+    # on the 8-bit scale, unclipped. A saturated pixel's estimate is only a lower bound x_lb:
+    # behind a white mirror (x_lb ~ 255) it is marked clipped (255), which the target law reads
+    # as clipped_gain x saturation; behind a dimmed mirror (x_lb > 255) it becomes
+    # clipped_gain x x_lb, the same assumption one step further, so a highlight brighter than
+    # the first guess is dimmed geometrically, frame after frame (static scenes converge).
     e_white = est.astype(np.float64) * camera.electrons_per_radiance() * camera.white_exposure_s(index)
     x = 255.0 * e_white / camera.params.saturation_capacity_e
-    x = np.where((flags.astype(np.int64) & 1) > 0, 255.0, np.where(np.abs(x - 255.0) <= 0.5, 254.4, x))
+    sat = (flags.astype(np.int64) & 1) > 0
+    lifted = np.where(x > 255.5, x * camera.spec.mask.clipped_gain, 255.0)
+    x = np.where(sat, lifted, np.where(np.abs(x - 255.0) <= 0.5, 254.4, x))
     return x.astype(np.float32)
 
 

@@ -13,6 +13,9 @@ simulation, (0.7, 0.2) in hardware): the exponential one matches the symbol orde
 0 as x -> 255; the ratio one is the plain physical law (dim by Vs/x) and has a + b = 0.9 in both
 settings. Both are shipped; at x = 255 the exponential law is taken at its limit (0 for a < 1).
 Outputs are finite and clipped to [0, 255] everywhere, then scaled to the DMD's 2^B - 1 levels.
+`min_level` (default 0) bars the lowest levels: level 0 passes only the off-state leakage, whose
+value depends on f-number, wavelength and angle (FACTS.md) and so is poorly calibrated for
+reconstruction; with min_level = 1 the deepest attenuation is the smallest PWM step, 1/(2^B - 1).
 
 A clipped predicted pixel (>= 254.5 on the 8-bit scale) says only "at least saturated". The
 `target` law then assumes it is `clipped_gain` times the saturation level (default 32, about the
@@ -74,18 +77,19 @@ def threshold_ratio(x: np.ndarray, vs: float, a: float, b: float) -> np.ndarray:
 
 
 def target_levels(pred_electrons: np.ndarray, full_well_e: float, target: float,
-                  level_exposure: np.ndarray) -> np.ndarray:
+                  level_exposure: np.ndarray, min_level: int = 0) -> np.ndarray:
     """Largest-exposure level keeping predicted electrons <= target x full well.
 
     pred_electrons: electrons the pixel would collect with the all-white mask.
     level_exposure: effective exposure of each level (any unit; index = level), e.g. from
     `dmd.transmission_table(...).sum(1)`. Works for non-monotone tables (partial window overlap).
-    Where even the darkest level is too bright, that darkest level is used.
+    Where even the darkest level is too bright, that darkest level is used. Levels below
+    `min_level` are never used.
     """
     e = np.asarray(pred_electrons, dtype=np.float32)
     white = float(level_exposure[-1])
     rel = np.asarray(level_exposure, dtype=np.float64) / white   # exposure relative to white
-    order = np.argsort(rel, kind="stable")
+    order = min_level + np.argsort(rel[min_level:], kind="stable")
     # compare in "electrons the pixel would get": e x rel <= target x FW, i.e. rel <= need
     with np.errstate(divide="ignore"):
         need = np.float32(target * full_well_e) / e               # inf where e == 0
@@ -120,10 +124,10 @@ def mask_levels(spec: MaskSpec, bits: int, *, pred_8bit: np.ndarray | None = Non
         if pred_electrons is None or level_exposure is None or full_well_e is None:
             raise ValueError("mask law 'target' needs predicted electrons and the level table")
         env = smooth_envelope(pred_electrons, spec.smooth_px)
-        return target_levels(env, full_well_e, spec.target, level_exposure)
+        return target_levels(env, full_well_e, spec.target, level_exposure, min(spec.min_level, top))
     if pred_8bit is None:
         raise ValueError(f"mask law {spec.law!r} needs a predicted 8-bit frame")
     env = smooth_envelope(pred_8bit, spec.smooth_px)
     law = {"threshold_exp": threshold_exp, "threshold_ratio": threshold_ratio}[spec.law]
     m255 = law(env, spec.vs, spec.a, spec.b)
-    return np.clip(np.rint(m255 * top / 255.0), 0, top)
+    return np.clip(np.rint(m255 * top / 255.0), min(spec.min_level, top), top)

@@ -151,6 +151,8 @@ class RelaySpec:
     support_px: int = _f(0, min=0, max=4097)         # 0: chosen from the PSF's energy
     measured_file: str = _f("")
     transmission: float = _f(0.9, gt=0, max=1.0)
+    glare_fraction: float = _f(0.0, min=0, max=0.5)   # veiling glare: energy in a wide halo
+    glare_sigma_px: float = _f(40.0, gt=0, max=4096.0)
 
 
 @dataclass(frozen=True)
@@ -185,6 +187,7 @@ class MaskSpec:
     target: float = _f(0.5, gt=0, max=1)
     smooth_px: float = _f(4.0, min=0, max=1000)
     clipped_gain: float = _f(32.0, min=1, max=1e9)   # target law: assumed x saturation where clipped
+    min_level: int = _f(0, min=0, max=65535)         # lowest DMD level a law may use (masks.py)
 
 
 @dataclass(frozen=True)
@@ -226,6 +229,37 @@ class PlateSpec:
 
 
 @dataclass(frozen=True)
+class ChartSpec:
+    """[chart]: back-lit transmissive dynamic-range chart (charts.py); absent: not a chart.
+
+    Patch i has density D_i (equal steps from d_min to d_max, or the explicit `densities`) and
+    is bound to the XML parameter `$<param_prefix>NN`: its radiance is the light box's
+    (`source`, `luminance_cd_per_m2`) times 10^-D_i (a neutral film over a Lambertian box).
+    """
+
+    patches: int = _f(0, min=0, max=1000)
+    d_min: float = _f(0.0, min=0, max=20)
+    d_max: float = _f(8.0, min=0, max=20)
+    densities: tuple[float, ...] = _f((), min=0, max=20)
+    source: str = _f("cie:LED-B5")
+    luminance_cd_per_m2: float = _f(1.0e5, gt=0)
+    param_prefix: str = _f("patch_")
+    repeats: int = _f(16, min=2, max=4096)            # captures for the temporal noise
+    roi_inset_px: int = _f(4, min=1, max=1000)        # patch border left out (edges, PSF)
+    mask_source: str = _f("loop", choices=("loop", "oracle"))
+    max_iterations: int = _f(12, min=1, max=1000)     # loop frames allowed to settle the mask
+    reference_camera: str = _f("")                    # scene whose camera sections are also run
+
+    def density_list(self) -> tuple[float, ...]:
+        if self.densities:
+            return self.densities
+        return tuple(float(d) for d in np.linspace(self.d_min, self.d_max, self.patches))
+
+    def param(self, i: int) -> str:
+        return f"{self.param_prefix}{i:02d}"
+
+
+@dataclass(frozen=True)
 class Accuracy:
     """Numerical accuracy settings, kept apart from physics (STYLE.md 5)."""
 
@@ -254,6 +288,7 @@ class SceneSpec:
     loop: LoopSpec
     outputs: OutputsSpec
     plate: PlateSpec
+    chart: ChartSpec
     raw: Mapping[str, Any]
 
     @property
@@ -282,7 +317,7 @@ class SceneSpec:
 SECTIONS = {
     "render": RenderSpec, "timing": TimingSpec, "dmd": DMDSpec, "relay": RelaySpec,
     "sensor": SensorSpec, "mask": MaskSpec, "predictor": PredictorSpec, "loop": LoopSpec,
-    "outputs": OutputsSpec, "plate": PlateSpec,
+    "outputs": OutputsSpec, "plate": PlateSpec, "chart": ChartSpec,
 }
 TABLE_SECTIONS = {"motion": MotionSpec, "spectra": SpectrumSpec}
 TOP_KEYS = {"description"}
@@ -469,9 +504,35 @@ def build_spec(raw: dict, path: Path, ctx: _Ctx | None = None) -> SceneSpec:
     for ident, s in tables["spectra"].items():
         _check_spectrum(ctx, f"spectra.{ident}", s)
     _check_sensor_and_relay(ctx, path, sec["sensor"], sec["relay"])
+    spectra_ = tables["spectra"]
+    if sec["chart"].patches:
+        spectra_ = MappingProxyType({**spectra_, **_chart_spectra(ctx, path, sec["chart"], spectra_)})
     return SceneSpec(name=path.parent.name, toml_path=path, xml_path=xml_path,
-                     description=description, motion=tables["motion"], spectra=tables["spectra"],
+                     description=description, motion=tables["motion"], spectra=spectra_,
                      raw=MappingProxyType(raw), **sec)
+
+
+def _chart_spectra(ctx, path: Path, chart: ChartSpec, given) -> dict:
+    """The patch spectra a [chart] section implies: light box x 10^-D per patch."""
+    dens = chart.density_list()
+    if len(dens) != chart.patches:
+        raise ctx.fail("chart.densities", f"{len(dens)} densities for {chart.patches} patches")
+    if not chart.densities and chart.d_max <= chart.d_min:
+        raise ctx.fail("chart.d_max", f"must exceed d_min = {chart.d_min}")
+    if chart.reference_camera:
+        ref = path.parent / chart.reference_camera
+        if not (ref.is_file() or (ref / "scene.toml").is_file()):
+            raise ctx.fail("chart.reference_camera", f"scene not found: {ref}")
+    out = {}
+    for i, d in enumerate(dens):
+        name = chart.param(i)
+        if name in given:
+            raise ctx.fail(f"spectra.{name}", "set by [chart] (light box x 10^-D); remove it here")
+        entry = SpectrumSpec(kind="radiance", source=chart.source,
+                             luminance_cd_per_m2=chart.luminance_cd_per_m2 * 10.0 ** (-d))
+        _check_spectrum(ctx, "chart.source", entry)
+        out[name] = entry
+    return out
 
 
 def _check_timing(ctx, t: TimingSpec):

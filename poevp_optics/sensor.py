@@ -229,17 +229,19 @@ class Sensor:
         self.random_draws = 0           # counted for the "noise off draws nothing" check
 
     def mean_electrons(self, signal_e, exposure_s: float):
-        """Expected electrons: PRNU x photo-electrons + dark current x t + DSNU (>= 0)."""
+        """Expected collected electrons: PRNU x photo-electrons + dark current x t (>= 0)."""
         import drjit as dr
 
         dark = self.p.dark_current_e_per_s * exposure_s if self.switches.dark_current else 0.0
-        return dr.maximum(signal_e * self.gain_map + dark + self.dsnu_e, 0.0)
+        return dr.maximum(signal_e * self.gain_map + dark, 0.0)
 
     def capture(self, signal_e, exposure_s: float, seed: int):
         """Photo-electrons (DrJit Float, flattened) -> (DN, electrons after clip) DrJit Floats.
 
-        Order: PRNU/dark/DSNU mean -> Poisson shot noise -> full-well clip -> Gaussian read
-        noise -> gain and black offset -> ADC rounding -> clip to [0, 2^bits - 1].
+        Order: PRNU/dark mean -> Poisson shot noise -> full-well clip -> Gaussian read noise
+        and the pixel's DSNU offset (zero-mean, in the analog chain: adding it to the Poisson
+        mean would need a clip at 0 there and bias dark pixels by +0.4 sigma_DSNU) -> gain and
+        black offset -> ADC rounding -> clip to [0, 2^bits - 1].
         """
         import drjit as dr
         from drjit.auto import PCG32, UInt32
@@ -256,10 +258,10 @@ class Sensor:
         if sw.shot:
             e, rng = poisson(mean, rng)
         e = dr.minimum(e, p.full_well_e)
-        e_read = e
+        e_read = e + self.dsnu_e
         if sw.read and p.read_noise_e > 0:
             z, rng = normal(rng, n)
-            e_read = e + p.read_noise_e * z
+            e_read = e_read + p.read_noise_e * z
         dn = p.offset_dn + p.gain_dn_per_e * e_read
         if sw.quantization:
             dn = dr.round(dn)

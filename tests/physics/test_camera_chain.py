@@ -107,3 +107,24 @@ def test_airy_width_scales_with_f_number():
     ca, cb = a.kernel[a.kernel.shape[0] // 2, a.kernel.shape[0] // 2], b.kernel[b.kernel.shape[0] // 2, b.kernel.shape[0] // 2]
     assert cb < ca
     assert 0 < a.truncation_error < 2e-3
+
+
+def test_veiling_glare_kernel_splits_energy_and_conserves_flux():
+    """(1 - g) core + g halo: unit sum, the halo's share outside the core's support is ~g."""
+    from poevp_optics.relay import build_psf
+    from poevp_optics.scene import RelaySpec
+
+    g = 0.05
+    psf = build_psf(RelaySpec(psf="gaussian", sigma_px=1.0, glare_fraction=g, glare_sigma_px=12.0),
+                    pixel_pitch_m=3.45e-6)
+    assert psf.name == "gaussian+glare"
+    assert psf.kernel.sum() == pytest.approx(1.0, abs=1e-12)
+    c = psf.kernel.shape[0] // 2
+    core = psf.kernel[c - 4:c + 5, c - 4:c + 5].sum()           # the core's 4-sigma box
+    halo_in_box = g * 81 / (2 * np.pi * 144)                    # halo peak density x box area
+    assert core == pytest.approx(1 - g + halo_in_box, abs=2e-3)
+    assert build_psf(RelaySpec(psf="delta"), pixel_pitch_m=3.45e-6) is None
+    glare_only = build_psf(RelaySpec(psf="delta", glare_fraction=g), pixel_pitch_m=3.45e-6)
+    assert glare_only.kernel[glare_only.kernel.shape[0] // 2, glare_only.kernel.shape[0] // 2] > 1 - g
+    img = _blob_image(96 + psf.kernel.shape[0])
+    assert abs(convolve(img, psf).sum() / img.sum() - 1) < 1e-5

@@ -128,5 +128,8 @@ def test_predictor_input_per_mode():
     flags = np.zeros((8, 8), np.float32)
     x = predictor_input("demodulated", cam, ldr, enc, est, flags, 0)
     assert np.allclose(x, 510.0, rtol=1e-5)
-    flags[0, 0] = 1                                         # saturated: a lower bound -> clipped
+    flags[0, 0] = 1              # saturated behind a dimmed mirror: lower bound x clipped_gain
+    x = predictor_input("demodulated", cam, ldr, enc, est, flags, 0)
+    assert np.isclose(x[0, 0], 510.0 * spec.mask.clipped_gain, rtol=1e-5)
+    est[0, 0] *= 0.5             # saturated behind a white mirror (lower bound 255): clipped marker
     assert predictor_input("demodulated", cam, ldr, enc, est, flags, 0)[0, 0] == 255.0
