@@ -6,7 +6,7 @@ import subprocess
 import sys
 
 SCRIPTS = ["render_error_vs_time", "subframes_error", "camera_throughput", "predictor_latency",
-           "loop_comparison"]
+           "loop_comparison", "sweep_scaling"]
 
 if __name__ == "__main__":
     failed = []

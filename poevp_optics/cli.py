@@ -131,6 +131,22 @@ def cmd_chart(args) -> int:
     return 0
 
 
+def cmd_sweep(args) -> int:
+    from .sweep import sweep
+
+    out = Path(args.out) if args.out else Path("out") / f"{Path(args.scene).resolve().name}-sweep"
+    df = sweep(args.scene, args.grid, out=out, seeds=args.seeds, workers=args.workers,
+               scheduler=args.scheduler, job=args.job, base_overrides=_overrides(args),
+               metric=args.plot, progress=not args.quiet, retry_failed=args.retry_failed,
+               threads=args.threads)
+    if df is not None:
+        n_ok = int((df["status"] == "ok").sum())
+        print(f"poevp: sweep table {out}/results.parquet: {n_ok} ok, {len(df) - n_ok} failed")
+        for _, r in df[df["status"] == "failed"].iterrows():
+            print(f"poevp:   failed point {r['point']} seed {r['seed']}: {r['error']}")
+    return 0
+
+
 def cmd_train(args) -> int:
     from . import runtime
     from .predict.dmvfn import default_weights
@@ -219,6 +235,21 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=cmd_chart)
 
+    p = sub.add_parser("sweep", help="grid of scene variations on Dask: table, plots; resumable")
+    _add_run_options(p)
+    p.add_argument("--grid", action="append", default=[], required=True,
+                   help="KEY=v1,v2,... | KEY=start:stop:num | KEY=log:start:stop:num (repeatable)")
+    p.add_argument("--seeds", type=int, default=1, help="seeds per point (render.seed, sensor.seed)")
+    p.add_argument("--out", help="default out/<scene>-sweep; rerunning resumes")
+    p.add_argument("--workers", type=int, help="local Dask worker processes (default: cores)")
+    p.add_argument("--scheduler", help="tcp://HOST:PORT of an existing Dask scheduler")
+    p.add_argument("--job", default="render", choices=("render", "chart"))
+    p.add_argument("--plot", metavar="METRIC", help="column to plot, e.g. metrics.saturated_fraction_roi.encoded")
+    p.add_argument("--retry-failed", action="store_true", help="rerun points recorded as failed")
+    p.add_argument("--threads", type=int, help="DrJit/torch/OpenCV threads per worker (default cores // workers)")
+    p.add_argument("--quiet", action="store_true")
+    p.set_defaults(func=cmd_sweep)
+
     p = sub.add_parser("train-predictor", help="train dmvfn_lite (or dmvfn) on rendered sequences")
     p.add_argument("--name", default="dmvfn_lite", choices=("dmvfn_lite", "dmvfn"))
     p.add_argument("--minutes", type=float, default=10.0, help="training time budget")
@@ -254,6 +285,11 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("poevp: interrupted; existing outputs left untouched", file=sys.stderr)
         return 130
+    except BaseException as e:
+        if type(e).__name__ == "Terminated":     # sweep.Terminated (SIGTERM)
+            print("poevp: terminated (SIGTERM); finished results kept", file=sys.stderr)
+            return 143
+        raise
 
 
 if __name__ == "__main__":

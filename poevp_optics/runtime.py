@@ -30,7 +30,7 @@ _prefer_llvm19()
 
 
 def set_threads(n: int | None) -> None:
-    """Thread count for DrJit's LLVM backend and torch (None: leave the defaults)."""
+    """Thread count for DrJit's LLVM backend, torch and OpenCV (None: leave the defaults)."""
     if n is None:
         return
     import drjit as dr
@@ -40,6 +40,12 @@ def set_threads(n: int | None) -> None:
         import torch
 
         torch.set_num_threads(int(n))
+    except ImportError:
+        pass
+    try:
+        import cv2
+
+        cv2.setNumThreads(int(n))
     except ImportError:
         pass
 
