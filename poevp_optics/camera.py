@@ -13,7 +13,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import spectra
-from .dmd import DMD, Schedule, apply_registration, registration_taps, throughput_on, transmission_table
+from .dmd import (DMD, Schedule, apply_registration, interval_transmission, registration_taps,
+                  throughput_on, transmission_table)
 from .relay import build_psf, convolve
 from .scene import SceneSpec
 from .sensor import NoiseSwitches, Sensor, pixel_etendue_m2_sr, resolve_sensor
@@ -77,8 +78,37 @@ class Camera:
         """Electrons per (e- s-1 m-2 sr-1) per second of effective exposure."""
         return self.etendue_m2_sr * self.throughput
 
-    def capture(self, subframes, mask_levels, frame_index: int, seed: int) -> Capture:
-        """Expose the sensor to K radiance sub-frames through `mask_levels` (None: no DMD)."""
+    def basis_tables(self, frame_index: int, basis: tuple[str, ...], lit: bool) -> list[np.ndarray]:
+        """Exposure (s) per DMD level of each emitter-group image: 'rest' sees the whole
+        exposure; a PWM lamp only its drive: the exact integral over the lamp's on-intervals
+        (plus off_fraction of the rest). `lit`: DMD levels in use (False: DMD off / absent)."""
+        from .flicker import on_intervals
+
+        sched = self.schedule(frame_index)
+        t0, t1 = sched.exposure_start_s, sched.exposure_start_s + sched.exposure_s
+        if lit:
+            levels = np.arange(self.top_level + 1)
+            span = lambda a, b: interval_transmission(levels, self.spec.dmd, sched, a, b)  # noqa: E731
+        else:
+            thr = throughput_on(self.spec.dmd) if self.dmd is not None else 1.0
+            span = lambda a, b: np.array([(b - a) * thr])  # noqa: E731
+        full = span(t0, t1)
+        out = []
+        for name in basis:
+            if name == "rest":
+                out.append(full)
+                continue
+            fl = self.spec.flicker[name]
+            on = sum((span(a, b) for a, b in on_intervals(t0, t1, fl)), np.zeros_like(full))
+            out.append(on + fl.off_fraction * (full - on))
+        return out
+
+    def capture(self, subframes, mask_levels, frame_index: int, seed: int,
+                basis: tuple[str, ...] = ()) -> Capture:
+        """Expose the sensor to K radiance sub-frames through `mask_levels` (None: no DMD).
+
+        basis: when given, `subframes` are emitter-group images named by it (flickering lamps,
+        `Camera.basis_tables`) rather than time samples: their exposures are exact integrals."""
         import drjit as dr
         from drjit.auto import Float
 
@@ -87,17 +117,31 @@ class Camera:
         secs = {}
         t0 = time.perf_counter()
         subs = [Float(np.ascontiguousarray(s, dtype=np.float32).ravel()) for s in subframes]
-        if self.dmd is not None and mask_levels is not None:
+        if basis:
+            lit = self.dmd is not None and mask_levels is not None
+            tables = self.basis_tables(frame_index, tuple(basis), lit)
+            if lit:
+                weights = self.dmd.table_weights(mask_levels, tables)
+                expo_w = self.dmd.table_weights(mask_levels, tables[:1])[0]
+            else:
+                weights = [dr.full(Float, float(t[0]), h * w) for t in tables]
+                expo_w = weights[0]
+            plane = weights[0] * subs[0]
+            for j in range(1, k):
+                plane = dr.fma(weights[j], subs[j], plane)
+            expo = expo_w
+        elif self.dmd is not None and mask_levels is not None:
             weights, _ = self.dmd.exposure_weights(mask_levels, self.schedule(frame_index), k)
         else:
             dt = self.spec.timing.exposure_s / k
             thr = throughput_on(self.spec.dmd) if self.dmd is not None else 1.0
             weights = [dr.full(Float, dt * thr, h * w) for _ in range(k)]
-        plane = weights[0] * subs[0]
-        expo = weights[0]
-        for j in range(1, k):
-            plane = dr.fma(weights[j], subs[j], plane)
-            expo = expo + weights[j]
+        if not basis:
+            plane = weights[0] * subs[0]
+            expo = weights[0]
+            for j in range(1, k):
+                plane = dr.fma(weights[j], subs[j], plane)
+                expo = expo + weights[j]
         if self.taps is not None:
             plane = apply_registration(plane, self.taps)
             expo = apply_registration(expo, self.taps)

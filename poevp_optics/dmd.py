@@ -134,6 +134,13 @@ def transmission_table(levels: np.ndarray, dmd: DMDSpec, sched: Schedule, k: int
     return throughput_on(dmd) * (t_on + (dt - t_on) / dmd.contrast_ratio)
 
 
+def interval_transmission(levels: np.ndarray, dmd: DMDSpec, sched: Schedule, a: float, b: float) -> np.ndarray:
+    """Effective exposure time (s) of each level over an arbitrary interval [a, b] (exact)."""
+    c = _cumulative(np.array([a, b], dtype=np.float64), _segments(np.asarray(levels), sched))
+    on = c[:, 1] - c[:, 0]
+    return throughput_on(dmd) * (on + ((b - a) - on) / dmd.contrast_ratio)
+
+
 def attenuation_floor(dmd: DMDSpec, sched: Schedule) -> dict:
     """Lowest achievable exposure relative to an all-white mask, and what sets it."""
     full = (1 << sched.bits) - 1
@@ -169,6 +176,18 @@ class DMD:
             table = transmission_table(np.arange(self.levels + 1), self.spec, sched, k)
             self._cache = {key: (Float(table.T.astype(np.float32).ravel()), table)}
         return self._cache[key]
+
+    def table_weights(self, mask_levels: np.ndarray, tables: list[np.ndarray]):
+        """Per-mirror weights from arbitrary per-level tables (each (levels + 1,), seconds):
+        list of DrJit Floats, one per table (emitter-group bases of flickering lamps)."""
+        import drjit as dr
+        from drjit.auto import Float, UInt32
+
+        m = np.asarray(mask_levels)
+        if m.size and (m.min() < 0 or m.max() > self.levels or not np.all(np.isfinite(m))):
+            raise ValueError(f"mask levels must lie in [0, {self.levels}], got [{m.min()}, {m.max()}]")
+        idx = UInt32(np.rint(m).astype(np.uint32).ravel())
+        return [dr.gather(Float, Float(np.asarray(t, np.float32)), idx) for t in tables]
 
     def exposure_weights(self, mask_levels: np.ndarray, sched: Schedule, k: int):
         """Effective exposure (s) of each mirror in each sub-interval: list of K DrJit Float

@@ -43,6 +43,7 @@ class RenderedExposure:
     roi: tuple[int, int, int, int] | None
     rel_error: float | None
     rel_error_roi: float | None
+    basis: tuple[str, ...] = ()         # subframes are emitter-group images (PWM lamps), not times
 
 
 def _seeds(base: int, frame: int, sub: int, n: int) -> list[int]:
@@ -70,10 +71,30 @@ def _union(a, b):
     return (min(a[0], b[0]), min(a[1], b[1]), max(a[2], b[2]), max(a[3], b[3]))
 
 
+def _flicker_bases(spec: SceneSpec, renderer: Renderer):
+    """Static geometry with PWM lamps: the image without the flickering lamps and one image per
+    flickering lamp (radiance is linear in each lamp's drive), each rendered once."""
+    acc = spec.accuracy
+    emissive = {n for n, e in spec.spectra.items() if e.kind != "reflectance"}
+    groups = [("rest", frozenset(spec.flicker))] + [(p, frozenset(emissive - {p})) for p in spec.flicker]
+    out = {}
+    for j, (name, zero) in enumerate(groups):
+        r = Renderer(spec, zero_params=zero)
+        out[name] = r.render_with_error(_seeds(spec.render.seed, 0, 1000 + j, acc.mc_splits), acc.spp)
+        renderer.stats.calls += r.stats.calls
+        renderer.stats.seconds += r.stats.seconds
+    return out, renderer.roi_box()
+
+
 def render_exposures(spec: SceneSpec, renderer: Renderer, progress: bool = True):
-    """Yield a `RenderedExposure` per frame. Static scenes render once (K = 1) and reuse it."""
+    """Yield a `RenderedExposure` per frame. Static scenes render once (K = 1) and reuse it;
+    static geometry with PWM lamps renders each emitter group once and hands the camera those
+    images (`basis`), whose exposures it integrates exactly against the lamps' drive: no K."""
+    from .flicker import drive_mean
+
     acc = spec.accuracy
     cache = None
+    bases = None
     frames = range(spec.timing.frames)
     for i in tqdm(frames, desc=f"render {spec.name}", unit="frame", disable=not progress or None,
                   leave=False):
@@ -84,6 +105,23 @@ def render_exposures(spec: SceneSpec, renderer: Renderer, progress: bool = True)
                 cache = ((mean,), mean, var, renderer.roi_box())
             subs, mean, var, roi = cache
             times = np.array([(t0 + t1) / 2])
+        elif spec.geometry_static:                     # flickering lamps, nothing moves
+            if bases is None:
+                bases, roi0 = _flicker_bases(spec, renderer)
+            times = np.array([(t0 + t1) / 2])
+            rest_m, rest_v = bases["rest"]
+            mean, var = rest_m.astype(np.float64), rest_v.astype(np.float64)
+            for p, fl in spec.flicker.items():
+                d = float(drive_mean(np.array([t0]), np.array([t1]), fl)[0])
+                mean, var = mean + d * bases[p][0], var + d * d * bases[p][1]
+            mean = mean.astype(np.float32)
+            subs = (rest_m, *[bases[p][0] for p in spec.flicker])
+            roi = roi0
+            frame = Frame(mean, Quantity.RADIANCE, PHOTON_RADIANCE_UNIT, t0, t1 - t0, i)
+            yield RenderedExposure(i, t0, t1 - t0, times, subs, frame, var, roi,
+                                   _rel_error(mean, var), _rel_error(mean, var, roi),
+                                   ("rest", *spec.flicker))
+            continue
         else:
             times = spec.subframe_times_s(i)
             subs, var_sum, roi = [], None, None
@@ -245,9 +283,10 @@ def run_render(spec: SceneSpec, out_dir: Path, progress: bool = True, *, rendere
         truth = ex.radiance.data
         box = ex.roi
         subs = list(ex.subframes) if not spec.is_static else [truth]
+        bk = {"basis": ex.basis} if ex.basis else {}
         # ---- camera: LDR twin (DMD all white) and the encoded capture
         white = np.full(camera.shape, float(camera.top_level)) if camera.dmd else None
-        ldr = camera.capture(subs, white, i, _frame_seed(spec, i, 1))
+        ldr = camera.capture(subs, white, i, _frame_seed(spec, i, 1), **bk)
         rec = {"index": i}
         oracle = None
         if camera.dmd:
@@ -265,7 +304,7 @@ def run_render(spec: SceneSpec, out_dir: Path, progress: bool = True, *, rendere
                 mask = predicted_mask(spec, camera, _resize(pred, camera.shape), i)
                 predict_s.append(time.perf_counter() - tp)
                 rec["predict_seconds"] = predict_s[-1]
-            enc = camera.capture(subs, mask, i, _frame_seed(spec, i, 2))
+            enc = camera.capture(subs, mask, i, _frame_seed(spec, i, 2), **bk)
         else:
             mask, enc = None, ldr
         for k in ("dmd", "relay", "sensor"):
@@ -291,7 +330,7 @@ def run_render(spec: SceneSpec, out_dir: Path, progress: bool = True, *, rendere
             history.append(_resize(predictor_input(spec.loop.mode, camera, ldr, enc, est, flags, i),
                                    spec.predictor.resolution))
             history = history[-4:]
-            oc = camera.capture(subs, oracle, i, _frame_seed(spec, i, 2))
+            oc = camera.capture(subs, oracle, i, _frame_seed(spec, i, 2), **bk)
             rec["saturated_fraction_roi"]["oracle"] = saturated_fraction(crop(oc.dn, box), max_dn)
             rec["entropy_roi"]["oracle"] = entropy_8bit(to_8bit(crop(oc.dn, box), max_dn))
             if not rec.get("init"):
@@ -306,7 +345,7 @@ def run_render(spec: SceneSpec, out_dir: Path, progress: bool = True, *, rendere
                 for lname, (law, a, b) in PAPER_LAWS.items():
                     ms = MaskSpec(law=law, vs=200.0, a=a, b=b, smooth_px=spec.mask.smooth_px)
                     m2 = oracle_mask(spec, camera, truth, i, ms)
-                    c2 = camera.capture(subs, m2, i, _frame_seed(spec, i, 2))
+                    c2 = camera.capture(subs, m2, i, _frame_seed(spec, i, 2), **bk)
                     law_cmp[lname]["saturated"].append(saturated_fraction(crop(c2.dn, box), max_dn))
                     law_cmp[lname]["entropy"].append(entropy_8bit(to_8bit(crop(c2.dn, box), max_dn)))
         if i in keep_frames:
@@ -327,7 +366,11 @@ def run_render(spec: SceneSpec, out_dir: Path, progress: bool = True, *, rendere
                       {"Y": truth, "mc_stderr": np.sqrt(ex.variance)},
                       {**attrs, "poevp_quantity": "sensor-weighted photon radiance, exposure mean; "
                                                   "mc_stderr = Monte Carlo standard error"})
-        if spec.outputs.subframes_exr and not spec.is_static:
+        if spec.outputs.subframes_exr and ex.basis:
+            for bname, sub in zip(ex.basis, ex.subframes):
+                write_exr(out_dir / "subframes" / f"{name}_{bname}.exr", {"Y": sub},
+                          {**attrs, "poevp_quantity": f"photon radiance of emitter group {bname!r} at full drive"})
+        elif spec.outputs.subframes_exr and not spec.is_static:
             for k, sub in enumerate(ex.subframes):
                 write_exr(out_dir / "subframes" / f"{name}_sub{k:03d}.exr", {"Y": sub},
                           {**attrs, "poevp_quantity": f"photon radiance at t = {ex.subframe_times_s[k]!r} s"})
@@ -379,6 +422,11 @@ def _report(spec, renderer, camera, per_frame, stage_s, setup_s, t_write, t_run,
     if spec.is_static:
         skipped["render_repeat"] = (f"static scene: rendered once and reused for all "
                                     f"{spec.timing.frames} frames; sub-frames not needed")
+    elif spec.geometry_static:
+        skipped["render_repeat"] = (f"static geometry with PWM lamps ({', '.join(spec.flicker)}): "
+                                    f"{1 + len(spec.flicker)} emitter-group images rendered once")
+        skipped["subframes"] = ("PWM lamps on static geometry: the camera integrates each lamp's "
+                                "drive against the DMD's bit-planes exactly; render.subframes unused")
     if camera.psf is None:
         skipped["relay"] = "psf = 'delta': no convolution"
     if camera.dmd is None:
@@ -440,7 +488,7 @@ def _report(spec, renderer, camera, per_frame, stage_s, setup_s, t_write, t_run,
                    "dmd_window_s": spec.timing.dmd_window_s,
                    "dmd_window_offset_s": spec.timing.dmd_window_offset_s,
                    "outside_window": spec.timing.outside_window},
-        "accuracy": {"spp": spec.render.spp, "subframes": 1 if spec.is_static else spec.render.subframes,
+        "accuracy": {"spp": spec.render.spp, "subframes": 1 if spec.geometry_static else spec.render.subframes,
                      "mc_splits": spec.render.mc_splits},
         "sensor": {"preset": p.name, "bits": p.bits, "full_well_e": p.full_well_e,
                    "read_noise_e": p.read_noise_e, "gain_dn_per_e": p.gain_dn_per_e,

@@ -181,7 +181,9 @@ class RenderStats:
 class Renderer:
     """A loaded Mitsuba scene that can be posed at a time and rendered (stateful: the scene)."""
 
-    def __init__(self, spec: SceneSpec):
+    def __init__(self, spec: SceneSpec, zero_params: frozenset[str] = frozenset()):
+        """zero_params: emitter parameters set to zero in this instance (one emitter group's
+        image for flickering lamps, loop.render_exposures)."""
         import mitsuba as mi
 
         self.spec = spec
@@ -191,6 +193,11 @@ class Renderer:
             # no scalar mono variant: fall back to the spectral path, which is always exact
             self.plan = plan_spectra(spec, force_mode="spectral")
             variant, why = runtime.choose_variant("spectral", spec.render.variant)
+        if zero_params:
+            zero = "0" if self.plan.mode == "mono" else spectra.to_mitsuba(np.zeros_like(self.plan.response_e_per_J))
+            self.plan = SpectralPlan(self.plan.mode, self.plan.reason,
+                                     {**self.plan.xml_params, **{n: zero for n in zero_params}},
+                                     self.plan.response_e_per_J)
         runtime.set_variant(variant)
         runtime.register_asset_dir(spectra.ASSETS_DIR)
         self.variant, self.variant_reason = variant, why

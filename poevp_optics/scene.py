@@ -118,6 +118,16 @@ class SpectrumSpec:
 
 
 @dataclass(frozen=True)
+class FlickerSpec:
+    """[flicker.<param>]: the emitter spectrum `$<param>` is PWM-driven (flicker.py)."""
+
+    frequency_hz: float = _f(gt=0, max=1e7)
+    duty: float = _f(0.5, gt=0, max=1.0)
+    phase_s: float = _f(0.0, min=0)
+    off_fraction: float = _f(0.0, min=0, max=1.0)
+
+
+@dataclass(frozen=True)
 class RegistrationSpec:
     """[dmd.registration]: affine map mirror grid -> sensor grid."""
 
@@ -280,6 +290,7 @@ class SceneSpec:
     timing: TimingSpec
     motion: Mapping[str, MotionSpec]
     spectra: Mapping[str, SpectrumSpec]
+    flicker: Mapping[str, FlickerSpec]
     dmd: DMDSpec
     relay: RelaySpec
     sensor: SensorSpec
@@ -296,9 +307,14 @@ class SceneSpec:
         return Accuracy(self.render.spp, self.render.subframes, self.render.mc_splits)
 
     @property
-    def is_static(self) -> bool:
-        """True when nothing moves: the scene is rendered once for all frames."""
+    def geometry_static(self) -> bool:
+        """True when no shape or emitter moves."""
         return all(m.is_static for m in self.motion.values())
+
+    @property
+    def is_static(self) -> bool:
+        """True when nothing changes in time (no motion, no flicker): rendered once, K = 1."""
+        return self.geometry_static and not self.flicker
 
     def frame_start_s(self, index: int) -> float:
         return index / self.timing.fps
@@ -319,7 +335,7 @@ SECTIONS = {
     "sensor": SensorSpec, "mask": MaskSpec, "predictor": PredictorSpec, "loop": LoopSpec,
     "outputs": OutputsSpec, "plate": PlateSpec, "chart": ChartSpec,
 }
-TABLE_SECTIONS = {"motion": MotionSpec, "spectra": SpectrumSpec}
+TABLE_SECTIONS = {"motion": MotionSpec, "spectra": SpectrumSpec, "flicker": FlickerSpec}
 TOP_KEYS = {"description"}
 
 
@@ -509,11 +525,18 @@ def build_spec(raw: dict, path: Path, ctx: _Ctx | None = None, *, cross_checks: 
     for ident, s in tables["spectra"].items():
         _check_spectrum(ctx, f"spectra.{ident}", s)
     _check_sensor_and_relay(ctx, path, sec["sensor"], sec["relay"])
+    for ident in tables["flicker"]:
+        entry = tables["spectra"].get(ident)
+        if entry is None or entry.kind == "reflectance":
+            raise ctx.fail(f"flicker.{ident}", "must name an emissive [spectra] entry (a lamp)")
+    if tables["flicker"] and not all(m.is_static for m in tables["motion"].values()):
+        raise ctx.fail("flicker", "flickering lamps need static geometry (no moving [motion] entry)")
     spectra_ = tables["spectra"]
     if sec["chart"].patches:
         spectra_ = MappingProxyType({**spectra_, **_chart_spectra(ctx, path, sec["chart"], spectra_)})
     return SceneSpec(name=path.parent.name, toml_path=path, xml_path=xml_path,
                      description=description, motion=tables["motion"], spectra=spectra_,
+                     flicker=tables["flicker"],
                      raw=MappingProxyType(raw), **sec)
 
 
