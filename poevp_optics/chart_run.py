@@ -313,6 +313,17 @@ def run_chart(spec: SceneSpec, out_dir: Path, progress: bool = True) -> dict:
                          "patch_radiance_max_rel_error": check},
               **_summary(main)}
     report["dynamic_range_db"] = main["dr"]
+    from .errors import POISSON_BOUND, budget
+
+    cam_psf = Camera(spec).psf
+    report["errors"] = budget({
+        "render_mc": {"rel": check, "where": "patch interiors (closed form vs render)", "seconds": render_s},
+        "temporal": {"rel": 0.0, "method": "static chart: one radiance sample is exact", "seconds": 0.0},
+        "psf_truncation": {"rel": cam_psf.truncation_error if cam_psf is not None else 0.0, "seconds": 0.0},
+        "poisson_sampler": {"rel": POISSON_BOUND, "method": "exact samplers", "seconds": 0.0},
+        "dr_interpolation": {"rel": None, "db": float(20 * np.median(np.abs(np.diff(dens)))) / 2,
+                             "method": "half a patch step: the log-log interpolation of L_min is "
+                                       "exact only for a straight SNR curve between two patches"}})
     if ref_name:
         r = blocks[ref_name]
         report["reference_camera"] = {

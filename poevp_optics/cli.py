@@ -20,6 +20,8 @@ def _add_run_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--spp", type=int, help="shorthand for --set render.spp=N")
     p.add_argument("--resolution", help="HxW, shorthand for --set render.resolution=[H,W]")
     p.add_argument("--seed", type=int, help="shorthand for --set render.seed=S")
+    p.add_argument("--accuracy", choices=("fast", "default", "reference"), default="default",
+                   help="spp, sub-frames and PSF support together (fast: 1/4 spp, K/2; reference: 4x, 4x)")
 
 
 def _overrides(args) -> list[str]:
@@ -38,6 +40,10 @@ def _overrides(args) -> list[str]:
         except ValueError:
             raise SceneError(f"--resolution {args.resolution}: expected HxW, e.g. 368x640") from None
         out.append(f"render.resolution=[{h},{w}]")
+    if getattr(args, "accuracy", "default") != "default":
+        from .scene import accuracy_overrides
+
+        out += accuracy_overrides(args.scene, out, args.accuracy)
     return out
 
 

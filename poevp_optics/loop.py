@@ -277,6 +277,9 @@ def run_render(spec: SceneSpec, out_dir: Path, progress: bool = True, *, rendere
     sheet_every = max(1, spec.timing.frames // 4)
     law_cmp = {name: {"saturated": [], "entropy": []} for name in ["scene_law", *PAPER_LAWS]}
     kept = {}
+    mid = spec.timing.frames // 2
+    mid_frame = None
+    reuse = exposures is not None
     for ex in (exposures if exposures is not None else render_exposures(spec, renderer, progress)):
         i = ex.index
         name = f"frame_{i:04d}"
@@ -315,6 +318,9 @@ def run_render(spec: SceneSpec, out_dir: Path, progress: bool = True, *, rendere
                                     camera.sensor.switches.dark_current)
         stage_s["reconstruct"] += time.perf_counter() - tr
         valid = flags == 0
+        if i == mid:
+            mid_frame = (truth, ex.variance, box)
+        rec["mean_signal_dn_roi"] = float(np.mean(crop(enc.dn, box))) - camera.params.offset_dn
         rec.update({
             "saturated_fraction_roi": {"ldr": saturated_fraction(crop(ldr.dn, box), max_dn),
                                        "encoded": saturated_fraction(crop(enc.dn, box), max_dn)},
@@ -404,8 +410,14 @@ def run_render(spec: SceneSpec, out_dir: Path, progress: bool = True, *, rendere
         labels = ["scene (tone-mapped)", "LDR twin"] + (["mask"] if camera.dmd else []) + \
                  ["encoded capture", "reconstruction"]
         write_png(out_dir / "contact_sheet.png", _contact_sheet(sheet_rows, labels))
+    from .errors import temporal_error
+
+    if reuse or mid_frame is None:
+        temporal = {"rel": None, "method": "not estimated: this run reuses a shared render", "seconds": 0.0}
+    else:
+        temporal = temporal_error(spec, renderer, mid, mid_frame[0], mid_frame[1], mid_frame[2])
     report = _report(spec, renderer, camera, per_frame, stage_s, setup_s, t_write, t_run, law_cmp,
-                     predictor, predict_s)
+                     predictor, predict_s, temporal)
     write_report(out_dir, report)
     report["_kept"] = kept
     return report
@@ -416,8 +428,28 @@ def _mean(vals):
     return float(np.mean(vals)) if vals else None
 
 
+def _error_budget(spec, camera, per_frame, stage_s, temporal, render_s) -> dict:
+    from .errors import POISSON_BOUND, budget, quantisation_rel
+
+    roi = _mean([f["rel_error_roi"] for f in per_frame])
+    frame = _mean([f["rel_error"] for f in per_frame])
+    psf = camera.psf
+    return budget({
+        "render_mc": {"rel": roi if roi is not None else frame, "rel_frame": frame,
+                      "where": "ROI" if roi is not None else "frame", "seconds": render_s},
+        "temporal": temporal,
+        "psf_truncation": {"rel": psf.truncation_error if psf is not None else 0.0,
+                           "support_px": int(psf.kernel.shape[0]) if psf is not None else 1,
+                           "seconds": stage_s["relay"]},
+        "poisson_sampler": {"rel": POISSON_BOUND, "method": "exact (Knuth < 10 e-, PTRS >= 10 e-); "
+                            "float32 counts exact to 2^24 e-", "seconds": stage_s["sensor"]},
+        "quantisation": {"rel": _mean([quantisation_rel(f.get("mean_signal_dn_roi")) for f in per_frame]),
+                         "bits": camera.params.bits, "seconds": 0.0},
+    })
+
+
 def _report(spec, renderer, camera, per_frame, stage_s, setup_s, t_write, t_run, law_cmp,
-            predictor=None, predict_s=()) -> dict:
+            predictor=None, predict_s=(), temporal=None) -> dict:
     skipped = {}
     if spec.is_static:
         skipped["render_repeat"] = (f"static scene: rendered once and reused for all "
@@ -524,6 +556,8 @@ def _report(spec, renderer, camera, per_frame, stage_s, setup_s, t_write, t_run,
                               "dlpc900_8bit_pattern_min_ms": 4.046}}} if predictor is not None else {}),
         },
         "metrics": metrics,
+        "errors": _error_budget(spec, camera, per_frame, stage_s, temporal or {"rel": None},
+                                stats.seconds + setup_s),
         "notes": notes,
         "skipped_stages": skipped,
         "io_seconds": t_write, "total_seconds": total,

@@ -49,8 +49,9 @@ def _pixel_integrated(profile, radius_px: int, oversample: int = 7) -> np.ndarra
     return fine.reshape(n, oversample, n, oversample).sum(axis=(1, 3))
 
 
-def gaussian_psf(sigma_px: float, support_px: int = 0) -> PSF:
-    r = support_px // 2 if support_px else max(int(math.ceil(3.9 * sigma_px)), 1)  # 99.99 % in 2-D
+def gaussian_psf(sigma_px: float, support_px: int = 0, energy: float = 0.9995) -> PSF:
+    # 2-D Gaussian: energy outside radius r is exp(-r^2 / (2 sigma^2))
+    r = support_px // 2 if support_px else max(int(math.ceil(sigma_px * math.sqrt(-2 * math.log(1 - energy)))), 1)
     k = _pixel_integrated(lambda rr: np.exp(-0.5 * (rr / sigma_px) ** 2), r)
     # energy outside the square support, from the radial Gaussian tail (a lower bound)
     trunc = math.exp(-0.5 * ((r + 0.5) / sigma_px) ** 2)
@@ -58,7 +59,7 @@ def gaussian_psf(sigma_px: float, support_px: int = 0) -> PSF:
 
 
 def airy_psf(f_number: float, pixel_pitch_m: float, band_nm: np.ndarray, weights: np.ndarray,
-             support_px: int = 0) -> PSF:
+             support_px: int = 0, energy: float = 0.999) -> PSF:
     """Polychromatic Airy PSF in sensor pixels, weighted by `weights` over `band_nm`."""
     from scipy.special import j1
 
@@ -69,7 +70,7 @@ def airy_psf(f_number: float, pixel_pitch_m: float, band_nm: np.ndarray, weights
     if support_px:
         r = support_px // 2
     else:
-        x_needed = 2 / (math.pi * 1e-3)                    # 99.9 % encircled
+        x_needed = 2 / (math.pi * (1 - energy))            # encircled-energy tail 2 / (pi x)
         r = int(math.ceil(x_needed * lam_mean * f_number / (math.pi * pixel_pitch_m)))
         r = max(min(r, 128), 1)
 
@@ -125,7 +126,7 @@ def build_psf(spec: RelaySpec, *, pixel_pitch_m: float, band_nm=None, band_weigh
     g = spec.glare_fraction
     if g <= 0:
         return core
-    halo = gaussian_psf(spec.glare_sigma_px, spec.support_px)
+    halo = gaussian_psf(spec.glare_sigma_px, spec.support_px, spec.support_energy)
     ck = core.kernel if core else np.ones((1, 1))
     n = max(ck.shape[0], halo.kernel.shape[0])
     k = (1 - g) * _pad_to(ck, n) + g * _pad_to(halo.kernel, n)
@@ -142,9 +143,10 @@ def _core_psf(spec: RelaySpec, pixel_pitch_m, band_nm, band_weights, base_dir) -
     if spec.psf == "delta":
         return None
     if spec.psf == "gaussian":
-        return gaussian_psf(spec.sigma_px, spec.support_px)
+        return gaussian_psf(spec.sigma_px, spec.support_px, spec.support_energy)
     if spec.psf == "airy":
-        return airy_psf(spec.f_number, pixel_pitch_m, band_nm, band_weights, spec.support_px)
+        return airy_psf(spec.f_number, pixel_pitch_m, band_nm, band_weights, spec.support_px,
+                        spec.support_energy)
     from .spectra import ASSETS_DIR
 
     p = Path(spec.measured_file)

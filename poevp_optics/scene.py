@@ -159,6 +159,7 @@ class RelaySpec:
     f_number: float = _f(4.0, gt=0, max=1000.0)
     sigma_px: float = _f(1.0, gt=0, max=1000.0)
     support_px: int = _f(0, min=0, max=4097)         # 0: chosen from the PSF's energy
+    support_energy: float = _f(0.999, gt=0.5, lt=1.0)  # energy held by the automatic support
     measured_file: str = _f("")
     transmission: float = _f(0.9, gt=0, max=1.0)
     glare_fraction: float = _f(0.0, min=0, max=0.5)   # veiling glare: energy in a wide halo
@@ -467,6 +468,24 @@ def resolve_scene_path(scene: str | Path) -> Path:
     if not p.is_file():
         raise SceneError(f"{p}: scene file not found")
     return p
+
+
+ACCURACY_PRESETS = ("fast", "default", "reference")
+
+
+def accuracy_overrides(scene: str | Path, overrides: list[str], preset: str) -> list[str]:
+    """`--accuracy`: spp, sub-frames and PSF support chosen together (fast: 1/4 spp, K/2, 99 %
+    PSF energy; reference: 4x spp, 4x K, 99.999 %; default: the scene's own values)."""
+    if preset not in ACCURACY_PRESETS:
+        raise SceneError(f"--accuracy {preset}: must be one of {', '.join(ACCURACY_PRESETS)}")
+    if preset == "default":
+        return []
+    spec = load_scene(scene, overrides, cross_checks=False)
+    r = spec.render
+    if preset == "fast":
+        return [f"render.spp={max(r.mc_splits, r.spp // 4)}", f"render.subframes={max(1, r.subframes // 2)}",
+                "relay.support_energy=0.99"]
+    return [f"render.spp={r.spp * 4}", f"render.subframes={r.subframes * 4}", "relay.support_energy=0.99999"]
 
 
 def load_scene(scene: str | Path, overrides: list[str] | None = None, *,

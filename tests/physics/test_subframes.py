@@ -33,3 +33,38 @@ def test_subframe_error_falls_as_k_grows():
     errs = [np.sqrt(np.mean((exposure(k) - ref) ** 2)) / np.mean(ref) for k in (2, 8, 32, 128)]
     assert all(b < a for a, b in zip(errs, errs[1:])), errs
     assert errs[-1] < 1e-3 and errs[0] > 10 * errs[-1]
+
+
+def test_richardson_temporal_error_estimate_tracks_the_true_error():
+    """errors.temporal_error (K vs K/2) against the actual error of K = 4 vs a K = 64 reference
+    on the fast_pass scene (plate sweeping ~25 px per exposure at this size)."""
+    import numpy as np
+
+    from poevp_optics.errors import temporal_error
+    from poevp_optics.loop import _seeds
+    from poevp_optics.render import Renderer
+    from poevp_optics.scene import load_scene
+
+    from ..conftest import SCENES
+
+    spec = load_scene(SCENES / "fast_pass", ["render.resolution=[46,80]", "render.spp=32",
+                                             "render.subframes=4", "timing.frames=2"])
+    r = Renderer(spec)
+
+    def mean_k(k, salt):
+        a, b = spec.exposure_window_s(1)
+        ms, var = [], 0.0
+        for j, t in enumerate(a + (np.arange(k) + 0.5) * (b - a) / k):
+            r.set_time(float(t))
+            m, v = r.render_with_error(_seeds(7, salt, j, 2), spec.render.spp)
+            ms.append(m.astype(np.float64))
+            var = var + v
+        return np.mean(ms, axis=0), var / k ** 2
+
+    m4, v4 = mean_k(4, 1)
+    ref, _ = mean_k(64, 2)
+    true = float(np.sqrt(np.mean((m4 - ref) ** 2)) / np.mean(ref))
+    est = temporal_error(spec, r, 1, m4, v4)
+    assert est["resolved"]
+    print("temporal error: estimate", est["rel"], "true", true)
+    assert 1 / 3 < est["rel"] / true < 3, (est["rel"], true)

@@ -21,7 +21,10 @@ def test_render_writes_complete_report_and_float32_exr(tmp_path):
     assert r["seed"] == 5 and r["resolution"] == [24, 32] and r["frames"] == 2
     st = r["stages"]["render"]
     assert st["seconds"] > 0 and 0 < st["rel_error"] < 1 and st["rel_error_roi"] is not None
-    assert st["calls"] == 2 * 2 * 2                    # frames x sub-frames x mc_splits
+    # frames x sub-frames x mc_splits, plus the K/2 renders of the temporal-error check
+    assert st["calls"] == 2 * 2 * 2 + 1 * 2
+    e = r["errors"]
+    assert e["temporal"]["renders"] == 2 and e["dominant"] in e and e["total"]["rel"] >= e["render_mc"]["rel"]
     chans, header = read_exr(out / "radiance" / "frame_0001.exr")
     assert set(chans) == {"Y", "mc_stderr"} and chans["Y"].dtype == np.float32
     assert header["poevp_unit"] == "e- s-1 m-2 sr-1"
