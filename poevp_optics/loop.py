@@ -461,6 +461,10 @@ def _report(spec, renderer, camera, per_frame, stage_s, setup_s, t_write, t_run,
                                 "drive against the DMD's bit-planes exactly; render.subframes unused")
     if camera.psf is None:
         skipped["relay"] = "psf = 'delta': no convolution"
+    sw = camera.sensor.switches
+    if not (sw.shot or sw.read):
+        skipped["sensor_noise"] = (f"sensor.noise = false: no random numbers drawn "
+                                   f"({camera.sensor.random_draws} draws)")
     if camera.dmd is None:
         skipped["dmd"] = "dmd.enabled = false: plain LDR camera"
         skipped["predict"] = "no DMD: no mask to predict"

@@ -251,7 +251,9 @@ class Sensor:
         n = dr.width(mean)
         need_rng = sw.shot or (sw.read and p.read_noise_e > 0)
         if need_rng:
-            rng = PCG32(size=n, initstate=UInt32(seed & 0xFFFFFFFF),
+            # opaque seed: a literal would be baked into the kernel and force a recompile
+            # (~60 ms) for every new frame seed
+            rng = PCG32(size=n, initstate=dr.opaque(UInt32, seed & 0xFFFFFFFF),
                         initseq=dr.arange(UInt32, n))
             self.random_draws += n
         e = mean
