@@ -10,21 +10,11 @@ touches (K sub-frames in, one DN frame and one exposure map out).
 
 from __future__ import annotations
 
-import time
 
 import numpy as np
 
-from benchmarks.common import machine_line, markdown_table, save_figure, save_text
+from benchmarks.common import machine_line, markdown_table, save_figure, save_text, timed
 
-
-def _median_time(fn, repeats=7):
-    fn()
-    ts = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        ts.append(time.perf_counter() - t0)
-    return float(np.median(ts))
 
 
 def measure(shape, k, psf):
@@ -50,8 +40,8 @@ def measure(shape, k, psf):
         _ = subs[0].copy()
         _ = subs[0].copy()
 
-    t_chain = _median_time(chain)
-    t_floor = _median_time(floor)
+    t_chain = timed(chain, 7)[0]
+    t_floor = timed(floor, 7)[0]
     cap = cam.capture(subs, mask, 0, 1)
     return [f"{shape[0]}x{shape[1]}", k, psf, t_chain * 1e3, t_floor * 1e3, t_chain / t_floor,
             cap.seconds["dmd"] * 1e3, cap.seconds["relay"] * 1e3, cap.seconds["sensor"] * 1e3]

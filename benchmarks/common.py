@@ -44,3 +44,18 @@ def save_text(name: str, text: str) -> Path:
     with atomic_path(path) as tmp:
         tmp.write_text(text)
     return path
+
+
+def timed(fn, repeats: int = 5):
+    """(median wall seconds over `repeats` warm calls, the last call's result); one warm-up call."""
+    import time
+
+    import numpy as np
+
+    fn()
+    ts, out = [], None
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        out = fn()
+        ts.append(time.perf_counter() - t0)
+    return float(np.median(ts)), out

@@ -21,19 +21,10 @@ import time
 
 import numpy as np
 
-from benchmarks.common import machine_line, markdown_table, save_figure, save_text
+from benchmarks.common import machine_line, markdown_table, save_figure, save_text, timed
 
 SIZES = [(368, 640), (720, 1280)]
 
-
-def _median(fn, repeats=5):
-    fn()
-    ts = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        ts.append(time.perf_counter() - t0)
-    return float(np.median(ts))
 
 
 def render_overhead(shape, spp=16):
@@ -49,9 +40,9 @@ def render_overhead(shape, spp=16):
     ours = Renderer(spec)
     raw_scene = mi.load_file(str(spec.xml_path), **ours.plan.xml_params)
     seeds = iter(range(1, 10**6))
-    t_raw = _median(lambda: np.array(mi.render(raw_scene, sensor=ours.sensor, spp=spp, seed=next(seeds))))
-    t_once = _median(lambda: ours.render_once(next(seeds), spp))
-    t_err = _median(lambda: ours.render_with_error(_seeds(1, next(seeds), 0, spec.render.mc_splits), spp))
+    t_raw = timed(lambda: np.array(mi.render(raw_scene, sensor=ours.sensor, spp=spp, seed=next(seeds))), 5)[0]
+    t_once = timed(lambda: ours.render_once(next(seeds), spp), 5)[0]
+    t_err = timed(lambda: ours.render_with_error(_seeds(1, next(seeds), 0, spec.render.mc_splits), spp), 5)[0]
     return t_raw, t_once, t_err
 
 
@@ -77,7 +68,7 @@ def chain_vs_copy(shape):
     def floor():
         _ = sub.copy(), sub.copy(), sub.copy()        # sub-frame in, DN and exposure out
 
-    return _median(chain), _median(floor), dict(stage)
+    return timed(chain, 5)[0], timed(floor, 5)[0], dict(stage)
 
 
 def closed_loop_fps(names=("hold", "flow", "dmvfn_lite"), frames=12):

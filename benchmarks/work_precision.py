@@ -15,21 +15,11 @@
 
 from __future__ import annotations
 
-import time
 
 import numpy as np
 
-from benchmarks.common import machine_line, markdown_table, save_figure, save_text
+from benchmarks.common import machine_line, markdown_table, save_figure, save_text, timed
 
-
-def _t(fn, repeats=3):
-    fn()
-    ts = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        out = fn()
-        ts.append(time.perf_counter() - t0)
-    return float(np.median(ts)), out
 
 
 def psf_support():
@@ -44,7 +34,7 @@ def psf_support():
     rows = []
     for e in (0.9, 0.99, 0.999, 0.9999):
         psf = airy_psf(8.0, 3.45e-6, spectra.WAVELENGTHS_NM, resp, energy=e)
-        t, out = _t(lambda: convolve(img, psf))
+        t, out = timed(lambda: convolve(img, psf), 3)
         rows.append([f"{e:.4%}", psf.kernel.shape[0], psf.truncation_error,
                      float(np.abs(out - ref).sum() / ref.sum()), t * 1e3])
     return rows
@@ -61,14 +51,14 @@ def float_precision():
     rng = np.random.default_rng(0)
     subs = [rng.uniform(1e12, 1e18, cam.shape).astype(np.float32) for _ in range(8)]
     mask = rng.integers(0, 256, cam.shape).astype(np.float64)
-    t32, cap = _t(lambda: cam.capture(subs, mask, 0, 1))
+    t32, cap = timed(lambda: cam.capture(subs, mask, 0, 1), 3)
     table = transmission_table(np.arange(256), spec.dmd, cam.schedule(0), 8)
 
     def ref64():
         w = table[mask.astype(int)]
         return np.einsum("hwk,khw->hw", w, np.stack(subs).astype(np.float64)) * cam.electrons_per_radiance()
 
-    t64, ref = _t(ref64)
+    t64, ref = timed(ref64, 3)
     err = np.abs(cap.signal_e.astype(np.float64) / ref - 1)
     return [["DrJit float32 chain (DMD + sensor, noise off)", float(np.max(err)), float(np.median(err)), t32 * 1e3],
             ["NumPy float64 reference (DMD weights x sub-frames)", 0.0, 0.0, t64 * 1e3]]
@@ -100,7 +90,7 @@ def poisson_methods():
 
         for name, fn in (("ours (Knuth < 10, PTRS)", ours), ("Gaussian approximation", gauss),
                          ("NumPy poisson", numpy_exact)):
-            t, x = _t(fn)
+            t, x = timed(fn, 3)
             ks = np.arange(int(max(0, lam - 8 * np.sqrt(lam) - 5)), int(lam + 8 * np.sqrt(lam) + 6))
             emp = np.searchsorted(np.sort(x), ks, side="right") / n
             dist = float(np.max(np.abs(emp - sp_poisson.cdf(ks, lam))))

@@ -1,4 +1,4 @@
-"""`poevp` command line: render, validate, compare, chart, train-predictor, info (DESIGN.md)."""
+"""`poevp` command line: render, validate, compare, chart, sweep, evaluate, train-predictor, info."""
 
 from __future__ import annotations
 
@@ -22,6 +22,12 @@ def _add_run_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, help="shorthand for --set render.seed=S")
     p.add_argument("--accuracy", choices=("fast", "default", "reference"), default="default",
                    help="spp, sub-frames and PSF support together (fast: 1/4 spp, K/2; reference: 4x, 4x)")
+
+
+def _add_job_options(p: argparse.ArgumentParser, out_help: str) -> None:
+    p.add_argument("--out", help=out_help)
+    p.add_argument("--threads", type=int, help="DrJit/torch/OpenCV threads (default: all cores)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
 def _overrides(args) -> list[str]:
@@ -153,6 +159,23 @@ def cmd_sweep(args) -> int:
     return 0
 
 
+def cmd_evaluate(args) -> int:
+    from . import runtime
+    from .evaluate import E_LEVELS, evaluate
+    from .io import staged_dir
+
+    runtime.set_threads(args.threads)
+    out = Path(args.out) if args.out else Path("out") / ("evaluate-quick" if args.quick else "evaluate")
+    with staged_dir(out) as stage:
+        summary = evaluate(stage, quick=args.quick, progress=not args.quiet)
+    e = str(max(E_LEVELS))
+    for m, s in ((k, v) for k, v in summary.items() if k != "test_set"):
+        print(f"{m:>15s}  accuracy E={e}: {s[e]['accuracy_pct']:5.1f} %  all: {s['all']['accuracy_pct']:5.1f} %"
+              f"  entropy {s[e]['entropy_bits']:.2f} bits  {s['all']['method_ms']:.1f} ms/frame")
+    print(f"poevp: evaluation -> {out}/evaluation.md")
+    return 0
+
+
 def cmd_train(args) -> int:
     from . import runtime
     from .predict.dmvfn import default_weights
@@ -229,16 +252,12 @@ def build_parser() -> argparse.ArgumentParser:
     _add_run_options(p)
     p.add_argument("--predictors", default="oracle,hold,flow,dmvfn", help="comma-separated names")
     p.add_argument("--modes", default="open,raw,demodulated", help="comma-separated loop modes")
-    p.add_argument("--out", help="default out/<scene>-compare")
-    p.add_argument("--threads", type=int)
-    p.add_argument("--quiet", action="store_true")
+    _add_job_options(p, "default out/<scene>-compare")
     p.set_defaults(func=cmd_compare)
 
     p = sub.add_parser("chart", help="dynamic range on a rendered DR test chart (ISO 15739, EMVA)")
     _add_run_options(p)
-    p.add_argument("--out", help="default out/<scene>-chart")
-    p.add_argument("--threads", type=int)
-    p.add_argument("--quiet", action="store_true")
+    _add_job_options(p, "default out/<scene>-chart")
     p.set_defaults(func=cmd_chart)
 
     p = sub.add_parser("sweep", help="grid of scene variations on Dask: table, plots; resumable")
@@ -255,6 +274,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--threads", type=int, help="DrJit/torch/OpenCV threads per worker (default cores // workers)")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=cmd_sweep)
+
+    p = sub.add_parser("evaluate", help="plate recognition: LDR vs exposure fusion vs POE-VP (OCR)")
+    p.add_argument("--quick", action="store_true", help="2 sequences x 5 frames (CI size)")
+    _add_job_options(p, "default out/evaluate")
+    p.set_defaults(func=cmd_evaluate)
 
     p = sub.add_parser("train-predictor", help="train dmvfn_lite (or dmvfn) on rendered sequences")
     p.add_argument("--name", default="dmvfn_lite", choices=("dmvfn_lite", "dmvfn"))

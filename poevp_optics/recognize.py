@@ -1,0 +1,56 @@
+"""Plate recognition with a real OCR engine that ships its models: RapidOCR (PP-OCRv4 ONNX).
+
+RapidOCR (https://github.com/RapidAI/RapidOCR, `rapidocr-onnxruntime` on PyPI) bundles PaddleOCR's
+PP-OCRv4 detection, angle and recognition networks as ONNX files inside the wheel, so no download
+happens at run time. The plate box is known from the scene geometry (`render.roi_shape`), so only
+the recognition network runs, on the crop upscaled 2x (about 45 ms per plate here).
+A read counts when every character matches the label (paper Eq. 4): both sides are upper-cased
+and stripped of everything but letters and digits.
+"""
+
+from __future__ import annotations
+
+import re
+import time
+
+import numpy as np
+
+_ENGINE = None
+
+
+def engine():
+    global _ENGINE
+    if _ENGINE is None:
+        from rapidocr_onnxruntime import RapidOCR
+
+        _ENGINE = RapidOCR()
+    return _ENGINE
+
+
+def normalise(text: str) -> str:
+    return re.sub(r"[^A-Z0-9]", "", text.upper())
+
+
+def read_plate(img_8bit: np.ndarray, box, margin_px: int = 2) -> tuple[str, float, float]:
+    """(text, confidence, seconds) of the plate inside `box` (y0, x0, y1, x1) of an 8-bit image."""
+    import cv2
+
+    h, w = img_8bit.shape[:2]
+    y0, x0, y1, x1 = box
+    crop = np.ascontiguousarray(img_8bit[max(0, y0 - margin_px):min(h, y1 + margin_px),
+                                         max(0, x0 - margin_px):min(w, x1 + margin_px)]).astype(np.uint8)
+    if crop.size == 0:
+        return "", 0.0, 0.0
+    crop = cv2.resize(crop, None, fx=2, fy=2, interpolation=cv2.INTER_CUBIC)
+    bgr = cv2.cvtColor(crop, cv2.COLOR_GRAY2BGR) if crop.ndim == 2 else crop
+    t0 = time.perf_counter()
+    res, _ = engine()(bgr, use_det=False, use_cls=False, use_rec=True)
+    dt = time.perf_counter() - t0
+    if not res:
+        return "", 0.0, dt
+    text, conf = res[0][0], float(res[0][1])
+    return str(text), conf, dt
+
+
+def correct(read: str, label: str) -> bool:
+    return normalise(read) == normalise(label) and normalise(label) != ""
