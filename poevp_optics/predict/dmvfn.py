@@ -103,8 +103,10 @@ class DMVFN(nn.Module):
         self.blocks = nn.ModuleList(MVFB(in_ch, w, cfg.depth, s) for w, s in zip(cfg.widths, cfg.scales))
         self.routing = Routing(2 * c, len(cfg.widths)) if cfg.routing else None
 
-    def forward(self, prev: torch.Tensor, cur: torch.Tensor, *, train_routing: bool = False):
-        """prev, cur: (N, C, H, W) in [0, 1]-ish. Returns (prediction, flow, mask logits)."""
+    def forward(self, prev: torch.Tensor, cur: torch.Tensor, *, train_routing: bool = False,
+                with_prediction: bool = True):
+        """prev, cur: (N, C, H, W) in [0, 1]-ish. Returns (prediction, flow, mask logits);
+        with_prediction=False skips the final full-resolution warps (prediction None)."""
         ds = self.cfg.input_downsample
         p_s, c_s = prev, cur
         if ds != 1:
@@ -133,6 +135,8 @@ class DMVFN(nn.Module):
         if ds != 1:
             flow = F.interpolate(flow, size=cur.shape[-2:], mode="bilinear", align_corners=False) * ds
             mask = F.interpolate(mask, size=cur.shape[-2:], mode="bilinear", align_corners=False)
+        if not with_prediction:
+            return None, flow, mask
         m = torch.sigmoid(mask)
         pred = m * backward_warp(cur, flow[:, :2]) + (1 - m) * backward_warp(prev, flow[:, 2:4])
         return pred, flow, mask
@@ -227,14 +231,26 @@ class DMVFNPredictor(Predictor):
         """Motion is estimated on the frames clipped to the 8-bit range the network was trained
         on; the voxel flow then warps the unclipped frames, so demodulated (HDR) inputs keep
         their values (warping and blending are linear)."""
+        import cv2
+
         c = self.model.cfg.channels
-        full = [torch.from_numpy(np.ascontiguousarray(h, dtype=np.float32))[None, None] for h in history[-2:]]
+        frames = [np.ascontiguousarray(h, dtype=np.float32) for h in history[-2:]]
+        full = [torch.from_numpy(f)[None, None] for f in frames]
         prev, cur = (torch.clamp(t / 255.0, 0.0, 1.0).expand(1, c, *t.shape[-2:]) for t in full)
         with torch.inference_mode():
-            _, flow, mask = self.model(prev, cur)
-            m = torch.sigmoid(mask)
-            pred = m * backward_warp(full[1], flow[:, :2]) + (1 - m) * backward_warp(full[0], flow[:, 2:4])
-        return pred[0, 0].numpy().astype(np.float32)
+            _, flow, mask = self.model(prev, cur, with_prediction=False)
+            m = torch.sigmoid(mask)[0, 0].numpy()
+            fl = flow[0].numpy()
+        # the same bilinear backward warp with border clamping as `backward_warp`, by OpenCV
+        # (3x faster on 2 cores; equal to 4e-5 of the value range)
+        h, w = frames[1].shape
+        ys, xs = np.mgrid[0:h, 0:w].astype(np.float32)
+
+        def warp(img, fx, fy):
+            return cv2.remap(img, xs + fx, ys + fy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+
+        pred = m * warp(frames[1], fl[0], fl[1]) + (1 - m) * warp(frames[0], fl[2], fl[3])
+        return pred.astype(np.float32)
 
     def describe(self):
         return {"name": self.name, "weights": str(self.weights_path) if self.weights_path else None,

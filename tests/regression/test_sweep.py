@@ -88,9 +88,12 @@ def test_2x3x2_sweep_equals_single_renders_and_records_failures(tmp_path):
 
 
 def _run_cli(out, *extra):
+    # points of ~0.5 s each, so the poll below catches the sweep between its 2nd and 12th point
+    small = [s for s in SMALL if not s.startswith(("timing.frames", "render.spp"))]
+    small += ["timing.frames=5", "render.spp=8"]
     cmd = [sys.executable, "-m", "poevp_optics.cli", "sweep", str(SCENES / "highbeam_plate"),
            "--out", str(out), "--workers", "2", "--quiet", *[a for g in GRID for a in ("--grid", g)],
-           *[a for s in SMALL for a in ("--set", s)], *extra]
+           *[a for s in small for a in ("--set", s)], *extra]
     return cmd
 
 
@@ -110,7 +113,7 @@ def test_kill_and_resume_gives_the_uninterrupted_table(tmp_path):
     assert proc.poll() is None, ("the sweep finished before it could be killed",
                                  proc.stderr.read().decode()[-2000:] if proc.stderr else "")
     proc.send_signal(signal.SIGTERM)
-    _, err = proc.communicate(timeout=120)
+    _, err = proc.communicate(timeout=300)
     assert proc.returncode == 143, err.decode()[-2000:]
     before = pd.read_parquet(cut / "results.parquet")
     assert 2 <= len(before) < 12
