@@ -85,7 +85,7 @@ def cmd_validate(args) -> int:
         Renderer(spec)  # loads the XML in Mitsuba and checks moving ids / ROI shape
     print(f"poevp: {spec.toml_path} is valid: {spec.timing.frames} frames, "
           f"{spec.render.resolution[0]}x{spec.render.resolution[1]}, "
-          f"{'static' if spec.is_static else 'moving: ' + ', '.join(spec.motion)}; "
+          f"{'static' if spec.is_static else ('PWM lamps on static geometry: ' + ', '.join(spec.flicker)) if spec.geometry_static else 'moving: ' + ', '.join(spec.motion)}; "
           f"render path {plan.mode} ({plan.reason})")
     return 0
 
