@@ -122,25 +122,22 @@ class Camera:
             tables = self.basis_tables(frame_index, tuple(basis), lit)
             if lit:
                 weights = self.dmd.table_weights(mask_levels, tables)
-                expo_w = self.dmd.table_weights(mask_levels, tables[:1])[0]
             else:
                 weights = [dr.full(Float, float(t[0]), h * w) for t in tables]
-                expo_w = weights[0]
-            plane = weights[0] * subs[0]
-            for j in range(1, k):
-                plane = dr.fma(weights[j], subs[j], plane)
-            expo = expo_w
         elif self.dmd is not None and mask_levels is not None:
             weights, _ = self.dmd.exposure_weights(mask_levels, self.schedule(frame_index), k)
         else:
             dt = self.spec.timing.exposure_s / k
             thr = throughput_on(self.spec.dmd) if self.dmd is not None else 1.0
             weights = [dr.full(Float, dt * thr, h * w) for _ in range(k)]
-        if not basis:
-            plane = weights[0] * subs[0]
+        plane = weights[0] * subs[0]
+        for j in range(1, k):
+            plane = dr.fma(weights[j], subs[j], plane)
+        if basis:                            # 'rest' is exposed over the whole window
+            expo = weights[list(basis).index("rest")]
+        else:
             expo = weights[0]
             for j in range(1, k):
-                plane = dr.fma(weights[j], subs[j], plane)
                 expo = expo + weights[j]
         if self.taps is not None:
             plane = apply_registration(plane, self.taps)

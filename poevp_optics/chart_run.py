@@ -21,7 +21,7 @@ from .camera import Camera
 from .io import write_exr, write_png
 from .loop import _contact_sheet, _frame_seed, _mask_png, _resize, _seeds, oracle_mask, predicted_mask, predictor_input
 from .metrics import to_8bit
-from .reconstruct import reconstruct
+from .reconstruct import dn_to_electrons, is_saturated, reconstruct
 from .render import Renderer, absolute_spectrum
 from .report import write_report
 from .scene import SceneError, SceneSpec, load_scene
@@ -85,16 +85,18 @@ def _measure(cam: Camera, spec: SceneSpec, truth, regions, masks_levels, stream:
     n = spec.chart.repeats
     dark_e = p.dark_current_e_per_s * spec.timing.exposure_s if cam.sensor.switches.dark_current else 0.0
     est, sat, elec = [], [], []
-    first = None
+    first = scale = None
     for i in range(n):
         cap = cam.capture([truth], masks_levels, i, _frame_seed(spec, i, stream))
-        first = first or cap
-        e = (cap.dn.astype(np.float64) - p.offset_dn) / p.gain_dn_per_e - dark_e
-        scale = cap.exposure_s.astype(np.float64) * cam.etendue_m2_sr * cam.throughput
+        if first is None:                    # the mask is fixed: one exposure map for all
+            first = cap
+            scale = cap.exposure_s.astype(np.float64) * cam.etendue_m2_sr * cam.throughput
+        dn = cap.dn.astype(np.float64)
+        e_dn = dn_to_electrons(dn, p)
+        e = e_dn - dark_e                    # not clamped at 0: the noise near black stays
         est.append(np.where(scale > 1e-300, e / np.maximum(scale, 1e-300), 0.0))
-        sat.append((cap.dn >= p.max_dn - 0.5) | (e + dark_e >= p.full_well_e * (1 - 1e-6)))
+        sat.append(is_saturated(dn, e_dn, p))
         elec.append(e)
-    scale = first.exposure_s.astype(np.float64) * cam.etendue_m2_sr * cam.throughput
     clip_sig = ((p.max_dn - p.offset_dn) / p.gain_dn_per_e - dark_e) / np.maximum(scale, 1e-300)
     flare = first.signal_e.astype(np.float64) - truth.astype(np.float64) * scale
     est = np.stack(est)
@@ -149,6 +151,7 @@ def measure_camera(spec: SceneSpec, truth, regions, lum, dens, true_sig) -> dict
                                          res["details"]["encoded"]["iso15739"], res["parts"],
                                          res["tables"]["encoded"], floor_e)
     res["psf"] = cam.psf.name if cam.psf is not None else "delta"
+    res["psf_truncation"] = cam.psf.truncation_error if cam.psf is not None else 0.0
     res["seconds"] = time.perf_counter() - t0
     return res
 
@@ -315,11 +318,10 @@ def run_chart(spec: SceneSpec, out_dir: Path, progress: bool = True) -> dict:
     report["dynamic_range_db"] = main["dr"]
     from .errors import POISSON_BOUND, budget
 
-    cam_psf = Camera(spec).psf
     report["errors"] = budget({
         "render_mc": {"rel": check, "where": "patch interiors (closed form vs render)", "seconds": render_s},
         "temporal": {"rel": 0.0, "method": "static chart: one radiance sample is exact", "seconds": 0.0},
-        "psf_truncation": {"rel": cam_psf.truncation_error if cam_psf is not None else 0.0, "seconds": 0.0},
+        "psf_truncation": {"rel": main["psf_truncation"], "seconds": 0.0},
         "poisson_sampler": {"rel": POISSON_BOUND, "method": "exact samplers", "seconds": 0.0},
         "dr_interpolation": {"rel": None, "db": float(20 * np.median(np.abs(np.diff(dens)))) / 2,
                              "method": "half a patch step: the log-log interpolation of L_min is "

@@ -177,16 +177,21 @@ class DMD:
             self._cache = {key: (Float(table.T.astype(np.float32).ravel()), table)}
         return self._cache[key]
 
+    def _level_index(self, mask_levels: np.ndarray) -> np.ndarray:
+        """Mask levels as uint32 indices (flattened); out-of-range or non-finite is an error."""
+        m = np.asarray(mask_levels)
+        if m.size and (m.min() < 0 or m.max() > self.levels or not np.all(np.isfinite(m))):
+            raise ValueError(f"mask levels must lie in [0, {self.levels}], got "
+                             f"[{m.min()}, {m.max()}]")
+        return np.rint(m).astype(np.uint32).ravel()
+
     def table_weights(self, mask_levels: np.ndarray, tables: list[np.ndarray]):
         """Per-mirror weights from arbitrary per-level tables (each (levels + 1,), seconds):
         list of DrJit Floats, one per table (emitter-group bases of flickering lamps)."""
         import drjit as dr
         from drjit.auto import Float, UInt32
 
-        m = np.asarray(mask_levels)
-        if m.size and (m.min() < 0 or m.max() > self.levels or not np.all(np.isfinite(m))):
-            raise ValueError(f"mask levels must lie in [0, {self.levels}], got [{m.min()}, {m.max()}]")
-        idx = UInt32(np.rint(m).astype(np.uint32).ravel())
+        idx = UInt32(self._level_index(mask_levels))
         return [dr.gather(Float, Float(np.asarray(t, np.float32)), idx) for t in tables]
 
     def exposure_weights(self, mask_levels: np.ndarray, sched: Schedule, k: int):
@@ -195,11 +200,7 @@ class DMD:
         import drjit as dr
         from drjit.auto import Float, UInt32
 
-        m = np.asarray(mask_levels)
-        if m.size and (m.min() < 0 or m.max() > self.levels or not np.all(np.isfinite(m))):
-            raise ValueError(f"mask levels must lie in [0, {self.levels}], got "
-                             f"[{m.min()}, {m.max()}]")
-        mi = np.rint(m).astype(np.uint32).ravel()
+        mi = self._level_index(mask_levels)
         if (self.levels + 1) * k <= self.FULL_TABLE_MAX:
             flat, table = self._full_table(sched, k)
             idx = UInt32(mi)

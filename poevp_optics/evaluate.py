@@ -69,8 +69,9 @@ def sequence_overrides(text: str, motion, frames: int) -> list[str]:
             "outputs.contact_sheet=false", "outputs.radiance_exr=false"]
 
 
-def load_or_render(overrides: list[str], progress: bool) -> list[RenderedExposure]:
-    """The sequence's radiance (sub-frames, ROI per frame), rendered once and cached."""
+def load_or_render(overrides: list[str], renderer: Renderer, progress: bool) -> list[RenderedExposure]:
+    """The sequence's radiance (sub-frames, ROI per frame), rendered once by `renderer` (the
+    loaded scene of these overrides) and cached."""
     key = hashlib.sha1(json.dumps([overrides, __version__, BASE.name]).encode()).hexdigest()[:16]
     path = _cache_dir() / f"{key}.npz"
     if path.is_file():
@@ -84,8 +85,7 @@ def load_or_render(overrides: list[str], progress: bool) -> list[RenderedExposur
                                         Frame(mean, Quantity.RADIANCE, PHOTON_RADIANCE_UNIT, t0, dt, i),
                                         z["var"][i], tuple(int(v) for v in z["roi"][i]), None, None))
         return out
-    spec = load_scene(BASE, overrides)
-    exps = list(render_exposures(spec, Renderer(spec), progress))
+    exps = list(render_exposures(renderer.spec, renderer, progress))
     path.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as f:
@@ -108,9 +108,8 @@ def scaled(exps: list[RenderedExposure], s: float) -> list[RenderedExposure]:
     return out
 
 
-def overexposure(spec, exps) -> float:
+def overexposure(cam: Camera, exps) -> float:
     """Peak plate signal over the sequence with the DMD white, in units of saturation."""
-    cam = Camera(spec)
     k = cam.electrons_per_radiance() * cam.white_exposure_s(0) / cam.params.saturation_capacity_e
     return max(float(np.max(crop(e.radiance.data, e.roi))) * k for e in exps)
 
@@ -141,11 +140,11 @@ def evaluate(out: Path, quick: bool = False, progress: bool = True, log=print) -
     for si, (text, motion) in enumerate((t, m) for t in texts for m in motions):
         ov = sequence_overrides(text, motion, frames)
         base_spec = load_scene(BASE, ov)
-        exps = load_or_render(ov, progress)
-        r0 = overexposure(base_spec, exps)
-        shifts += [abs(a.roi[1] - b.roi[1]) + abs(a.roi[0] - b.roi[0]) for a, b in zip(exps[1:], exps)]
         renderer = Renderer(base_spec)
         cam = Camera(base_spec)
+        exps = load_or_render(ov, renderer, progress)
+        r0 = overexposure(cam, exps)
+        shifts += [abs(a.roi[1] - b.roi[1]) + abs(a.roi[0] - b.roi[0]) for a, b in zip(exps[1:], exps)]
         for e_level in E_LEVELS:
             ex = scaled(exps, (e_level + 1) / r0)
             images = {m: {} for m in METHODS}

@@ -20,6 +20,19 @@ from .sensor import SensorParams
 SATURATED, UNDEREXPOSED, UNEXPOSED = 1, 2, 4
 
 
+def dn_to_electrons(dn: np.ndarray, p: SensorParams) -> np.ndarray:
+    """Electrons behind each DN, dark signal included (offset removed, divided by gain), in
+    the dtype of `dn`."""
+    t = dn.dtype.type
+    return (dn - t(p.offset_dn)) * t(1.0 / p.gain_dn_per_e)
+
+
+def is_saturated(dn: np.ndarray, electrons: np.ndarray, p: SensorParams) -> np.ndarray:
+    """DN at the top code or electrons at full well: the value is only a lower bound."""
+    t = dn.dtype.type
+    return (dn >= t(p.max_dn - 0.5)) | (electrons >= t(p.full_well_e * (1 - 1e-6)))
+
+
 def reconstruct(dn: np.ndarray, exposure_s: np.ndarray, p: SensorParams, etendue_m2_sr: float,
                 throughput: float, exposure_window_s: float, dark_current_on: bool = True):
     """Return (radiance estimate float32, flags float32, signal electrons float32).
@@ -31,13 +44,13 @@ def reconstruct(dn: np.ndarray, exposure_s: np.ndarray, p: SensorParams, etendue
     dn = np.asarray(dn, dtype=f32)
     expo = np.asarray(exposure_s, dtype=f32)
     dark_e = f32(p.dark_current_e_per_s * exposure_window_s if dark_current_on else 0.0)
-    electrons = (dn - f32(p.offset_dn)) * f32(1.0 / p.gain_dn_per_e)
+    electrons = dn_to_electrons(dn, p)
     signal = np.maximum(electrons - dark_e, f32(0.0))
     scale = expo * f32(etendue_m2_sr * throughput)            # electrons per unit radiance
     unexposed = expo < f32(1e-30)
     est = signal / np.where(unexposed | ~(scale > 0), f32(1.0), scale)
     est[unexposed] = 0.0
-    saturated = (dn >= f32(p.max_dn - 0.5)) | (electrons >= f32(p.full_well_e * (1 - 1e-6)))
+    saturated = is_saturated(dn, electrons, p)
     noise2 = signal + dark_e + f32(p.read_noise_e ** 2 + (1.0 / p.gain_dn_per_e) ** 2 / 12.0)
     under = signal * signal < noise2                          # SNR < 1
     flags = (saturated * SATURATED) | (under * UNDEREXPOSED) | (unexposed * UNEXPOSED)

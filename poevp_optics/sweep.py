@@ -131,8 +131,8 @@ def flatten_report(report: dict) -> dict:
         elif isinstance(obj, (int, float)) and not isinstance(obj, bool):
             out[prefix] = float(obj)
 
-    for sec in ("metrics", "stages", "dynamic_range_db", "limits", "render", "settle"):
-        if sec in report and sec != "settle":
+    for sec in ("metrics", "stages", "dynamic_range_db", "limits", "render"):
+        if sec in report:
             walk(sec, report[sec])
     if "settle" in report:
         out["settle.frames"] = float(report["settle"]["frames"])
