@@ -19,10 +19,15 @@ def test_photometric_scaling_round_trips():
     spd = spectra.scale_to_photometric(shape, 120000.0)               # W sr-1 nm-1
     cd = 683.002 * spectra.integrate(spectra.photopic_v() * spd)
     assert cd == pytest.approx(120000.0, rel=1e-12)
-    # Illuminant A: luminous efficacy of radiation within 360-830 nm is about 150-160 lm/W
-    # (the full Planckian 2856 K spectrum, mostly infrared, gives ~15 lm/W).
+    # Illuminant A is Planck's law at 2856 K (CIE 015: 2848 K with the old c2 = 1.435e-2 m K,
+    # i.e. 2856 K with c2 = 1.4388e-2 m K, equal to 1.5e-4 in c2/T) over the whole 360-830 nm
+    # grid (not zero beyond colour-science's 780 nm table): its luminous efficacy within the
+    # grid agrees with Planck's law written out here to that 1.5e-4 (rel 1e-3 allowed).
     a = spectra.scale_to_photometric(spectra.load_spectrum("cie:A", emissive=True), 1.0)
-    assert 140 < 1 / spectra.integrate(a) < 170
+    wl_m = spectra.WAVELENGTHS_NM * 1e-9
+    planck = wl_m ** -5 / np.expm1(1.4388e-2 / (wl_m * 2856.0))
+    efficacy = 683.002 * np.trapezoid(spectra.photopic_v() * planck, wl_m) / np.trapezoid(planck, wl_m)
+    assert 1 / spectra.integrate(a) == pytest.approx(efficacy, rel=1e-3)
 
 
 def test_photon_energy():
