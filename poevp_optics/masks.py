@@ -53,9 +53,15 @@ def smooth_envelope(frame: np.ndarray, smooth_px: float) -> np.ndarray:
     return env * np.float32(1 + 1e-6)
 
 
+def _as_8bit(x) -> np.ndarray:
+    """Predicted values on the 8-bit scale, NaN taken as clipped (255: the safe side for a
+    highlight), clipped to [0, 255]."""
+    return np.clip(np.nan_to_num(np.asarray(x, dtype=np.float64), nan=255.0), 0.0, 255.0)
+
+
 def threshold_exp(x: np.ndarray, vs: float, a: float, b: float) -> np.ndarray:
     """Paper Eq. 2, exponential reading: 255 a^((x - b Vs) / (255 - x)) above Vs."""
-    x = np.clip(np.asarray(x, dtype=np.float64), 0.0, 255.0)
+    x = _as_8bit(x)
     with np.errstate(divide="ignore", invalid="ignore"):
         expo = (x - b * vs) / np.maximum(255.0 - x, 0.0)
         expo = np.where(255.0 - x > 0, expo, np.inf)
@@ -71,7 +77,7 @@ def threshold_exp(x: np.ndarray, vs: float, a: float, b: float) -> np.ndarray:
 
 def threshold_ratio(x: np.ndarray, vs: float, a: float, b: float) -> np.ndarray:
     """Paper Eq. 2, ratio reading: 255 (a Vs / x + b) above Vs."""
-    x = np.clip(np.asarray(x, dtype=np.float64), 0.0, 255.0)
+    x = _as_8bit(x)
     m = np.where(x < vs, 255.0, 255.0 * (a * vs / np.maximum(x, 1e-12) + b))
     return np.clip(m, 0.0, 255.0)
 
@@ -84,9 +90,11 @@ def target_levels(pred_electrons: np.ndarray, full_well_e: float, target: float,
     level_exposure: effective exposure of each level (any unit; index = level), e.g. from
     `dmd.transmission_table(...).sum(1)`. Works for non-monotone tables (partial window overlap).
     Where even the darkest level is too bright, that darkest level is used. Levels below
-    `min_level` are never used.
+    `min_level` are never used. A prediction of 0 or below (-0.0 included) needs no dimming
+    (white); NaN is taken as infinitely bright (the darkest usable level).
     """
     e = np.asarray(pred_electrons, dtype=np.float32)
+    e = np.maximum(np.nan_to_num(e, nan=np.inf), np.float32(0.0)) + np.float32(0.0)   # -0.0 -> +0.0
     white = float(level_exposure[-1])
     rel = np.asarray(level_exposure, dtype=np.float64) / white   # exposure relative to white
     order = min_level + np.argsort(rel[min_level:], kind="stable")
@@ -102,14 +110,16 @@ def target_levels(pred_electrons: np.ndarray, full_well_e: float, target: float,
     return order[pos].astype(np.float64)
 
 
-def predicted_electrons(pred_8bit: np.ndarray, saturation_e: float, clipped_gain: float) -> np.ndarray:
-    """Electrons implied by a predicted frame on the 8-bit scale (values above 255 allowed, as in
-    the demodulated loop); clipped values (>= 254.5, <= 255.5) are taken as clipped_gain x
-    saturation."""
+def predicted_electrons(pred_8bit: np.ndarray, params, clipped_gain: float) -> np.ndarray:
+    """Photo-electrons implied by a predicted frame on the 8-bit scale (values above 255 allowed,
+    as in the demodulated loop): the sensor transfer inverted, e = (x max_dn / 255 - offset_dn)
+    / gain_dn_per_e, >= 0 (so the black level reads 0 e-); clipped values (254.5 ... 255.5) are
+    taken as clipped_gain x the saturation capacity. `params`: sensor.SensorParams."""
     x = np.asarray(pred_8bit, dtype=np.float64)
-    e = x / 255.0 * saturation_e
+    dn = x * (params.max_dn / 255.0)
+    e = np.maximum(dn - params.offset_dn, 0.0) / params.gain_dn_per_e
     clipped = (x >= 254.5) & (x <= 255.5)
-    return np.where(clipped, clipped_gain * saturation_e, e)
+    return np.where(clipped, clipped_gain * params.saturation_capacity_e, e)
 
 
 def mask_levels(spec: MaskSpec, bits: int, *, pred_8bit: np.ndarray | None = None,
@@ -123,11 +133,12 @@ def mask_levels(spec: MaskSpec, bits: int, *, pred_8bit: np.ndarray | None = Non
     if spec.law == "target":
         if pred_electrons is None or level_exposure is None or full_well_e is None:
             raise ValueError("mask law 'target' needs predicted electrons and the level table")
-        env = smooth_envelope(pred_electrons, spec.smooth_px)
+        e = np.nan_to_num(np.asarray(pred_electrons, dtype=np.float64), nan=1e30, posinf=1e30)
+        env = smooth_envelope(e, spec.smooth_px)
         return target_levels(env, full_well_e, spec.target, level_exposure, min(spec.min_level, top))
     if pred_8bit is None:
         raise ValueError(f"mask law {spec.law!r} needs a predicted 8-bit frame")
-    env = smooth_envelope(pred_8bit, spec.smooth_px)
+    env = smooth_envelope(_as_8bit(pred_8bit), spec.smooth_px)
     law = {"threshold_exp": threshold_exp, "threshold_ratio": threshold_ratio}[spec.law]
     m255 = law(env, spec.vs, spec.a, spec.b)
     return np.clip(np.rint(m255 * top / 255.0), min(spec.min_level, top), top)

@@ -66,3 +66,38 @@ def test_mask_levels_scale_to_bits():
     spec = MaskSpec(law="threshold_ratio", vs=200.0, a=0.9, b=0.0, smooth_px=0.0)
     lv = mask_levels(spec, 4, pred_8bit=np.array([[10.0, 255.0]]))
     assert lv[0, 0] == 15 and 0 <= lv[0, 1] <= 15 and float(lv[0, 1]).is_integer()
+
+
+# ---------------------------------------------------------------- issue 13: law edge cases
+def test_target_law_edges_are_consistent():
+    """A prediction of 0, -0.0 or below needs no dimming (white); NaN is taken as infinitely
+    bright (the darkest usable level). -0.0 used to fall to the darkest level (1 / -0.0 = -inf)."""
+    table = np.linspace(0.001, 1.0, 256)
+    e = np.array([0.0, -0.0, -5.0, 1e9, np.nan], dtype=np.float32)
+    lv = target_levels(e, 1000.0, 0.5, table, min_level=1)
+    assert lv[0] == lv[1] == lv[2] == 255
+    assert lv[3] == lv[4] == 1
+
+
+def test_paper_laws_treat_nan_alike():
+    """Both readings of Eq. 2 take a NaN prediction as clipped (255): finite, equal to 255's."""
+    for law in (threshold_exp, threshold_ratio):
+        out = law(np.array([np.nan, 255.0]), 200.0, 0.9, 0.0)
+        assert np.all(np.isfinite(out)) and out[0] == out[1]
+
+
+def test_predicted_electrons_remove_the_black_level():
+    """x on the 8-bit scale is offset + gain e (rescaled): the black level reads 0 e-, a value
+    halfway to the top code (clipped_gain aside) the matching electrons. The old conversion
+    read 3 DN of black as 123 e-."""
+    from poevp_optics.masks import predicted_electrons
+    from poevp_optics.scene import SensorSpec
+    from poevp_optics.sensor import resolve_sensor
+
+    p = resolve_sensor(SensorSpec())
+    black_8 = p.offset_dn * 255.0 / p.max_dn
+    x = np.array([black_8, 0.0, 128.0, 255.0])
+    e = predicted_electrons(x, p, clipped_gain=32.0)
+    assert e[0] == pytest.approx(0.0, abs=1e-9) and e[1] == 0.0
+    assert e[2] == pytest.approx((128.0 * p.max_dn / 255.0 - p.offset_dn) / p.gain_dn_per_e)
+    assert e[3] == pytest.approx(32.0 * p.saturation_capacity_e)
