@@ -19,21 +19,19 @@ from benchmarks.common import machine_line, markdown_table, save_figure, save_te
 
 def measure(shape, k, psf):
     from poevp_optics.camera import Camera
-    from poevp_optics.reconstruct import reconstruct
     from poevp_optics.scene import load_scene
 
     spec = load_scene("scenes/highbeam_plate", [f"render.resolution=[{shape[0]},{shape[1]}]",
                                                 f"relay.psf='{psf}'", "relay.sigma_px=1.2"])
     cam = Camera(spec)
     rng = np.random.default_rng(0)
-    subs = [rng.uniform(1e14, 1e18, shape).astype(np.float32) for _ in range(k)]
-    mask = rng.integers(0, 256, shape).astype(np.float64)
+    subs = [rng.uniform(1e14, 1e18, cam.mirror_shape).astype(np.float32) for _ in range(k)]
+    mask = rng.integers(0, 256, cam.mirror_shape).astype(np.float64)
     seeds = iter(range(10**6))
 
     def chain():
         cap = cam.capture(subs, mask, 0, next(seeds))
-        reconstruct(cap.dn, cap.exposure_s, cam.params, cam.etendue_m2_sr, cam.throughput,
-                    spec.timing.exposure_s)
+        cam.reconstruct(cap, 0)
 
     def floor():
         _ = [s.copy() for s in subs]

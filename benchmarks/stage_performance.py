@@ -48,21 +48,20 @@ def render_overhead(shape, spp=16):
 
 def chain_vs_copy(shape):
     from poevp_optics.camera import Camera
-    from poevp_optics.reconstruct import reconstruct
     from poevp_optics.scene import load_scene
 
     spec = load_scene("scenes/highbeam_plate", [f"render.resolution=[{shape[0]},{shape[1]}]"])
     cam = Camera(spec)
     rng = np.random.default_rng(0)
-    sub = rng.uniform(1e14, 1e18, shape).astype(np.float32)
-    mask = rng.integers(0, 256, shape).astype(np.float64)
+    sub = rng.uniform(1e14, 1e18, cam.mirror_shape).astype(np.float32)
+    mask = rng.integers(0, 256, cam.mirror_shape).astype(np.float64)
     seeds = iter(range(10**6))
     stage = {}
 
     def chain():
         cap = cam.capture([sub], mask, 0, next(seeds))
         t0 = time.perf_counter()
-        reconstruct(cap.dn, cap.exposure_s, cam.params, cam.etendue_m2_sr, cam.throughput, spec.timing.exposure_s)
+        cam.reconstruct(cap, 0)
         stage.update(cap.seconds, reconstruct=time.perf_counter() - t0)
 
     def floor():
@@ -75,7 +74,6 @@ def closed_loop_fps(names=("hold", "flow", "dmvfn_lite"), frames=12):
     from poevp_optics.camera import Camera
     from poevp_optics.loop import _resize, predicted_mask, predictor_input
     from poevp_optics.predict import make_predictor
-    from poevp_optics.reconstruct import reconstruct
     from poevp_optics.scene import load_scene
 
     spec = load_scene("scenes/highbeam_plate", ["predictor.name='flow'", "loop.mode='demodulated'"])
@@ -96,8 +94,7 @@ def closed_loop_fps(names=("hold", "flow", "dmvfn_lite"), frames=12):
         for i, rad in enumerate(radiance):
             t0 = time.perf_counter()
             cap = cam.capture([rad], mask, i, i)
-            est, flags, _ = reconstruct(cap.dn, cap.exposure_s, cam.params, cam.etendue_m2_sr,
-                                        cam.throughput, spec.timing.exposure_s)
+            est, flags, _ = cam.reconstruct(cap, i)
             hist.append(_resize(predictor_input("demodulated", cam, cap, cap, est, flags, i), (h, w)))
             if len(hist) >= 2:
                 mask = predicted_mask(spec, cam, _resize(pred(hist[-2:]), (h, w)), i)
@@ -139,11 +136,10 @@ if stage == "render":
 elif stage == "camera":
     cam.capture([rad], mask, 0, 1)
 elif stage == "reconstruct":
-    from poevp_optics.reconstruct import reconstruct
     cap = cam.capture([rad], mask, 0, 1)
     stop[0] = True; th.join(); peak0 = rss(); peak[0] = 0; stop[0] = False
     th = threading.Thread(target=sample); th.start()
-    reconstruct(cap.dn, cap.exposure_s, cam.params, cam.etendue_m2_sr, cam.throughput, 0.03)
+    cam.reconstruct(cap, 0)
 elif stage == "predict":
     p([f, f * 0.9])
 stop[0] = True; th.join()

@@ -49,8 +49,8 @@ def float_precision():
     spec = load_scene("scenes/highbeam_plate", ["render.subframes=8"])
     cam = Camera(spec, NoiseSwitches.off())
     rng = np.random.default_rng(0)
-    subs = [rng.uniform(1e12, 1e18, cam.shape).astype(np.float32) for _ in range(8)]
-    mask = rng.integers(0, 256, cam.shape).astype(np.float64)
+    subs = [rng.uniform(1e12, 1e18, cam.mirror_shape).astype(np.float32) for _ in range(8)]
+    mask = rng.integers(0, 256, cam.mirror_shape).astype(np.float64)
     t32, cap = timed(lambda: cam.capture(subs, mask, 0, 1), 3)
     table = transmission_table(np.arange(256), spec.dmd, cam.schedule(0), 8)
 

@@ -21,7 +21,7 @@ from .camera import Camera
 from .io import write_exr, write_png
 from .loop import _contact_sheet, _frame_seed, _mask_png, _resize, _seeds, oracle_mask, predicted_mask, predictor_input
 from .metrics import to_8bit
-from .reconstruct import dn_to_electrons, is_saturated, reconstruct
+from .reconstruct import dn_to_electrons, is_saturated
 from .render import Renderer, absolute_spectrum
 from .report import write_report
 from .scene import SceneError, SceneSpec, load_scene
@@ -45,7 +45,7 @@ def settle_mask(spec: SceneSpec, cam: Camera, truth: np.ndarray, white_capture) 
     Stable: no saturated pixel whose mirror could still go darker, and under 1 % of mirrors
     changing their exposure by more than 25 % from one frame to the next."""
     top = cam.top_level
-    white = np.full(cam.shape, float(top))
+    white = cam.white_mask()
     lev = cam.level_exposure_s(0)
     if spec.chart.mask_source == "oracle":
         return oracle_mask(spec, cam, truth, 0), {"source": "oracle", "frames": 0, "converged": True,
@@ -58,8 +58,7 @@ def settle_mask(spec: SceneSpec, cam: Camera, truth: np.ndarray, white_capture) 
     min_level = min(spec.mask.min_level, top)
     for it in range(spec.chart.max_iterations):
         cap = cam.capture([truth], mask, it, _frame_seed(spec, it, 3))
-        est, flags, _ = reconstruct(cap.dn, cap.exposure_s, p, cam.etendue_m2_sr, cam.throughput,
-                                    spec.timing.exposure_s, cam.sensor.switches.dark_current)
+        est, flags, _ = cam.reconstruct(cap, it)
         hist.append(_resize(predictor_input(spec.loop.mode, cam, white_capture, cap, est, flags, it),
                             spec.predictor.resolution))
         if it + 1 < spec.loop.init_frames or len(hist) < pred.needs_frames:
@@ -67,7 +66,7 @@ def settle_mask(spec: SceneSpec, cam: Camera, truth: np.ndarray, white_capture) 
         else:
             new = predicted_mask(spec, cam, _resize(pred(hist[-2:]), cam.shape), it)
         sat = (flags.astype(np.int64) & 1) > 0
-        movable = int(np.count_nonzero(sat & (mask > min_level)))
+        movable = int(np.count_nonzero(sat & (cam.to_sensor(mask) > min_level)))
         changed = _stable_changed(mask, new, lev)
         frames.append({"frame": it, "saturated_fraction": float(np.mean(sat)),
                        "saturated_movable": movable, "changed_fraction": changed})
@@ -79,8 +78,15 @@ def settle_mask(spec: SceneSpec, cam: Camera, truth: np.ndarray, white_capture) 
                   "converged": False, "history": frames}
 
 
+def _center_crop(img: np.ndarray, shape) -> np.ndarray:
+    """The central `shape` of an image rendered with a wider guard band."""
+    gy, gx = (img.shape[0] - shape[0]) // 2, (img.shape[1] - shape[1]) // 2
+    return img[gy:gy + shape[0], gx:gx + shape[1]]
+
+
 def _measure(cam: Camera, spec: SceneSpec, truth, regions, masks_levels, stream: int, lum, dens, true_sig):
-    """N captures through `masks_levels` (None: no DMD) -> (PatchTable, first capture, mean estimate)."""
+    """N captures through `masks_levels` (None: no DMD) -> (PatchTable, first capture, mean estimate).
+    truth: the chart radiance on the camera's mirror grid."""
     p = cam.params
     n = spec.chart.repeats
     dark_e = p.dark_current_e_per_s * spec.timing.exposure_s if cam.sensor.switches.dark_current else 0.0
@@ -98,7 +104,7 @@ def _measure(cam: Camera, spec: SceneSpec, truth, regions, masks_levels, stream:
         sat.append(is_saturated(dn, e_dn, p))
         elec.append(e)
     clip_sig = ((p.max_dn - p.offset_dn) / p.gain_dn_per_e - dark_e) / np.maximum(scale, 1e-300)
-    flare = first.signal_e.astype(np.float64) - truth.astype(np.float64) * scale
+    flare = first.signal_e.astype(np.float64) - cam.to_sensor(truth) * scale
     est = np.stack(est)
     table = charts.patch_table(regions, dens, lum, true_sig, est, np.stack(sat), clip_sig,
                                np.stack(elec), scale, flare)
@@ -106,17 +112,20 @@ def _measure(cam: Camera, spec: SceneSpec, truth, regions, masks_levels, stream:
 
 
 def _with_camera(spec: SceneSpec, ref: SceneSpec) -> SceneSpec:
-    """Our chart seen by `ref`'s camera: its timing, DMD, relay and sensor (our render, mask law)."""
+    """Our chart seen by `ref`'s camera: its timing, DMD, optics and sensor (our render, mask law)."""
     timing = dataclasses.replace(ref.timing, frames=spec.timing.frames)
-    return dataclasses.replace(spec, timing=timing, dmd=ref.dmd, relay=ref.relay, sensor=ref.sensor)
+    return dataclasses.replace(spec, timing=timing, dmd=ref.dmd, objective=ref.objective, relay=ref.relay,
+                               sensor=ref.sensor)
 
 
-def measure_camera(spec: SceneSpec, truth, regions, lum, dens, true_sig) -> dict:
-    """LDR (scene bits and 8-bit readout), settled mask, encoded: tables, DR, limits."""
+def measure_camera(spec: SceneSpec, truth_field, regions, lum, dens, true_sig) -> dict:
+    """LDR (scene bits and 8-bit readout), settled mask, encoded: tables, DR, limits.
+    truth_field: the chart rendered with a guard band at least this camera's."""
     t0 = time.perf_counter()
     cam = Camera(spec)
+    truth = _center_crop(truth_field, cam.mirror_shape)
     top = cam.top_level
-    white = np.full(cam.shape, float(top)) if cam.dmd else None
+    white = cam.white_mask()
     res = {"tables": {}, "dr": {}, "details": {}, "images": {}}
     ldr_t, ldr_cap, ldr_est = _measure(cam, spec, truth, regions, white, 1, lum, dens, true_sig)
     res["tables"]["ldr"] = ldr_t
@@ -125,7 +134,8 @@ def measure_camera(spec: SceneSpec, truth, regions, lum, dens, true_sig) -> dict
     if cam.params.bits != 8:
         spec8 = dataclasses.replace(spec, sensor=dataclasses.replace(spec.sensor, bits=8))
         cam8 = Camera(spec8)
-        res["tables"]["ldr_8bit"], _, _ = _measure(cam8, spec8, truth, regions, white, 1, lum, dens, true_sig)
+        res["tables"]["ldr_8bit"], _, _ = _measure(cam8, spec8, _center_crop(truth_field, cam8.mirror_shape),
+                                                   regions, cam8.white_mask(), 1, lum, dens, true_sig)
         res["emva_8bit"] = charts.emva_dr(cam8.params, spec.timing.exposure_s)
     if cam.dmd is not None:
         mask, settle = settle_mask(spec, cam, truth, ldr_cap)
@@ -256,7 +266,10 @@ def run_chart(spec: SceneSpec, out_dir: Path, progress: bool = True) -> dict:
     if not spec.is_static:
         raise SceneError(f"{file}: motion: a dynamic-range chart must be static")
     out_dir = Path(out_dir)
-    renderer = Renderer(spec)
+    ref = load_scene(spec.toml_path.parent / spec.chart.reference_camera) if spec.chart.reference_camera else None
+    cam = Camera(spec)
+    guard = max(cam.guard_px, Camera(_with_camera(spec, ref)).guard_px if ref else 0)
+    renderer = Renderer(spec, guard_px=guard)
     plan = renderer.plan
     names = [spec.chart.param(i) for i in range(spec.chart.patches)]
     expected = np.array([spectra.integrate(plan.response_e_per_J * absolute_spectrum(spec.spectra[n]))
@@ -264,9 +277,11 @@ def run_chart(spec: SceneSpec, out_dir: Path, progress: bool = True) -> dict:
     dens = np.array(spec.chart.density_list())
     lum = np.array([spec.spectra[n].luminance_cd_per_m2 for n in names])
     t0 = time.perf_counter()
-    truth, var = renderer.render_with_error(_seeds(spec.render.seed, 0, 0, spec.render.mc_splits),
-                                            spec.render.spp)
+    truth_field, var_field = renderer.render_with_error(_seeds(spec.render.seed, 0, 0, spec.render.mc_splits),
+                                                        spec.render.spp)
     render_s = time.perf_counter() - t0
+    truth = cam.to_sensor(_center_crop(truth_field, cam.mirror_shape)).astype(np.float32)
+    var = cam.to_sensor(_center_crop(var_field, cam.mirror_shape))
     regions = charts.patch_regions(truth, expected, spec.chart.roi_inset_px, np.sqrt(var))
     for i, reg in enumerate(regions):
         if reg.sum() < 16:
@@ -275,12 +290,11 @@ def run_chart(spec: SceneSpec, out_dir: Path, progress: bool = True) -> dict:
                              "raise render.resolution or lower the inset")
     check = max(abs(float(truth[r].mean()) / e - 1) for r, e in zip(regions, expected))
 
-    blocks = {"scene": measure_camera(spec, truth, regions, lum, dens, expected)}
+    blocks = {"scene": measure_camera(spec, truth_field, regions, lum, dens, expected)}
     ref_name = None
-    if spec.chart.reference_camera:
-        ref = load_scene(spec.toml_path.parent / spec.chart.reference_camera)
+    if ref is not None:
         ref_name = ref.name
-        blocks[ref_name] = measure_camera(_with_camera(spec, ref), truth, regions, lum, dens, expected)
+        blocks[ref_name] = measure_camera(_with_camera(spec, ref), truth_field, regions, lum, dens, expected)
 
     main = blocks["scene"]
     tw = time.perf_counter()

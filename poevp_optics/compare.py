@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .camera import Camera
 from .io import atomic_path, write_png
 from .loop import render_exposures, run_render
 from .metrics import crop, local_entropy
@@ -24,7 +25,7 @@ from .scene import load_scene
 
 def compare(scene, predictors, modes, out: Path, overrides=(), progress=True, frames_shown=4) -> list[dict]:
     base = load_scene(scene, list(overrides))
-    renderer = Renderer(base)
+    renderer = Renderer(base, guard_px=Camera(base).guard_px)
     exposures = list(render_exposures(base, renderer, progress))
     n = base.timing.frames
     shown = tuple(sorted({min(n - 1, max(base.loop.init_frames, round(x))) for x in

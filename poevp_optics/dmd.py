@@ -21,10 +21,14 @@ Fig. 7; TI DLPC900 programmer's guide, pattern sequences); mirror reset + motion
 Model: a mirror's on-state level m(t) in [0, 1] is piecewise linear: constant within a plane,
 ramping at slope 1/settle_s toward the new state after each plane boundary (a ramp cut short by
 the next boundary continues from the level reached). The light reaching the relay is
-throughput * (m + (1 - m) / contrast_ratio). Because m depends on the mirror only through its
-grey level v, the time integral of m over each of the K sub-intervals of the exposure is computed
-exactly, once, for every level v in closed form (float64 `weight_table`), and each mirror then
-looks up its level (a DrJit gather): exact for any schedule, bit order and window offset.
+throughput * (m + (1 - m) / contrast_ratio). The scene radiance L(t) is known at K nodes in
+time (`node_times_s`: the exposure's ends and K - 2 equally spaced times between them; its
+midpoint for K = 1) and taken as piecewise linear between them, so a mirror at level v collects
+sum_j W_j(v) L_j with W_j(v) = int m_v(t) phi_j(t) dt, phi_j the hat function of node j. Because
+m depends on the mirror only through its grey level v, these integrals are computed exactly,
+once, for every level in closed form (float64 `on_time_table`: Simpson's rule is exact for the
+piecewise-quadratic m phi), and each mirror then looks up its level (a DrJit gather): exact for
+any schedule, bit order and window offset, and second order in 1/K for every level.
 """
 
 from __future__ import annotations
@@ -102,23 +106,134 @@ def _segments(levels: np.ndarray, sched: Schedule):
     return (np.stack(t0s, 1), np.stack(t1s, 1), np.stack(m0s, 1), np.stack(m1s, 1))
 
 
-def _cumulative(u: np.ndarray, seg) -> np.ndarray:
-    """Integral of m(t) from -inf to each time u (K+1,), per level: (V, K+1)."""
-    t0, t1, m0, m1 = (a[:, :, None] for a in seg)
-    c = np.clip(u[None, None, :], t0, t1)
+def node_times_s(t0_s: float, t1_s: float, k: int, extra_s=()) -> np.ndarray:
+    """Times (s) of the radiance samples of the exposure [t0, t1]: its midpoint for K = 1, else
+    K equally spaced nodes including both ends, joined by `extra_s` (e.g. the DMD's switching
+    times, `switch_times_s`) that fall inside. Between nodes the radiance is taken as piecewise
+    linear in time (hat-function quadrature, `on_time_table`)."""
+    if k < 1:
+        raise ValueError(f"K = {k}: need at least one radiance sample per exposure")
+    if k == 1:
+        return np.array([(t0_s + t1_s) / 2])
+    t = t0_s + np.arange(k) * ((t1_s - t0_s) / (k - 1))
+    t[-1] = t1_s
+    extra = np.asarray(extra_s, dtype=np.float64)
+    if extra.size:
+        tol = 1e-9 * (t1_s - t0_s)
+        inside = extra[(extra > t0_s + tol) & (extra < t1_s - tol)]
+        t = np.sort(np.concatenate([t, inside]))
+        t = t[np.concatenate([[True], np.diff(t) > tol])]
+    return t
+
+
+def switch_times_s(sched: "Schedule") -> np.ndarray:
+    """Absolute times (s) at which mirrors may switch: the display window's edges and every
+    bit-plane boundary. A mask level's on-time is a union of intervals between them, so radiance
+    nodes there resolve even the shortest planes (a level lit only by its low bits integrates
+    L(t) over a millisecond, which K uniform nodes alone resolve only for K >> T / 1 ms)."""
+    out = [sched.window_start_s]
+    out += [b for _, _, b in sched.plane_intervals()]
+    return np.array(out)
+
+
+def _nodes_rel(sched: "Schedule", nodes) -> np.ndarray:
+    """Node times relative to the exposure start (s): an int K means K uniform nodes."""
+    if np.isscalar(nodes):
+        return node_times_s(0.0, sched.exposure_s, int(nodes))
+    rel = np.asarray(nodes, dtype=np.float64)
+    if rel.ndim != 1 or rel.size < 1 or np.any(np.diff(rel) <= 0):
+        raise ValueError("radiance nodes must be a non-empty increasing array of times")
+    if rel.size > 1 and (abs(rel[0]) > 1e-9 * sched.exposure_s
+                         or abs(rel[-1] - sched.exposure_s) > 1e-9 * sched.exposure_s):
+        raise ValueError("radiance nodes must include both ends of the exposure")
+    return rel
+
+
+def node_time_weights_s(exposure_s: float, nodes) -> np.ndarray:
+    """Integral over the exposure of each node's hat function (s): the trapezoid weights
+    (h_j-1 + h_j) / 2 (h/2 at the ends); t_I for a single node. They sum to t_I. `nodes`: an
+    int K (uniform) or node times relative to the exposure start."""
+    if np.isscalar(nodes):
+        nodes = node_times_s(0.0, exposure_s, int(nodes))
+    rel = np.asarray(nodes, dtype=np.float64)
+    if rel.size == 1:
+        return np.array([exposure_s])
+    h = np.diff(rel)
+    w = np.zeros(rel.size)
+    w[:-1] += h / 2
+    w[1:] += h / 2
+    return w
+
+
+#: Cells (levels x segments x intervals) evaluated per block, bounding the memory of the tables.
+_BLOCK_CELLS = 1 << 21
+
+
+def _interval_moments(levels: np.ndarray, sched: Schedule, edges_rel: np.ndarray):
+    """Zeroth and first moments of the mirror level m(t) over each interval [e_i, e_i+1]
+    (times relative to the exposure start, s): A_i = int m dt and B_i = int m (t - e_i) dt,
+    arrays (len(levels), len(edges) - 1), float64. m is piecewise linear, so A is exact by the
+    trapezoid rule and B (quadratic integrand) by Simpson's rule."""
+    levels = np.asarray(levels)
+    t0, t1, m0, m1 = _segments(levels, sched)
+    t0, t1 = t0 - sched.exposure_start_s, t1 - sched.exposure_start_s
     dur = t1 - t0
     slope = np.divide(m1 - m0, dur, out=np.zeros_like(dur), where=dur > 0)
-    mc = m0 + slope * (c - t0)
-    return np.sum((c - t0) * (m0 + mc) * 0.5, axis=1)
+    n_int = len(edges_rel) - 1
+    v_all, s_all = t0.shape
+    A = np.empty((v_all, n_int))
+    B = np.empty((v_all, n_int))
+    step_i = max(1, min(n_int, _BLOCK_CELLS // max(1, v_all * s_all)))
+    step_v = max(1, min(v_all, _BLOCK_CELLS // max(1, s_all * step_i)))
+    for v0 in range(0, v_all, step_v):
+        vs = slice(v0, v0 + step_v)
+        a0, a1, am0, asl = (x[vs, :, None] for x in (t0, t1, m0, slope))
+        for i0 in range(0, n_int, step_i):
+            i1 = min(i0 + step_i, n_int)
+            lo = edges_rel[None, None, i0:i1]
+            hi = edges_rel[None, None, i0 + 1:i1 + 1]
+            c0 = np.clip(a0, lo, hi)
+            c1 = np.clip(a1, lo, hi)
+            w = c1 - c0
+            mc0 = am0 + asl * (c0 - a0)
+            mc1 = am0 + asl * (c1 - a0)
+            A[vs, i0:i1] = np.sum(w * (mc0 + mc1) * 0.5, axis=1)
+            mid = 0.5 * (c0 + c1)
+            B[vs, i0:i1] = np.sum(
+                w / 6.0 * (mc0 * (c0 - lo) + 2.0 * (mc0 + mc1) * (mid - lo) + mc1 * (c1 - lo)), axis=1)
+    return A, B
 
 
-def on_time_table(levels: np.ndarray, sched: Schedule, k: int) -> np.ndarray:
-    """Exact on-state time (s) of mirrors at each grey level in each of K equal sub-intervals
-    of the exposure: array (len(levels), k), float64."""
-    u = sched.exposure_start_s + np.arange(k + 1) * (sched.exposure_s / k)
-    u[-1] = sched.exposure_start_s + sched.exposure_s
-    cum = _cumulative(u, _segments(np.asarray(levels), sched))
-    return np.diff(cum, axis=1)
+def on_time_table(levels: np.ndarray, sched: Schedule, nodes) -> np.ndarray:
+    """Exact on-state time (s) of mirrors at each grey level weighted by each node's hat function:
+    W_j(v) = int m_v(t) phi_j(t) dt over the exposure, array (len(levels), K), float64.
+    `nodes`: an int K (uniform nodes, `node_times_s`) or node times relative to the exposure
+    start (a single node: phi = 1 over the whole exposure).
+
+    With radiance samples L_j at the nodes, the capture integral int m_v(t) L(t) dt is
+    sum_j W_j(v) L_j for the piecewise-linear interpolant of L: second order in the node spacing
+    for a smooth L(t), however the on-time of a level is placed in time (a midpoint rule on K
+    sub-intervals is only first order when a level's few short planes sit off a sub-interval's
+    centre). Every W_j >= 0 and sum_j W_j(v) is the exact total on-time.
+    """
+    rel = _nodes_rel(sched, nodes)
+    if rel.size == 1:
+        return _interval_moments(levels, sched, np.array([0.0, sched.exposure_s]))[0]
+    A, B = _interval_moments(levels, sched, rel)
+    h = np.diff(rel)[None, :]
+    out = np.zeros((A.shape[0], rel.size))
+    out[:, :-1] += A - B / h            # falling half of hat j over [t_j, t_j+1]
+    out[:, 1:] += B / h                 # rising half of hat j over [t_j-1, t_j]
+    return np.maximum(out, 0.0)         # A - B/h >= 0 exactly; drop -1e-18 rounding
+
+
+def interval_on_time_table(levels: np.ndarray, sched: Schedule, k: int) -> np.ndarray:
+    """Exact on-state time (s) of each level in each of K equal sub-intervals of the exposure,
+    (len(levels), K): the weights of the midpoint-product rule (each sub-interval's on-time times
+    the radiance at its centre), first order in 1/K. Kept for comparisons (benchmarks)."""
+    edges = sched.exposure_s * np.arange(k + 1) / k
+    edges[-1] = sched.exposure_s
+    return _interval_moments(levels, sched, edges)[0]
 
 
 def throughput_on(dmd: DMDSpec) -> float:
@@ -126,18 +241,19 @@ def throughput_on(dmd: DMDSpec) -> float:
     return dmd.fill_factor * dmd.reflectance
 
 
-def transmission_table(levels: np.ndarray, dmd: DMDSpec, sched: Schedule, k: int) -> np.ndarray:
-    """Effective exposure time (s) per level and sub-interval, with throughput and leakage:
-    throughput * (t_on + (dt - t_on) / contrast_ratio). Array (len(levels), k), float64."""
-    t_on = on_time_table(levels, sched, k)
-    dt = sched.exposure_s / k
+def transmission_table(levels: np.ndarray, dmd: DMDSpec, sched: Schedule, nodes) -> np.ndarray:
+    """Effective exposure time (s) per level and radiance node, with throughput and leakage:
+    throughput * (W_j + (w_j - W_j) / contrast_ratio), W from `on_time_table`, w_j the node's
+    time weight. `nodes` as in `on_time_table`. Array (len(levels), K), float64."""
+    t_on = on_time_table(levels, sched, nodes)
+    dt = node_time_weights_s(sched.exposure_s, _nodes_rel(sched, nodes))[None, :]
     return throughput_on(dmd) * (t_on + (dt - t_on) / dmd.contrast_ratio)
 
 
 def interval_transmission(levels: np.ndarray, dmd: DMDSpec, sched: Schedule, a: float, b: float) -> np.ndarray:
     """Effective exposure time (s) of each level over an arbitrary interval [a, b] (exact)."""
-    c = _cumulative(np.array([a, b], dtype=np.float64), _segments(np.asarray(levels), sched))
-    on = c[:, 1] - c[:, 0]
+    edges = np.array([a, b], dtype=np.float64) - sched.exposure_start_s
+    on = _interval_moments(np.asarray(levels), sched, edges)[0][:, 0]
     return throughput_on(dmd) * (on + ((b - a) - on) / dmd.contrast_ratio)
 
 
@@ -165,15 +281,16 @@ class DMD:
         self.levels = (1 << dmd.bits) - 1
         self._cache = {}
 
-    def _full_table(self, sched: Schedule, k: int):
-        """Float32 DrJit table of all levels x K, cached: it depends only on the schedule
-        relative to the frame start, which is the same for every frame."""
+    def _full_table(self, sched: Schedule, rel: np.ndarray):
+        """Float32 DrJit table of all levels x K, cached: it depends only on the schedule and the
+        nodes relative to the frame start, which are the same for every frame."""
         from drjit.auto import Float
 
         key = (round(sched.exposure_start_s - sched.window_start_s, 15), sched.exposure_s,
-               sched.window_s, sched.outside_on, sched.bits, sched.msb_first, sched.settle_s, k)
+               sched.window_s, sched.outside_on, sched.bits, sched.msb_first, sched.settle_s,
+               tuple(np.round(rel / sched.exposure_s, 12)))
         if key not in self._cache:
-            table = transmission_table(np.arange(self.levels + 1), self.spec, sched, k)
+            table = transmission_table(np.arange(self.levels + 1), self.spec, sched, rel)
             self._cache = {key: (Float(table.T.astype(np.float32).ravel()), table)}
         return self._cache[key]
 
@@ -194,68 +311,23 @@ class DMD:
         idx = UInt32(self._level_index(mask_levels))
         return [dr.gather(Float, Float(np.asarray(t, np.float32)), idx) for t in tables]
 
-    def exposure_weights(self, mask_levels: np.ndarray, sched: Schedule, k: int):
-        """Effective exposure (s) of each mirror in each sub-interval: list of K DrJit Float
-        arrays (flattened mirror grid), plus the per-level table used (float64)."""
+    def exposure_weights(self, mask_levels: np.ndarray, sched: Schedule, nodes):
+        """Effective exposure (s) of each mirror for each radiance node (`on_time_table`): list of
+        K DrJit Float arrays (flattened mirror grid), plus the per-level table used (float64)."""
         import drjit as dr
         from drjit.auto import Float, UInt32
 
         mi = self._level_index(mask_levels)
+        rel = _nodes_rel(sched, nodes)
+        k = rel.size
         if (self.levels + 1) * k <= self.FULL_TABLE_MAX:
-            flat, table = self._full_table(sched, k)
+            flat, table = self._full_table(sched, rel)
             idx = UInt32(mi)
             u = self.levels + 1
             return [dr.gather(Float, flat, idx + j * u) for j in range(k)], table
         uniq, inverse = np.unique(mi, return_inverse=True)
-        table = transmission_table(uniq, self.spec, sched, k)          # (U, K)
+        table = transmission_table(uniq, self.spec, sched, rel)        # (U, K)
         idx = UInt32(inverse.astype(np.uint32))
         flat = Float(table.T.astype(np.float32).ravel())               # K blocks of U
         u = len(uniq)
         return [dr.gather(Float, flat, idx + j * u) for j in range(k)], table
-
-
-def registration_taps(reg, mirror_shape: tuple[int, int], sensor_shape: tuple[int, int],
-                      oversample: int = 4) -> tuple[np.ndarray, np.ndarray] | None:
-    """Area-weighted resampling of the mirror grid onto the sensor grid, or None for 1:1.
-
-    The affine map takes mirror coordinates m (pixel centres at integers + 0.5) to sensor
-    coordinates s = scale R(rotation) (m - c_m) + c_s + offset_px, about the grid centres.
-    Each sensor pixel is split into oversample^2 sub-areas, mapped back to the mirror grid and
-    assigned to the mirror they land in: the sensor pixel sees the area average of the DMD-plane
-    radiance over its footprint (radiance is conserved through the relay), exact to
-    1/oversample^2 of a pixel's area. Sub-areas landing off the mirror array get weight 0.
-    Returns (indices (N, oversample^2) into the flattened mirror grid, weights (N, oversample^2)).
-    """
-    if (reg.scale == 1.0 and reg.rotation_deg == 0.0 and tuple(reg.offset_px) == (0.0, 0.0)
-            and tuple(mirror_shape) == tuple(sensor_shape)):
-        return None
-    hs, ws = sensor_shape
-    hm, wm = mirror_shape
-    o = (np.arange(oversample) + 0.5) / oversample
-    sy, sx = np.meshgrid(np.arange(hs), np.arange(ws), indexing="ij")
-    py = (sy[..., None, None] + o[None, None, :, None]).reshape(hs * ws, -1)
-    px = (sx[..., None, None] + o[None, None, None, :]).reshape(hs * ws, -1)
-    th = np.deg2rad(reg.rotation_deg)
-    # inverse map: m = R(-theta) (s - c_s - offset) / scale + c_m   (offset_px = [dx, dy])
-    dx = px - ws / 2 - reg.offset_px[0]
-    dy = py - hs / 2 - reg.offset_px[1]
-    mx = (np.cos(th) * dx + np.sin(th) * dy) / reg.scale + wm / 2
-    my = (-np.sin(th) * dx + np.cos(th) * dy) / reg.scale + hm / 2
-    ix, iy = np.floor(mx).astype(np.int64), np.floor(my).astype(np.int64)
-    inside = (ix >= 0) & (ix < wm) & (iy >= 0) & (iy < hm)
-    idx = np.where(inside, iy * wm + ix, 0)
-    weights = inside.astype(np.float64) / oversample ** 2
-    return idx, weights
-
-
-def apply_registration(image_flat, taps):
-    """Resample a flattened DrJit Float mirror-plane image with `registration_taps`."""
-    import drjit as dr
-    from drjit.auto import Float, UInt32
-
-    idx, w = taps
-    out = None
-    for j in range(idx.shape[1]):
-        v = dr.gather(Float, image_flat, UInt32(idx[:, j].astype(np.uint32))) * Float(w[:, j].astype(np.float32))
-        out = v if out is None else out + v
-    return out

@@ -3,12 +3,13 @@
 | term            | estimate | setting that lowers it |
 |-----------------|----------|------------------------|
 | render_mc       | RMS Monte Carlo standard error / mean radiance (independent-seed splits) | render.spp |
-| temporal        | K vs K/2 sub-frames on one frame, Richardson for the midpoint rule (order 2): E_K ~ (M_K - M_K/2) / 3, with the MC noise of both renders subtracted in quadrature | render.subframes |
+| temporal        | the frame's radiance nodes vs the same plus every interval's midpoint, on one frame, on the encoded plane with the frame's actual mask (and the white one: `rel_ldr`): E ~ (4/3)(P_nodes - P_refined) for the order-2 hat quadrature, MC noise of the difference subtracted in quadrature | render.subframes |
 | psf_truncation  | energy of the PSF outside its support (relay.py) | relay.support_px / relay.support_energy |
 | poisson_sampler | exact samplers (Knuth below 10 e-, PTRS above, float64 uniforms; Hormann 1993); counts are stored as float32: exact to 2^24 e-, then 2^-24 relative | - |
-| quantisation    | ADC step / sqrt(12) over the mean signal above black (DN) | sensor.bits |
 
-Total: root sum of squares (the terms are independent). The temporal term is 0 for static
+Total: root sum of squares (the terms are independent). These are numerical errors of the
+simulation. Modelled sensor physics (ADC quantisation, shot noise) is not an error of the
+simulation: the report lists it apart, under `physics_noise` (`physics_noise` below). The temporal term is 0 for static
 scenes (K = 1 is exact) and for PWM lamps on static geometry (integrated exactly).
 """
 
@@ -21,51 +22,122 @@ import numpy as np
 
 ADVICE = {"render_mc": "raise render.spp", "temporal": "raise render.subframes",
           "psf_truncation": "raise relay.support_energy (or relay.support_px)",
-          "poisson_sampler": "nothing to raise (exact sampler)", "quantisation": "raise sensor.bits"}
+          "poisson_sampler": "nothing to raise (exact sampler)"}
 POISSON_BOUND = 2.0 ** -24
 
 
-def temporal_error(spec, renderer, frame_index: int, mean_k: np.ndarray, var_k: np.ndarray,
-                   roi=None, seeds=None) -> dict:
-    """Richardson estimate of the K-sub-frame quadrature error on one frame (extra K/2 renders)."""
+def _plane_coefficients(camera, mask, frame_index: int, nodes_rel: np.ndarray) -> np.ndarray:
+    """Per-pixel effective exposure of each radiance node (s): (H, W, K) for the mask's levels
+    (mirror grid; white without a DMD)."""
+    from .dmd import node_time_weights_s, throughput_on, transmission_table
+
+    if camera.dmd is None or mask is None:
+        thr = throughput_on(camera.spec.dmd) if camera.dmd is not None else 1.0
+        w = node_time_weights_s(camera.spec.timing.exposure_s, nodes_rel) * thr
+        return np.broadcast_to(w, (*camera.mirror_shape, len(w)))
+    lv = np.rint(mask).astype(np.int64)
+    uniq, inv = np.unique(lv, return_inverse=True)
+    table = transmission_table(uniq, camera.spec.dmd, camera.schedule(frame_index), nodes_rel)
+    return table[inv.reshape(lv.shape)]
+
+
+def temporal_error(spec, renderer, camera, ex=None, mask=None) -> dict:
+    """Step-halving estimate of the time-quadrature error of the encoded capture on one frame.
+
+    The capture of a mirror at level v is sum_j W_j(v) L_j over the frame's radiance nodes
+    (dmd.py: exact PWM on-time against the piecewise-linear L(t)). The same sum over the nodes
+    plus every interval's midpoint is the better rule; for an error of order 2 in the node
+    spacing, E ~ (4/3) (P_nodes - P_refined). Both rules are rendered here for this one frame with
+    common random numbers (one seed for every time, per MC split), so their difference is the
+    quadrature's and not Monte Carlo noise; the residual noise of the difference (its spread over
+    the splits) is subtracted in quadrature. Evaluated with the frame's actual mask (`rel`) and
+    the white one (`rel_ldr`), over the ROI (or the frame): RMS over pixels relative to the mean.
+    Rendered plates are not smooth in time (texture edges crossing pixels put kinks in L(t)):
+    benchmarks/subframes_error.md measures this estimate against 256-sample references.
+    Cost: 2 N - 1 renders at the scene's spp for one frame of N nodes.
+    """
     from .loop import _seeds
     from .metrics import crop
 
     k = spec.render.subframes
-    if spec.geometry_static or k < 2:
+    if spec.geometry_static or ex is None or k < 2:
         why = ("static scene: one radiance sample is exact" if spec.is_static else
                "PWM lamps on static geometry: exact integration" if spec.geometry_static else
-               "K = 1: no K/2 to compare with (raise render.subframes to estimate it)")
+               f"K = {k}: one radiance sample per exposure, no rule to refine (raise render.subframes)"
+               if k < 2 else "no frame to estimate it on")
         return {"rel": 0.0 if spec.geometry_static else None, "method": why, "seconds": 0.0}
-    t0 = time.perf_counter()
-    half = k // 2
-    a, b = spec.exposure_window_s(frame_index)
-    times = a + (np.arange(half) + 0.5) * (b - a) / half
+    t_start = time.perf_counter()
+    a, _ = spec.exposure_window_s(ex.index)
+    fine_t = np.asarray(ex.subframe_times_s, dtype=np.float64)
+    refined_t = np.sort(np.concatenate([fine_t, 0.5 * (fine_t[1:] + fine_t[:-1])]))
+    fine_at = {float(t): j for j, t in enumerate(fine_t)}
     acc = spec.accuracy
-    subs, var = [], None
-    for j, t in enumerate(times):
+    n = acc.mc_splits
+    spp = spec.render.temporal_spp or acc.spp
+    sizes = [spp // n + (1 if i < spp % n else 0) for i in range(n)]
+    seeds = _seeds(spec.render.seed, ex.index, 7000, n)
+    planes = {}
+    for key, m in (("rel", mask), ("rel_ldr", None)):
+        cf = _plane_coefficients(camera, m, ex.index, fine_t - a)
+        cr = _plane_coefficients(camera, m, ex.index, refined_t - a)
+        planes[key] = (cf, cr, [0.0] * n, [0.0] * n)       # fine and refined plane per split
+    for i, t in enumerate(refined_t):
         renderer.set_time(float(t))
-        m, v = renderer.render_with_error(_seeds(spec.render.seed, frame_index, 5000 + j, acc.mc_splits), acc.spp)
-        subs.append(m.astype(np.float64))
-        var = v if var is None else var + v
-    mean_h = np.mean(subs, axis=0)
-    var_h = var / half ** 2
-    diff = crop(mean_k.astype(np.float64) - mean_h, roi)
-    noise = crop(var_k + var_h, roi)
-    excess = float(np.mean(diff ** 2) - np.mean(noise))
-    scale = float(np.mean(crop(mean_k, roi)))
-    rel = math.sqrt(max(excess, 0.0)) / 3.0 / scale if scale > 0 else None
-    resolved = excess > 0
-    return {"rel": rel, "resolved": bool(resolved), "frame": frame_index, "k": k, "k_half": half,
-            "method": "Richardson, K vs K/2 midpoint rules on one frame (order 2), MC noise removed"
-                      + ("" if resolved else "; below the MC noise: 0 means 'not resolved'"),
-            "seconds": time.perf_counter() - t0, "renders": half * acc.mc_splits}
+        for sp in range(n):
+            img = crop(renderer.render_once(seeds[sp], sizes[sp]).astype(np.float64), ex.roi)
+            for cf, cr, pf, pr in planes.values():
+                j = fine_at.get(float(t))
+                if j is not None:
+                    pf[sp] = pf[sp] + crop(cf[..., j], ex.roi) * img
+                pr[sp] = pr[sp] + crop(cr[..., i], ex.roi) * img
+    out = {"frame": ex.index, "nodes": len(fine_t), "nodes_refined": len(refined_t), "order": 2,
+           "where": "ROI" if ex.roi else "frame"}
+    w = np.asarray(sizes, dtype=np.float64) / spp
+    for key, (_, _, pf, pr) in planes.items():
+        d = [f - r for f, r in zip(pf, pr)]
+        mean_d = sum(wi * di for wi, di in zip(w, d))
+        var_d = sum(wi * (di - mean_d) ** 2 for wi, di in zip(w, d)) / (n - 1)   # of the mean
+        scale = float(np.mean(sum(wi * f for wi, f in zip(w, pf))))
+        per_px = (mean_d ** 2 - var_d).ravel()
+        excess = float(np.mean(per_px))
+        spread = float(np.std(per_px) / math.sqrt(per_px.size))     # standard error of `excess`
+        tag = "" if key == "rel" else "_ldr"
+        resolved = excess > 2.0 * spread
+        if scale > 0:
+            point = (4.0 / 3.0) * math.sqrt(max(excess, 0.0)) / scale
+            upper = (4.0 / 3.0) * math.sqrt(max(excess, 0.0) + 2.0 * spread) / scale
+            # the budget's value: the estimate when resolved, else its upper bound
+            out.update({key: point if resolved else upper, f"rel_point{tag}": point, f"rel_upper{tag}": upper})
+        else:
+            out.update({key: None, f"rel_point{tag}": None, f"rel_upper{tag}": None})
+        out["resolved" + tag] = bool(resolved)
+    out.update({"spp": spp,
+                "method": f"step halving on the encoded plane sum_j W_j(v) L_j with the frame's mask: "
+                          f"{len(fine_t)} nodes vs {len(refined_t)} (midpoints added), common random "
+                          f"numbers at {spp} spp, (4/3) x the difference (order 2), MC noise removed; "
+                          "rel_upper: with 2 standard errors of the noise subtraction"
+                          + ("" if out["resolved"] else "; not resolved above the MC noise: rel is the "
+                             "upper bound rel_upper (raise render.temporal_spp to resolve it)"),
+                "seconds": time.perf_counter() - t_start, "renders": len(refined_t) * n})
+    return out
 
 
 def quantisation_rel(mean_signal_dn: float | None) -> float | None:
+    """ADC rounding noise, step / sqrt(12), relative to a mean signal above black (DN)."""
     if mean_signal_dn is None or mean_signal_dn <= 0:
         return None
     return (1.0 / math.sqrt(12.0)) / mean_signal_dn
+
+
+def physics_noise(mean_signal_dn: float | None, mean_signal_e: float | None, bits: int) -> dict:
+    """Modelled sensor noise at the ROI's mean signal (relative): not a numerical error of the
+    simulation, listed apart from the error budget."""
+    shot = 1.0 / math.sqrt(mean_signal_e) if mean_signal_e and mean_signal_e > 0 else None
+    return {"quantisation": {"rel": quantisation_rel(mean_signal_dn), "bits": bits,
+                             "definition": "ADC step / sqrt(12) over the mean signal above black"},
+            "shot": {"rel": shot, "definition": "1 / sqrt(mean signal electrons)"},
+            "note": "modelled physics of the camera, not error of the simulation: raise sensor.bits "
+                    "or the exposure to lower them in the camera itself"}
 
 
 def budget(terms: dict) -> dict:

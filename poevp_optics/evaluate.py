@@ -111,7 +111,7 @@ def scaled(exps: list[RenderedExposure], s: float) -> list[RenderedExposure]:
 def overexposure(cam: Camera, exps) -> float:
     """Peak plate signal over the sequence with the DMD white, in units of saturation."""
     k = cam.electrons_per_radiance() * cam.white_exposure_s(0) / cam.params.saturation_capacity_e
-    return max(float(np.max(crop(e.radiance.data, e.roi))) * k for e in exps)
+    return max(float(np.max(crop(cam.to_sensor(e.radiance.data), cam.box_to_sensor(e.roi)))) * k for e in exps)
 
 
 def _fusion(cam, exps, t, deghost: bool):
@@ -120,8 +120,8 @@ def _fusion(cam, exps, t, deghost: bool):
     imgs = []
     for j, f in zip((t - 2, t - 1, t), FUSION_EXPOSURES):
         e = exps[j]
-        cap = cam.capture([x * np.float32(f) for x in e.subframes], np.full(cam.shape, float(cam.top_level)),
-                          j, _frame_seed(cam.spec, j, 7))
+        cap = cam.capture([x * np.float32(f) for x in e.subframes], cam.white_mask(),
+                          j, _frame_seed(cam.spec, j, 7), times_s=e.subframe_times_s)
         imgs.append(cv2.cvtColor(to_8bit(cap.dn, cam.params.max_dn).astype(np.uint8), cv2.COLOR_GRAY2BGR))
     t0 = time.perf_counter()
     if deghost:
@@ -140,8 +140,8 @@ def evaluate(out: Path, quick: bool = False, progress: bool = True, log=print) -
     for si, (text, motion) in enumerate((t, m) for t in texts for m in motions):
         ov = sequence_overrides(text, motion, frames)
         base_spec = load_scene(BASE, ov)
-        renderer = Renderer(base_spec)
         cam = Camera(base_spec)
+        renderer = Renderer(base_spec, guard_px=cam.guard_px)
         exps = load_or_render(ov, renderer, progress)
         r0 = overexposure(cam, exps)
         shifts += [abs(a.roi[1] - b.roi[1]) + abs(a.roi[0] - b.roi[0]) for a, b in zip(exps[1:], exps)]
@@ -169,7 +169,7 @@ def evaluate(out: Path, quick: bool = False, progress: bool = True, log=print) -
             for m in METHODS:
                 for t in range(2, frames):
                     img = images[m][t]
-                    box = ex[t].roi
+                    box = cam.box_to_sensor(ex[t].roi)
                     read, conf, ocr_s = read_plate(img, box)
                     rows.append({"sequence": si, "text": text, "E": e_level, "method": m, "frame": t,
                                  "read": read, "confidence": conf, "correct": correct(read, text),
@@ -177,7 +177,7 @@ def evaluate(out: Path, quick: bool = False, progress: bool = True, log=print) -
                                  "method_ms": float(np.median(secs[m])) * 1e3, "ocr_ms": ocr_s * 1e3})
             if si == 0 and e_level == max(E_LEVELS):
                 t = frames // 2 + (frames % 2 == 0)
-                examples = {m: (images[m][t], ex[t].roi) for m in METHODS}
+                examples = {m: (images[m][t], cam.box_to_sensor(ex[t].roi)) for m in METHODS}
         log(f"poevp evaluate: sequence {si + 1}/{len(texts) * len(motions)} ({text}) done "
             f"({time.perf_counter() - t_start:.0f} s)")
     summary = _summarise(rows)

@@ -17,6 +17,7 @@ from . import __version__
 from .frame import Frame, Quantity
 from .camera import Camera
 from .dmd import attenuation_floor
+from .errors import physics_noise
 from .io import write_exr, write_png
 from .masks import mask_levels, predicted_electrons
 from .metrics import crop, entropy_8bit, mask_iou, relative_error, saturated_fraction, to_8bit
@@ -36,14 +37,15 @@ class RenderedExposure:
     index: int
     t_start_s: float
     exposure_s: float
-    subframe_times_s: np.ndarray        # (K,) midpoints of K equal sub-intervals
-    subframes: tuple[np.ndarray, ...]   # K x (H, W) photon radiance
+    subframe_times_s: np.ndarray        # (K,) sample times (dmd.node_times_s)
+    subframes: tuple[np.ndarray, ...]   # K x (H, W) photon radiance, mirror (render) grid
     radiance: Frame                     # time average over the exposure
     variance: np.ndarray                # MC variance of `radiance` per pixel
     roi: tuple[int, int, int, int] | None
     rel_error: float | None
     rel_error_roi: float | None
     basis: tuple[str, ...] = ()         # subframes are emitter-group images (PWM lamps), not times
+    subframe_variances: tuple[np.ndarray, ...] = ()   # MC variance of each sample (temporal error)
 
 
 def _seeds(base: int, frame: int, sub: int, n: int) -> list[int]:
@@ -124,16 +126,23 @@ def render_exposures(spec: SceneSpec, renderer: Renderer, progress: bool = True)
             continue
         else:
             times = spec.subframe_times_s(i)
-            subs, var_sum, roi = [], None, None
+            weights = spec.subframe_weights(i)        # time average of the piecewise-linear L(t)
+            subs, variances, roi = [], [], None
+            mean = var = 0.0
             for k, t in enumerate(times):
                 renderer.set_time(float(t))
                 m, v = renderer.render_with_error(_seeds(spec.render.seed, i, k, acc.mc_splits), acc.spp)
                 subs.append(m)
-                var_sum = v if var_sum is None else var_sum + v
+                variances.append(v)
+                mean = mean + weights[k] * m.astype(np.float64)
+                var = var + weights[k] ** 2 * v
                 roi = _union(roi, renderer.roi_box())
-            mean = (np.sum(np.stack(subs), axis=0, dtype=np.float64) / len(subs)).astype(np.float32)
-            var = var_sum / len(subs) ** 2
-            subs = tuple(subs)
+            mean = mean.astype(np.float32)
+            frame = Frame(mean, Quantity.RADIANCE, PHOTON_RADIANCE_UNIT, t0, t1 - t0, i)
+            yield RenderedExposure(i, t0, t1 - t0, times, tuple(subs), frame, var, roi,
+                                   _rel_error(mean, var), _rel_error(mean, var, roi),
+                                   subframe_variances=tuple(variances))
+            continue
         frame = Frame(mean, Quantity.RADIANCE, PHOTON_RADIANCE_UNIT, t0, t1 - t0, i)
         yield RenderedExposure(i, t0, t1 - t0, times, subs, frame, var, roi,
                                _rel_error(mean, var), _rel_error(mean, var, roi))
@@ -165,7 +174,7 @@ def _frame_seed(spec: SceneSpec, index: int, stream: int) -> int:
 
 def oracle_mask(spec: SceneSpec, camera: Camera, radiance_mean: np.ndarray, index: int,
                 mask_spec: MaskSpec | None = None) -> np.ndarray:
-    """The mask law applied to the true frame (the upper bound of any predictor)."""
+    """The mask law applied to the true frame (mirror grid): the upper bound of any predictor."""
     ms = mask_spec or spec.mask
     white_e = radiance_mean.astype(np.float64) * camera.electrons_per_radiance() * camera.white_exposure_s(index)
     ldr8 = to_8bit(camera.noise_free_dn(white_e), camera.params.max_dn)
@@ -175,10 +184,12 @@ def oracle_mask(spec: SceneSpec, camera: Camera, radiance_mean: np.ndarray, inde
 
 
 def predicted_mask(spec: SceneSpec, camera: Camera, pred_8bit: np.ndarray, index: int) -> np.ndarray:
-    """The mask law applied to a predicted frame on the 8-bit scale (mirror grid)."""
-    sat = camera.params.saturation_capacity_e
-    e = predicted_electrons(pred_8bit, sat, spec.mask.clipped_gain)
-    return mask_levels(spec.mask, spec.dmd.bits, pred_8bit=np.clip(pred_8bit, 0, 255),
+    """The mask law applied to a predicted frame on the 8-bit scale: the prediction is on the
+    sensor grid (it comes from captures) and is placed on the mirror grid through the inverse
+    registration before the law (camera.to_mirror)."""
+    pred = camera.to_mirror(pred_8bit).astype(np.float64)
+    e = predicted_electrons(pred, camera.params, spec.mask.clipped_gain)
+    return mask_levels(spec.mask, spec.dmd.bits, pred_8bit=np.clip(pred, 0, 255),
                        pred_electrons=e, full_well_e=camera.params.full_well_e,
                        level_exposure=camera.level_exposure_s(index))
 
@@ -246,15 +257,17 @@ def run_render(spec: SceneSpec, out_dir: Path, progress: bool = True, *, rendere
     """Render `spec` and run the camera into `out_dir` (an empty staging folder); return the report.
 
     renderer/exposures: reuse an already loaded scene and already rendered exposures (the
-    comparison runs many camera loops over one render). write_images=False writes only
-    report.json. keep_frames: frame indices whose mask and captures are returned in
-    report["_kept"] (not written to JSON).
+    comparison runs many camera loops over one render; its guard band must be the camera's).
+    write_images=False writes only report.json. keep_frames: frame indices whose mask and
+    captures are returned in report["_kept"] (not written to JSON).
     """
     out_dir = Path(out_dir)
     t_run = time.perf_counter()
     t_setup = time.perf_counter()
-    renderer = renderer or Renderer(spec)
     camera = Camera(spec)
+    renderer = renderer or Renderer(spec, guard_px=camera.guard_px)
+    if renderer.guard_px != camera.guard_px:
+        raise ValueError(f"renderer guard band {renderer.guard_px} px != camera's {camera.guard_px} px")
     predictor = None
     if camera.dmd is not None and spec.predictor.name != "oracle":
         from .predict import make_predictor
@@ -280,15 +293,16 @@ def run_render(spec: SceneSpec, out_dir: Path, progress: bool = True, *, rendere
     mid = spec.timing.frames // 2
     mid_frame = None
     reuse = exposures is not None
+    white = camera.white_mask()
     for ex in (exposures if exposures is not None else render_exposures(spec, renderer, progress)):
         i = ex.index
         name = f"frame_{i:04d}"
-        truth = ex.radiance.data
-        box = ex.roi
+        truth = ex.radiance.data                              # mirror (render) grid
+        truth_s = camera.to_sensor(truth).astype(np.float32)  # what the sensor pixels see
+        box = camera.box_to_sensor(ex.roi)                    # sensor-grid ROI
         subs = list(ex.subframes) if not spec.is_static else [truth]
-        bk = {"basis": ex.basis} if ex.basis else {}
+        bk = {"basis": ex.basis} if ex.basis else ({"times_s": ex.subframe_times_s} if len(subs) > 1 else {})
         # ---- camera: LDR twin (DMD all white) and the encoded capture
-        white = np.full(camera.shape, float(camera.top_level)) if camera.dmd else None
         ldr = camera.capture(subs, white, i, _frame_seed(spec, i, 1), **bk)
         rec = {"index": i}
         oracle = None
@@ -296,11 +310,12 @@ def run_render(spec: SceneSpec, out_dir: Path, progress: bool = True, *, rendere
             tm = time.perf_counter()
             oracle = oracle_mask(spec, camera, truth, i)
             stage_s["mask"] += time.perf_counter() - tm
-            if predictor is None:
-                mask = oracle
-            elif i < spec.loop.init_frames or len(history) < predictor.needs_frames:
-                mask = white                      # initialisation frames (paper Sec. 3)
+            needs = predictor.needs_frames if predictor is not None else 0
+            if i < spec.loop.init_frames or len(history) < needs:
+                mask = white                      # initialisation frames (paper Sec. 3), oracle too
                 rec["init"] = True
+            elif predictor is None:
+                mask = oracle
             else:
                 tp = time.perf_counter()
                 pred = predictor(history[-2:])
@@ -313,13 +328,11 @@ def run_render(spec: SceneSpec, out_dir: Path, progress: bool = True, *, rendere
         for k in ("dmd", "relay", "sensor"):
             stage_s[k] += enc.seconds[k]
         tr = time.perf_counter()
-        est, flags, _ = reconstruct(enc.dn, enc.exposure_s, camera.params, camera.etendue_m2_sr,
-                                    camera.throughput, spec.timing.exposure_s,
-                                    camera.sensor.switches.dark_current)
+        est, flags, _ = camera.reconstruct(enc, i)
         stage_s["reconstruct"] += time.perf_counter() - tr
         valid = flags == 0
-        if i == mid:
-            mid_frame = (truth, ex.variance, box)
+        if i == mid and not ex.basis and not spec.is_static:
+            mid_frame = (ex, mask)
         rec["mean_signal_dn_roi"] = float(np.mean(crop(enc.dn, box))) - camera.params.offset_dn
         rec.update({
             "saturated_fraction_roi": {"ldr": saturated_fraction(crop(ldr.dn, box), max_dn),
@@ -328,8 +341,8 @@ def run_render(spec: SceneSpec, out_dir: Path, progress: bool = True, *, rendere
                             "encoded": entropy_8bit(to_8bit(crop(enc.dn, box), max_dn))},
             "saturated_fraction": {"ldr": saturated_fraction(ldr.dn, max_dn),
                                    "encoded": saturated_fraction(enc.dn, max_dn)},
-            "recon_rel_error": relative_error(est, truth, valid),
-            "recon_rel_error_roi": relative_error(crop(est, box), crop(truth, box), crop(valid, box)) if box else None,
+            "recon_rel_error": relative_error(est, truth_s, valid),
+            "recon_rel_error_roi": relative_error(crop(est, box), crop(truth_s, box), crop(valid, box)) if box else None,
             "valid_fraction": float(np.mean(valid)),
         })
         if predictor is not None:
@@ -345,9 +358,10 @@ def run_render(spec: SceneSpec, out_dir: Path, progress: bool = True, *, rendere
                                      "mean_abs": float(np.mean(np.abs(mask - oracle)) / top)}
         if camera.dmd:
             rec["mask_mean"] = float(np.mean(mask) / camera.top_level)
-            law_cmp["scene_law"]["saturated"].append(rec["saturated_fraction_roi"]["encoded"])
-            law_cmp["scene_law"]["entropy"].append(rec["entropy_roi"]["encoded"])
-            if spec.mask.law != "white" and predictor is None:
+            if not rec.get("init"):
+                law_cmp["scene_law"]["saturated"].append(rec["saturated_fraction_roi"]["encoded"])
+                law_cmp["scene_law"]["entropy"].append(rec["entropy_roi"]["encoded"])
+            if spec.mask.law != "white" and predictor is None and not rec.get("init"):
                 for lname, (law, a, b) in PAPER_LAWS.items():
                     ms = MaskSpec(law=law, vs=200.0, a=a, b=b, smooth_px=spec.mask.smooth_px)
                     m2 = oracle_mask(spec, camera, truth, i, ms)
@@ -369,17 +383,19 @@ def run_render(spec: SceneSpec, out_dir: Path, progress: bool = True, *, rendere
         attrs = _exr_attrs(spec, renderer, ex, "")
         if spec.outputs.radiance_exr:
             write_exr(out_dir / "radiance" / f"{name}.exr",
-                      {"Y": truth, "mc_stderr": np.sqrt(ex.variance)},
-                      {**attrs, "poevp_quantity": "sensor-weighted photon radiance, exposure mean; "
-                                                  "mc_stderr = Monte Carlo standard error"})
+                      {"Y": truth_s, "mc_stderr": np.sqrt(camera.to_sensor(ex.variance))},
+                      {**attrs, "poevp_quantity": "sensor-weighted photon radiance on the sensor grid, "
+                                                  "exposure mean; mc_stderr = Monte Carlo standard error"})
         if spec.outputs.subframes_exr and ex.basis:
             for bname, sub in zip(ex.basis, ex.subframes):
                 write_exr(out_dir / "subframes" / f"{name}_{bname}.exr", {"Y": sub},
-                          {**attrs, "poevp_quantity": f"photon radiance of emitter group {bname!r} at full drive"})
+                          {**attrs, "poevp_quantity": f"photon radiance of emitter group {bname!r} at full "
+                                                      "drive (mirror grid, guard band included)"})
         elif spec.outputs.subframes_exr and not spec.is_static:
             for k, sub in enumerate(ex.subframes):
                 write_exr(out_dir / "subframes" / f"{name}_sub{k:03d}.exr", {"Y": sub},
-                          {**attrs, "poevp_quantity": f"photon radiance at t = {ex.subframe_times_s[k]!r} s"})
+                          {**attrs, "poevp_quantity": f"photon radiance at t = {ex.subframe_times_s[k]!r} s "
+                                                      "(mirror grid, guard band included)"})
         write_png(out_dir / "capture" / f"{name}.png", _png_dn(enc.dn, bits))
         if camera.dmd:
             write_png(out_dir / "ldr" / f"{name}.png", _png_dn(ldr.dn, bits))
@@ -388,12 +404,13 @@ def run_render(spec: SceneSpec, out_dir: Path, progress: bool = True, *, rendere
                   {**attrs, "poevp_quantity": "effective exposure (DMD duty x throughput incl. leakage)",
                    "poevp_unit": "s"})
         write_exr(out_dir / "reconstruction" / f"{name}.exr", {"Y": est, "flags": flags},
-                  {**attrs, "poevp_quantity": "radiance estimate; flags: 1 saturated, 2 SNR<1, 4 unexposed"})
+                  {**attrs, "poevp_quantity": "radiance estimate; flags: 1 saturated, 2 SNR<1, 4 unexposed, "
+                                              "8 PSF crosstalk"})
         if spec.outputs.previews:
-            write_png(out_dir / "preview" / f"{name}.png", tonemap(truth, spec.outputs.tonemap))
+            write_png(out_dir / "preview" / f"{name}.png", tonemap(truth_s, spec.outputs.tonemap))
             write_png(out_dir / "preview_reconstruction" / f"{name}.png", tonemap(est, spec.outputs.tonemap))
         if spec.outputs.contact_sheet and i % sheet_every == 0 and len(sheet_rows) < 4:
-            row = [tonemap(truth, spec.outputs.tonemap), to_8bit(ldr.dn, max_dn).astype(np.uint8)]
+            row = [tonemap(truth_s, spec.outputs.tonemap), to_8bit(ldr.dn, max_dn).astype(np.uint8)]
             if camera.dmd:
                 row.append(_mask_png(mask, camera.top_level))
             row += [to_8bit(enc.dn, max_dn).astype(np.uint8), tonemap(est, spec.outputs.tonemap)]
@@ -401,9 +418,9 @@ def run_render(spec: SceneSpec, out_dir: Path, progress: bool = True, *, rendere
         t_write += time.perf_counter() - tw
         rec.update({"t_start_s": ex.t_start_s, "exposure_s": ex.exposure_s,
                     "subframe_times_s": ex.subframe_times_s, "roi": list(box) if box else None,
-                    "radiance_mean": float(np.mean(truth)), "radiance_max": float(np.max(truth)),
-                    "radiance_min": float(np.min(truth)),
-                    "roi_radiance_mean": float(np.mean(crop(truth, box))) if box else None,
+                    "radiance_mean": float(np.mean(truth_s)), "radiance_max": float(np.max(truth_s)),
+                    "radiance_min": float(np.min(truth_s)),
+                    "roi_radiance_mean": float(np.mean(crop(truth_s, box))) if box else None,
                     "rel_error": ex.rel_error, "rel_error_roi": ex.rel_error_roi})
         per_frame.append(rec)
     if sheet_rows:
@@ -412,10 +429,10 @@ def run_render(spec: SceneSpec, out_dir: Path, progress: bool = True, *, rendere
         write_png(out_dir / "contact_sheet.png", _contact_sheet(sheet_rows, labels))
     from .errors import temporal_error
 
-    if reuse or mid_frame is None:
+    if reuse:
         temporal = {"rel": None, "method": "not estimated: this run reuses a shared render", "seconds": 0.0}
     else:
-        temporal = temporal_error(spec, renderer, mid, mid_frame[0], mid_frame[1], mid_frame[2])
+        temporal = temporal_error(spec, renderer, camera, *(mid_frame or (None, None)))
     report = _report(spec, renderer, camera, per_frame, stage_s, setup_s, t_write, t_run, law_cmp,
                      predictor, predict_s, temporal)
     write_report(out_dir, report)
@@ -429,7 +446,7 @@ def _mean(vals):
 
 
 def _error_budget(spec, camera, per_frame, stage_s, temporal, render_s) -> dict:
-    from .errors import POISSON_BOUND, budget, quantisation_rel
+    from .errors import POISSON_BOUND, budget
 
     roi = _mean([f["rel_error_roi"] for f in per_frame])
     frame = _mean([f["rel_error"] for f in per_frame])
@@ -443,8 +460,6 @@ def _error_budget(spec, camera, per_frame, stage_s, temporal, render_s) -> dict:
                            "seconds": stage_s["relay"]},
         "poisson_sampler": {"rel": POISSON_BOUND, "method": "exact (Knuth < 10 e-, PTRS >= 10 e-); "
                             "float32 counts exact to 2^24 e-", "seconds": stage_s["sensor"]},
-        "quantisation": {"rel": _mean([quantisation_rel(f.get("mean_signal_dn_roi")) for f in per_frame]),
-                         "bits": camera.params.bits, "seconds": 0.0},
     })
 
 
@@ -484,11 +499,19 @@ def _report(spec, renderer, camera, per_frame, stage_s, setup_s, t_write, t_run,
         "recon_rel_error_roi": _mean([f["recon_rel_error_roi"] for f in per_frame]),
         "valid_fraction": _mean([f["valid_fraction"] for f in per_frame]),
     }
+    loop_frames = [f for f in per_frame if not f.get("init")]
+    if camera.dmd is not None:
+        # the first loop.init_frames frames are white for every predictor, the oracle included:
+        # averages after them compare predictors on the frames where a mask acts
+        for key in ("saturated_fraction_roi", "entropy_roi"):
+            metrics[key]["ldr_after_init"] = _mean([f[key]["ldr"] for f in loop_frames])
+            metrics[key]["encoded_after_init"] = _mean([f[key]["encoded"] for f in loop_frames])
+            if predictor is None:
+                metrics[key]["oracle_after_init"] = metrics[key]["encoded_after_init"]
+        metrics["init_frames"] = len(per_frame) - len(loop_frames)
     if predictor is not None:
-        loop_frames = [f for f in per_frame if not f.get("init")]
         for key in ("saturated_fraction_roi", "entropy_roi"):
             metrics[key]["oracle"] = _mean([f[key]["oracle"] for f in per_frame])
-            metrics[key]["encoded_after_init"] = _mean([f[key]["encoded"] for f in loop_frames])
             metrics[key]["oracle_after_init"] = _mean([f[key]["oracle"] for f in loop_frames])
         metrics["mask_error"] = {"iou": _mean([f["mask_error"]["iou"] for f in loop_frames]),
                                  "mean_abs": _mean([f["mask_error"]["mean_abs"] for f in loop_frames])}
@@ -502,7 +525,7 @@ def _report(spec, renderer, camera, per_frame, stage_s, setup_s, t_write, t_run,
                 {"saturated_fraction_roi": _mean(v["saturated"]), "entropy_roi": _mean(v["entropy"])}
             for k, v in law_cmp.items()}
     p = camera.params
-    notes = []
+    notes = list(renderer.plan.notes)
     if floor is not None and floor["white_fill_fraction"] > 0.01:
         ldr_sat = metrics["saturated_fraction_roi"]["ldr"]
         enc_sat = metrics["saturated_fraction_roi"]["encoded"]
@@ -531,6 +554,11 @@ def _report(spec, renderer, camera, per_frame, stage_s, setup_s, t_write, t_run,
                    "offset_dn": p.offset_dn, "f_number": p.f_number,
                    "pixel_pitch_m": p.pixel_pitch_m, "etendue_m2_sr": camera.etendue_m2_sr,
                    "noise": camera.sensor.switches.__dict__},
+        "optics": {**camera.layout.as_dict(), "guard_px": camera.guard_px,
+                   "mirror_grid": list(camera.mirror_shape), "sensor_grid": list(camera.shape),
+                   "guard_definition": "mirrors rendered beyond each edge of the sensor's footprint so "
+                                       "the relay PSF sees the light beyond the field; cropped before "
+                                       "the sensor, never in metrics"},
         "dmd": ({"bits": spec.dmd.bits, "bit_order": spec.dmd.bit_order,
                  "contrast_ratio": spec.dmd.contrast_ratio,
                  "throughput_on": spec.dmd.fill_factor * spec.dmd.reflectance,
@@ -562,6 +590,10 @@ def _report(spec, renderer, camera, per_frame, stage_s, setup_s, t_write, t_run,
         "metrics": metrics,
         "errors": _error_budget(spec, camera, per_frame, stage_s, temporal or {"rel": None},
                                 stats.seconds + setup_s),
+        "physics_noise": physics_noise(_mean([f.get("mean_signal_dn_roi") for f in per_frame]),
+                                       _mean([f.get("mean_signal_dn_roi") for f in per_frame]) / p.gain_dn_per_e
+                                       if _mean([f.get("mean_signal_dn_roi") for f in per_frame]) else None,
+                                       p.bits),
         "notes": notes,
         "skipped_stages": skipped,
         "io_seconds": t_write, "total_seconds": total,

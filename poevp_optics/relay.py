@@ -4,15 +4,17 @@
 |-----------|-----------------------------------------------------------|-----------|
 | delta     | none: the stage is skipped and listed in skipped_stages   | - |
 | gaussian  | pixel-integrated Gaussian, sigma_px                       | - |
-| airy      | diffraction-limited incoherent PSF of a circular pupil, [2 J1(x)/x]^2 with x = pi r / (lambda N), averaged over the sensor-weighted band S(lambda) and integrated over the pixel | Born & Wolf, Principles of Optics, 8.5.2 |
+| airy      | diffraction-limited incoherent PSF of a circular pupil, [2 J1(x)/x]^2 with x = pi r / (lambda N), N the working f-number at the sensor (layout.py), averaged over the sensor-weighted band S(lambda) and integrated over the pixel | Born & Wolf, Principles of Optics, 8.5.2 |
 | measured  | an image (PNG/EXR, sensor-pixel sampling) from assets/ or the scene folder | the file |
 
 Veiling glare (`glare_fraction` g > 0, any psf): the kernel becomes (1 - g) core + g halo, the
 halo a Gaussian of `glare_sigma_px` (a stray-light pedestal; lenses have veiling-glare indices of
 about 1-5 %, ISO 9358). With a delta core and g = 0 the stage is skipped.
 
-Kernels are normalised to unit sum, so the convolution conserves flux; light spread past the
-image border is lost, as on a real sensor. Kernels up to 15 px wide are applied directly (OpenCV, float64), larger
+Kernels are normalised to unit sum, so the convolution conserves flux. The camera renders a
+guard band of the kernel's radius around the sensor's field (light from beyond the field's edge
+spills in, as from the DMD's outer mirrors) and crops it after the blur; `convolve` continues
+the image by reflection beyond what was rendered. Kernels up to 15 px wide are applied directly (OpenCV, float64), larger
 ones by FFT in float64 (torch.fft) (a float32 FFT would put a noise floor at ~1e-7 of the peak into the dark
 parts of a 200 dB scene). Support (an accuracy setting) defaults to the radius that holds
 99.9 % of the untruncated kernel's energy; the missing energy is reported as truncation error.
@@ -119,10 +121,11 @@ def measured_psf(path: Path, support_px: int = 0) -> PSF:
     return PSF("measured", img / img.sum(), float(trunc))
 
 
-def build_psf(spec: RelaySpec, *, pixel_pitch_m: float, band_nm=None, band_weights=None,
-              base_dir: Path | None = None) -> PSF | None:
-    """The scene's PSF, or None for `delta` without glare (the stage is skipped)."""
-    core = _core_psf(spec, pixel_pitch_m, band_nm, band_weights, base_dir)
+def build_psf(spec: RelaySpec, *, pixel_pitch_m: float, f_number: float, band_nm=None,
+              band_weights=None, base_dir: Path | None = None) -> PSF | None:
+    """The scene's PSF, or None for `delta` without glare (the stage is skipped). `f_number`:
+    the working f-number of the cone at the sensor (layout.OpticalLayout.sensor_f_number)."""
+    core = _core_psf(spec, pixel_pitch_m, f_number, band_nm, band_weights, base_dir)
     g = spec.glare_fraction
     if g <= 0:
         return core
@@ -139,13 +142,13 @@ def _pad_to(k: np.ndarray, n: int) -> np.ndarray:
     return np.pad(k, p) if p else k
 
 
-def _core_psf(spec: RelaySpec, pixel_pitch_m, band_nm, band_weights, base_dir) -> PSF | None:
+def _core_psf(spec: RelaySpec, pixel_pitch_m, f_number, band_nm, band_weights, base_dir) -> PSF | None:
     if spec.psf == "delta":
         return None
     if spec.psf == "gaussian":
         return gaussian_psf(spec.sigma_px, spec.support_px, spec.support_energy)
     if spec.psf == "airy":
-        return airy_psf(spec.f_number, pixel_pitch_m, band_nm, band_weights, spec.support_px,
+        return airy_psf(f_number, pixel_pitch_m, band_nm, band_weights, spec.support_px,
                         spec.support_energy)
     from .spectra import ASSETS_DIR
 
@@ -156,23 +159,27 @@ def _core_psf(spec: RelaySpec, pixel_pitch_m, band_nm, band_weights, base_dir) -
 
 
 def convolve(image: np.ndarray, psf: PSF) -> np.ndarray:
-    """Linear convolution, same size, zero outside the image (flux past the border is lost)."""
+    """Linear convolution, same size. Beyond the image the field is continued by reflection
+    (the DMD-plane image does not end at the sensor's edge: the camera renders a guard band of
+    the PSF's radius and crops it, and reflection stands in for anything beyond the guard)."""
     import cv2
     import torch
 
     k = psf.kernel
     img = np.asarray(image)
     if k.shape[0] <= DIRECT_MAX_PX:
-        # OpenCV correlates: flip the kernel for a convolution; zeros outside the image
+        # OpenCV correlates: flip the kernel for a convolution
         out = cv2.filter2D(img.astype(np.float64), -1, np.ascontiguousarray(k[::-1, ::-1]),
-                           borderType=cv2.BORDER_CONSTANT)
+                           borderType=cv2.BORDER_REFLECT)
     else:
         h, w_ = img.shape
         kh = k.shape[0]
-        fh, fw = h + kh - 1, w_ + kh - 1
-        fi = torch.fft.rfft2(torch.from_numpy(img.astype(np.float64)), s=(fh, fw))
+        r = kh // 2
+        padded = np.pad(img.astype(np.float64), r, mode="symmetric")
+        ph, pw = padded.shape
+        fh, fw = ph + kh - 1, pw + kh - 1
+        fi = torch.fft.rfft2(torch.from_numpy(padded), s=(fh, fw))
         fk = torch.fft.rfft2(torch.from_numpy(k), s=(fh, fw))
         full = torch.fft.irfft2(fi * fk, s=(fh, fw)).numpy()
-        r = kh // 2
-        out = full[r:r + h, r:r + w_]
+        out = full[2 * r:2 * r + h, 2 * r:2 * r + w_]
     return np.maximum(out, 0.0).astype(image.dtype if np.issubdtype(np.asarray(image).dtype, np.floating) else np.float64)

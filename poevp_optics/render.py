@@ -20,6 +20,7 @@ fails with specfilm, FACTS.md).
 
 from __future__ import annotations
 
+import math
 import time
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
@@ -42,6 +43,7 @@ class SpectralPlan:
     reason: str
     xml_params: dict[str, str]
     response_e_per_J: np.ndarray     # S(lambda) on spectra.WAVELENGTHS_NM
+    notes: tuple[str, ...] = ()      # e.g. emission tables that end inside the sensor's response
 
 
 @dataclass(frozen=True)
@@ -164,7 +166,9 @@ def plan_spectra(spec: SceneSpec, force_mode: str | None = None) -> SpectralPlan
 
         params[spec.plate.param] = str(cached_plate_path(spec.plate.text, spec.plate.width_px,
                                                          spec.plate.height_px))
-    return SpectralPlan(mode, reason, params, response)
+    notes = tuple(n for n in (spectra.coverage_note(name, spec.spectra[name].source, response)
+                              for name in emissive) if n)
+    return SpectralPlan(mode, reason, params, response, notes)
 
 
 @dataclass
@@ -181,12 +185,15 @@ class RenderStats:
 class Renderer:
     """A loaded Mitsuba scene that can be posed at a time and rendered (stateful: the scene)."""
 
-    def __init__(self, spec: SceneSpec, zero_params: frozenset[str] = frozenset()):
+    def __init__(self, spec: SceneSpec, zero_params: frozenset[str] = frozenset(), guard_px: int = 0):
         """zero_params: emitter parameters set to zero in this instance (one emitter group's
-        image for flickering lamps, loop.render_exposures)."""
+        image for flickering lamps, loop.render_exposures). guard_px: pixels rendered beyond
+        each edge of `render.resolution` at the same focal length (the camera's guard band for
+        its PSFs, camera.Camera.guard_px); images are (H + 2 guard, W + 2 guard)."""
         import mitsuba as mi
 
         self.spec = spec
+        self.guard_px = int(guard_px)
         self.plan = plan_spectra(spec)
         variant, why = runtime.choose_variant(self.plan.mode, spec.render.variant)
         if self.plan.mode == "mono" and "mono" not in variant:
@@ -197,7 +204,7 @@ class Renderer:
             zero = "0" if self.plan.mode == "mono" else spectra.to_mitsuba(np.zeros_like(self.plan.response_e_per_J))
             self.plan = SpectralPlan(self.plan.mode, self.plan.reason,
                                      {**self.plan.xml_params, **{n: zero for n in zero_params}},
-                                     self.plan.response_e_per_J)
+                                     self.plan.response_e_per_J, self.plan.notes)
         runtime.set_variant(variant)
         runtime.register_asset_dir(spectra.ASSETS_DIR)
         self.variant, self.variant_reason = variant, why
@@ -253,7 +260,11 @@ class Renderer:
         if get("x_fov") is None:
             raise SceneError(f"{self.spec.xml_path}: sensor {cam_id!r} must be a perspective camera")
         to_world = mi.ScalarTransform4f(np.array(p[f"{cam_id}.to_world"].matrix).reshape(4, 4))
-        h, w = self.spec.render.resolution
+        h0, w0 = self.spec.render.resolution
+        g = self.guard_px
+        h, w = h0 + 2 * g, w0 + 2 * g
+        # same focal length over a wider film: tan(fov / 2) grows with the film width
+        fov_deg = math.degrees(2 * math.atan(math.tan(math.radians(get("x_fov")) / 2) * w / w0))
         if self.plan.mode == "spectral":
             film = {"type": "specfilm", "width": w, "height": h, "component_format": "float32",
                     "rfilter": {"type": "box"},
@@ -264,10 +275,11 @@ class Renderer:
             film = {"type": "hdrfilm", "width": w, "height": h, "pixel_format": "luminance",
                     "component_format": "float32", "rfilter": {"type": "box"}}
         return mi.load_dict({
-            "type": "perspective", "fov": get("x_fov"), "fov_axis": "x", "to_world": to_world,
+            "type": "perspective", "fov": fov_deg, "fov_axis": "x", "to_world": to_world,
             "near_clip": get("near_clip", 0.01), "far_clip": get("far_clip", 1e4),
-            "principal_point_offset_x": get("principal_point_offset_x", 0.0),
-            "principal_point_offset_y": get("principal_point_offset_y", 0.0),
+            # offsets are in units of the film size: keep them fixed in pixels
+            "principal_point_offset_x": get("principal_point_offset_x", 0.0) * w0 / w,
+            "principal_point_offset_y": get("principal_point_offset_y", 0.0) * h0 / h,
             "film": film, "sampler": {"type": "independent", "sample_count": 1}})
 
     # ------------------------------------------------------------------ posing
@@ -289,7 +301,8 @@ class Renderer:
         self._time = t_s
 
     def roi_box(self) -> tuple[int, int, int, int] | None:
-        """Image box (y0, x0, y1, x1), end-exclusive, of the ROI shape at the current pose."""
+        """Image box (y0, x0, y1, x1), end-exclusive, of the ROI shape at the current pose, in
+        the rendered grid (guard band included)."""
         if self._roi_shape is None:
             return None
         mi, dr = self.mi, __import__("drjit")
@@ -303,7 +316,7 @@ class Renderer:
         visible = np.array(ds.pdf).ravel() > 0
         if not np.any(visible):
             return None
-        h, w = self.spec.render.resolution
+        h, w = (n + 2 * self.guard_px for n in self.spec.render.resolution)
         u, v = uv[0][visible], uv[1][visible]
         x0, x1 = int(np.clip(np.floor(u.min()), 0, w)), int(np.clip(np.ceil(u.max()), 0, w))
         y0, y1 = int(np.clip(np.floor(v.min()), 0, h)), int(np.clip(np.ceil(v.max()), 0, h))

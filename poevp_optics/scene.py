@@ -48,7 +48,9 @@ class RenderSpec:
     xml: str = _f("scene.xml")
     spp: int = _f(16, min=1, max=1 << 20)
     resolution: tuple[int, int] = _f((368, 640), length=2, min=1, max=16384)
-    subframes: int = _f(4, min=1, max=4096)          # radiance samples in time per exposure
+    subframes: int = _f(4, min=1, max=4096)          # uniform radiance nodes in time per exposure
+    pwm_nodes: bool = _f(True)                       # also sample at the DMD's switching times
+    temporal_spp: int = _f(0, min=0, max=1 << 20)    # spp of the temporal-error check; 0: render.spp
     seed: int = _f(0, min=0, max=2**31 - 1)
     variant: str = _f("auto")                        # "auto" or a Mitsuba variant name
     spectral_mode: str = _f("auto", choices=("auto", "spectral", "mono"))
@@ -156,7 +158,8 @@ class RelaySpec:
     """[relay]: relay lens between DMD and sensor."""
 
     psf: str = _f("delta", choices=("delta", "gaussian", "airy", "measured"))
-    f_number: float = _f(4.0, gt=0, max=1000.0)
+    f_number: float = _f(math.nan, gt=0, max=1000.0)  # relay aperture stop (image side); NaN: none
+    magnification: float = _f(math.nan, gt=0, max=1000.0)  # NaN: from the registration (layout.py)
     sigma_px: float = _f(1.0, gt=0, max=1000.0)
     support_px: int = _f(0, min=0, max=4097)         # 0: chosen from the PSF's energy
     support_energy: float = _f(0.999, gt=0.5, lt=1.0)  # energy held by the automatic support
@@ -164,6 +167,15 @@ class RelaySpec:
     transmission: float = _f(0.9, gt=0, max=1.0)
     glare_fraction: float = _f(0.0, min=0, max=0.5)   # veiling glare: energy in a wide halo
     glare_sigma_px: float = _f(40.0, gt=0, max=4096.0)
+    crosstalk_tolerance: float = _f(0.05, gt=0, max=10.0)  # flag 8: |blurred / own exposure - 1| above
+    guard_max_px: int = _f(256, min=0, max=4096)      # widest guard band rendered for the PSF (px)
+
+
+@dataclass(frozen=True)
+class ObjectiveSpec:
+    """[objective]: the lens that images the scene onto the DMD (layout.py)."""
+
+    f_number: float = _f(math.nan, gt=0, max=1000.0)  # at the DMD; NaN: from sensor.f_number
 
 
 @dataclass(frozen=True)
@@ -293,6 +305,7 @@ class SceneSpec:
     spectra: Mapping[str, SpectrumSpec]
     flicker: Mapping[str, FlickerSpec]
     dmd: DMDSpec
+    objective: ObjectiveSpec
     relay: RelaySpec
     sensor: SensorSpec
     mask: MaskSpec
@@ -325,14 +338,33 @@ class SceneSpec:
         return t0, t0 + self.timing.exposure_s
 
     def subframe_times_s(self, index: int) -> np.ndarray:
-        """Midpoints of the K equal sub-intervals of frame `index`'s exposure window (s)."""
+        """Times (s) of the radiance samples of frame `index`'s exposure: K = render.subframes
+        uniform nodes including both ends (the midpoint for K = 1), joined, when
+        render.pwm_nodes is on and a DMD is in the path, by the DMD's switching times inside the
+        exposure (window edges, bit-plane boundaries: dmd.switch_times_s). Moving scenes only;
+        a static scene needs one sample."""
+        from .dmd import Schedule, node_times_s, switch_times_s
+
         t0, t1 = self.exposure_window_s(index)
         k = self.render.subframes
-        return t0 + (np.arange(k) + 0.5) * (t1 - t0) / k
+        extra = ()
+        if k > 1 and self.render.pwm_nodes and self.dmd.enabled:
+            extra = switch_times_s(Schedule.for_frame(self.dmd, self.timing, self.frame_start_s(index)))
+        return node_times_s(t0, t1, k, extra)
+
+    def subframe_weights(self, index: int) -> np.ndarray:
+        """Weight of each radiance sample in the exposure's time average (sums to 1)."""
+        from .dmd import node_time_weights_s
+
+        t = self.subframe_times_s(index)
+        t0, t1 = self.exposure_window_s(index)
+        w = node_time_weights_s(t1 - t0, t - t0)
+        return w / w.sum()
 
 
 SECTIONS = {
-    "render": RenderSpec, "timing": TimingSpec, "dmd": DMDSpec, "relay": RelaySpec,
+    "render": RenderSpec, "timing": TimingSpec, "dmd": DMDSpec, "objective": ObjectiveSpec,
+    "relay": RelaySpec,
     "sensor": SensorSpec, "mask": MaskSpec, "predictor": PredictorSpec, "loop": LoopSpec,
     "outputs": OutputsSpec, "plate": PlateSpec, "chart": ChartSpec,
 }
@@ -544,6 +576,7 @@ def build_spec(raw: dict, path: Path, ctx: _Ctx | None = None, *, cross_checks: 
     for ident, s in tables["spectra"].items():
         _check_spectrum(ctx, f"spectra.{ident}", s)
     _check_sensor_and_relay(ctx, path, sec["sensor"], sec["relay"])
+    _check_layout(ctx, sec)
     for ident in tables["flicker"]:
         entry = tables["spectra"].get(ident)
         if entry is None or entry.kind == "reflectance":
@@ -635,6 +668,31 @@ def _check_spectrum(ctx, key, s: SpectrumSpec):
     if s.kind == "reflectance" and float(np.max(values * s.scale)) > 1.0 + 1e-9:
         raise ctx.fail(f"{key}.scale", f"reflectance exceeds 1 (max {np.max(values * s.scale):.4g}): "
                        "energy would not be conserved")
+
+
+def resolve_layout(spec) -> "OpticalLayout":
+    """The optical layout (layout.py) of a scene's (or a section mapping's) optics keys."""
+    from .layout import optical_layout
+    from .sensor import PRESETS
+
+    get = (lambda k: spec[k]) if isinstance(spec, dict) else (lambda k: getattr(spec, k))
+    sensor, dmd = get("sensor"), get("dmd")
+    preset = PRESETS[sensor.preset]
+    pitch = sensor.pixel_pitch_m if not math.isnan(sensor.pixel_pitch_m) else preset.pixel_pitch_m
+    return optical_layout(objective_f_number=get("objective").f_number, sensor_f_number=sensor.f_number,
+                          preset_f_number=preset.f_number, relay_f_number=get("relay").f_number,
+                          relay_magnification=get("relay").magnification, dmd_enabled=dmd.enabled,
+                          registration_scale=dmd.registration.scale, sensor_pitch_m=pitch,
+                          mirror_pitch_m=dmd.pitch_m)
+
+
+def _check_layout(ctx, sec: dict):
+    from .layout import LayoutError
+
+    try:
+        resolve_layout(sec)
+    except LayoutError as e:
+        raise ctx.fail(e.key, str(e)) from None
 
 
 def _check_sensor_and_relay(ctx, path: Path, sensor: SensorSpec, relay: RelaySpec):

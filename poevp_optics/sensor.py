@@ -247,6 +247,10 @@ class Sensor:
         from drjit.auto import PCG32, UInt32
 
         p, sw = self.p, self.switches
+        if not bool(dr.all(dr.isfinite(signal_e), axis=None)):
+            # a NaN mean never satisfies the Poisson sampler's acceptance test (an endless loop)
+            raise ValueError("sensor input holds NaN/Inf photo-electrons: check the radiance "
+                             "(emitter scale, render) before the sensor")
         mean = self.mean_electrons(signal_e, exposure_s)
         n = dr.width(mean)
         need_rng = sw.shot or (sw.read and p.read_noise_e > 0)

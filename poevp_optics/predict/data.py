@@ -48,10 +48,10 @@ def render_ldr_sequence(overrides: list[str], frames: int, seed: int) -> np.ndar
     from ..scene import load_scene
 
     spec = load_scene(SCENE, [*overrides, f"timing.frames={frames}", f"render.seed={seed}"])
-    r = Renderer(spec)
     cam = Camera(spec)
+    r = Renderer(spec, guard_px=cam.guard_px)
     out = []
-    white = np.full(cam.shape, float(cam.top_level))
+    white = cam.white_mask()
     for i in range(frames):
         r.set_time(float(spec.subframe_times_s(i)[0]))
         rad = r.render_once(seed * 1000 + i, spec.render.spp)

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from poevp_optics.camera import Camera
-from poevp_optics.dmd import _cumulative, _segments, throughput_on
+from poevp_optics.dmd import _interval_moments, node_times_s, throughput_on
 from poevp_optics.flicker import on_intervals
 from poevp_optics.io import read_exr
 from poevp_optics.loop import _flicker_bases, render_exposures, run_render
@@ -72,7 +72,8 @@ def test_reconstruction_never_exceeds_truth_beyond_its_noise(name):
         from poevp_optics.loop import oracle_mask
 
         mask = oracle_mask(spec, cam, ex.radiance.data, ex.index)
-        cap = cam.capture(subs, mask, ex.index, seed=1000 + ex.index, basis=ex.basis)
+        cap = cam.capture(subs, mask, ex.index, seed=1000 + ex.index, basis=ex.basis,
+                          times_s=ex.subframe_times_s if len(subs) > 1 and not ex.basis else None)
         if ex.basis:                                      # lamp images: at most all lamps fully on
             subs = [np.sum(np.stack(subs), axis=0)]
         est, flags, _ = reconstruct(cap.dn, cap.exposure_s, p, cam.etendue_m2_sr, cam.throughput,
@@ -104,13 +105,15 @@ def test_float32_chain_matches_float64_on_the_noise_free_path(name):
     ex = next(iter(render_exposures(spec, renderer, progress=False)))
     subs = list(ex.subframes) if not spec.is_static else [ex.radiance.data]
     mask = np.tile(np.linspace(0, cam.top_level, ex.radiance.data.shape[1]).round(), (ex.radiance.data.shape[0], 1))
-    cap = cam.capture(subs, mask, 0, seed=1, basis=ex.basis)
+    times = ex.subframe_times_s if len(subs) > 1 and not ex.basis else None
+    cap = cam.capture(subs, mask, 0, seed=1, basis=ex.basis, times_s=times)
     from poevp_optics.dmd import transmission_table
 
     if ex.basis:
         table = np.stack(cam.basis_tables(0, ex.basis, True), axis=1)
     else:
-        table = transmission_table(np.arange(cam.top_level + 1), spec.dmd, cam.schedule(0), len(subs))
+        table = transmission_table(np.arange(cam.top_level + 1), spec.dmd, cam.schedule(0),
+                                   cam.nodes_rel(0, len(subs), times))
     w = table[mask.astype(int)]                                          # (H, W, K) float64
     ref = np.einsum("hwk,khw->hw", w, np.stack(subs).astype(np.float64)) * cam.electrons_per_radiance()
     sel = ref > 1e-3
@@ -129,12 +132,10 @@ def test_led_flicker_capture_converges_to_the_exact_time_integral():
     # LED's on-intervals (lamp), from the closed-form cumulative on-time of the schedule
     cam = Camera(spec, NoiseSwitches.off())
     sched = cam.schedule(0)
-    seg = _segments(levels, sched)
     thr, cr = throughput_on(spec.dmd), spec.dmd.contrast_ratio
 
     def trans(a, b):
-        c = _cumulative(np.array([a, b]), seg)
-        on = c[:, 1] - c[:, 0]
+        on = _interval_moments(levels, sched, np.array([a, b]) - sched.exposure_start_s)[0][:, 0]
         return thr * (on + ((b - a) - on) / cr)
 
     t0, t1 = sched.exposure_start_s, sched.exposure_start_s + sched.exposure_s
@@ -146,19 +147,23 @@ def test_led_flicker_capture_converges_to_the_exact_time_integral():
         sel = mask == v
         exact[sel] = (rest[sel] * f + lamp[sel] * l) * cam.electrons_per_radiance()
     errs = []
-    from poevp_optics.flicker import drive_mean
+    period = 1.0 / fl.frequency_hz
+
+    def drive(t):             # the square wave's value at time t (on: 1, else off_fraction)
+        on = np.mod(t - fl.phase_s, period) < fl.duty * period
+        return np.where(on, 1.0, fl.off_fraction)
 
     for k in (4, 16, 64, 256, 1024):
-        edges = t0 + np.arange(k + 1) * (t1 - t0) / k
-        drive = drive_mean(edges[:-1], edges[1:], fl)
-        subs = [(rest + d * lamp).astype(np.float32) for d in drive]
+        subs = [(rest + d * lamp).astype(np.float32) for d in drive(node_times_s(t0, t1, k))]
         spec_k = dataclasses.replace(spec, render=dataclasses.replace(spec.render, subframes=k))
         cap = Camera(spec_k, NoiseSwitches.off()).capture(subs, mask, 0, seed=1)
         errs.append(float(np.max(np.abs(cap.signal_e / exact - 1))))
     print("led_flicker max rel error vs K:", dict(zip((4, 16, 64, 256, 1024), errs)))
-    # stiff: until sub-intervals resolve the 118 us LSB plane (K >= 255), dim levels are off by
-    # their whole LED phase; beyond, the error falls fast
-    assert errs[3] < 5e-3 and errs[4] < 1e-4 and errs[4] < errs[3] / 5
+    # stiff: K radiance samples of a square-wave drive see each of its ~24 switches per
+    # exposure only to within a node spacing; until the spacing resolves the 118 us LSB plane
+    # (K >= 255) dim levels are off by their whole LED phase, beyond it the error is first order
+    # in 1/K (a jump, not a smooth L(t)): still ~2 % at K = 1024. Hence the exact path below.
+    assert errs[0] > 0.5 and errs[3] < 0.1 and errs[4] < 0.05 and errs[4] < errs[3]
     # the scene's own path (emitter-group images, exact exposure integrals) equals the exact
     cap = cam.capture([rest.astype(np.float32), lamp.astype(np.float32)], mask, 0, seed=1,
                       basis=("rest", "highbeam"))

@@ -100,6 +100,25 @@ def test_loop_initialisation_and_modes(tmp_path, mode):
     assert 0 <= r["metrics"]["mask_error"]["iou"] <= 1
 
 
+def test_oracle_also_starts_with_the_white_initialisation_frames(tmp_path):
+    """Paper Sec. 3 / DESIGN.md: the first loop.init_frames frames are white for every predictor,
+    the oracle included (it used to encode frame 0 already), so its averages after init are
+    comparable with the causal predictors'."""
+    out = tmp_path / "oracle"
+    assert main(["render", str(SCENES / "smoke"), "--out", str(out), "--quiet", "--frames", "4",
+                 "--resolution", "48x64", "--set", "predictor.name='oracle'"]) == 0
+    r = json.loads((out / "report.json").read_text())
+    pf = r["per_frame"]
+    assert [f.get("init", False) for f in pf] == [True, True, False, False]
+    assert all(f["mask_mean"] == 1.0 for f in pf[:2]) and all(f["mask_mean"] < 1.0 for f in pf[2:])
+    for f in pf[:2]:             # white mask: the encoded capture is the LDR twin's exposure
+        assert f["saturated_fraction_roi"]["encoded"] == pytest.approx(f["saturated_fraction_roi"]["ldr"], abs=0.05)
+    m = r["metrics"]
+    assert m["init_frames"] == 2
+    for key in ("saturated_fraction_roi", "entropy_roi"):
+        assert {"ldr_after_init", "encoded_after_init", "oracle_after_init"} <= set(m[key])
+
+
 def test_no_predictor_without_dmd(tmp_path):
     out = tmp_path / "nodmd"
     assert main(["render", str(SCENES / "smoke"), "--out", str(out), "--quiet", "--frames", "2",

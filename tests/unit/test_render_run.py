@@ -14,17 +14,25 @@ from tests.conftest import SCENES
 def test_render_writes_complete_report_and_float32_exr(tmp_path):
     out = tmp_path / "run"
     assert main(["render", str(SCENES / "smoke"), "--out", str(out), "--quiet", "--frames", "2",
-                 "--spp", "4", "--resolution", "24x32", "--seed", "5"]) == 0
+                 "--spp", "4", "--resolution", "24x32", "--seed", "5", "--set", "render.subframes=4"]) == 0
     r = json.loads((out / "report.json").read_text())
     for key in ("scene", "version", "seed", "resolution", "frames", "skipped_stages"):
         assert key in r
     assert r["seed"] == 5 and r["resolution"] == [24, 32] and r["frames"] == 2
     st = r["stages"]["render"]
     assert st["seconds"] > 0 and 0 < st["rel_error"] < 1 and st["rel_error_roi"] is not None
-    # frames x sub-frames x mc_splits, plus the K/2 renders of the temporal-error check
-    assert st["calls"] == 2 * 2 * 2 + 1 * 2
+    # frames x radiance nodes x mc_splits, plus the temporal check's renders of one frame's nodes
+    # and midpoints (errors.temporal_error); nodes: 4 uniform + the DMD's 7 inner plane boundaries
+    from poevp_optics.scene import load_scene
+
+    spec = load_scene(SCENES / "smoke", ["render.subframes=4", "timing.frames=2"])
+    n = len(spec.subframe_times_s(1))
+    assert n == 4 + 7
     e = r["errors"]
-    assert e["temporal"]["renders"] == 2 and e["dominant"] in e and e["total"]["rel"] >= e["render_mc"]["rel"]
+    assert st["calls"] == 2 * n * 2 + (2 * n - 1) * 2 == 2 * n * 2 + e["temporal"]["renders"]
+    assert e["temporal"]["nodes"] == n and e["temporal"]["rel"] is not None
+    assert e["dominant"] in e and e["total"]["rel"] >= e["render_mc"]["rel"]
+    assert "quantisation" not in e and r["physics_noise"]["quantisation"]["rel"] > 0
     chans, header = read_exr(out / "radiance" / "frame_0001.exr")
     assert set(chans) == {"Y", "mc_stderr"} and chans["Y"].dtype == np.float32
     assert header["poevp_unit"] == "e- s-1 m-2 sr-1"
