@@ -70,7 +70,7 @@ def _scene(write_scene, alpha_deg, beta_deg, mode, spp):
     resolution = [8, 8]
     seed = 3
     spectral_mode = "{mode}"
-    mc_splits = 4
+    mc_splits = 8
     [timing]
     frames = 1
     [spectra.lamp]
@@ -122,17 +122,18 @@ def test_rendered_luminance_coefficient_matches_astm_table(write_scene, mode):
         spec = _scene(write_scene, alpha, beta, mode, spp)
         r = Renderer(spec)
         assert r.plan.mode == mode
-        mean, var = r.render_with_error([11, 22, 33, 44], spp)
+        mean, var = r.render_with_error(list(range(11, 19)), spp)
         ra, sigma_ra = _recovered_ra(spec, alpha, beta, mean, var)
         expected = ASTM_III[beta][alpha] if alpha in ASTM_III[beta] else _astm_extrapolated(alpha, beta, sigma)
         rows.append((alpha, beta, ra, expected, sigma_ra))
-        # Tolerance: 4 standard errors of the frame mean (from 4 independent-seed splits; the
+        # Tolerance: 5.4 standard errors of the frame mean (8 independent-seed splits, so the
+        # normalised error is Student's t with 7 dof; 5.4 is its two-sided 99.9 % quantile; the
         # spectral path's error is wavelength sampling, the mono path's only the pixel jitter)
         # plus 1e-3 relative for geometry: over the 8x8-pixel patch (0.08 deg at 10 m, 1.4 cm)
         # alpha changes by ~0.1 % of itself and R_A ~ alpha^-1, but the patch is centred, so
         # the mean moves by the second-order term only (<1e-5); float32 directions give
         # |w_o - w_i| to ~3e-5 relative at 0.1 deg.
-        assert abs(ra - expected) <= 4 * sigma_ra + 1e-3 * expected, (alpha, beta, ra, expected, sigma_ra)
+        assert abs(ra - expected) <= 5.4 * sigma_ra + 1e-3 * expected, (alpha, beta, ra, expected, sigma_ra)
     print("\n".join(f"{mode} alpha={a} beta={b}: R_A rendered {ra:.3f} +- {s:.3f}, table {e:.3f}"
                     for a, b, ra, e, s in rows))
 
