@@ -181,17 +181,32 @@ def resolve_distribution(source: str, base_dir: Path | None = None) -> Path:
 
 
 # ------------------------------------------------------------------ the Mitsuba plugin
-def _search(mi, dr, nodes, x, active):
-    """Index i with nodes[i] <= x < nodes[i+1] (clamped to [0, n-2]) by branchless binary search."""
-    n = dr.width(nodes)
-    i = mi.UInt32(0)
-    step = 1 << max(0, (n - 2).bit_length() - 1)
-    while step >= 1:
-        cand = i + step
-        ok = (cand <= n - 2) & (dr.gather(mi.Float, nodes, dr.minimum(cand, n - 1), active) <= x)
-        i = dr.select(ok, cand, i)
-        step //= 2
-    return i
+class _AxisLookup:
+    """Cell index of an angle on a non-uniform axis in two gathers: a uniform bucket table (bucket
+    width at most half the smallest node spacing, so a bucket holds at most one node) gives the
+    cell at the bucket's start, and one comparison moves past a node inside the bucket."""
+
+    MAX_BUCKETS = 1 << 20
+
+    def __init__(self, mi, nodes: np.ndarray):
+        spacing = float(np.min(np.diff(nodes)))
+        self.x0 = float(nodes[0])
+        n_buckets = int(min(self.MAX_BUCKETS, math.ceil((nodes[-1] - nodes[0]) / (0.5 * spacing)) + 1))
+        self.inv_width = (n_buckets - 1) / float(nodes[-1] - nodes[0])
+        starts = self.x0 + np.arange(n_buckets) / self.inv_width
+        cells = np.clip(np.searchsorted(nodes, starts, side="right") - 1, 0, len(nodes) - 2)
+        if n_buckets == self.MAX_BUCKETS and np.any(np.diff(cells) > 1):
+            raise LampFileError("photometric table too fine for the bucket lookup")
+        self.n_buckets = n_buckets
+        self.cells = mi.UInt32(cells.astype(np.uint32))
+        self.nodes = mi.Float(nodes.astype(np.float32))
+        self.n = len(nodes)
+
+    def __call__(self, mi, dr, x, active):
+        b = mi.UInt32(dr.clip((x - self.x0) * self.inv_width, 0, self.n_buckets - 1))
+        i = dr.gather(mi.UInt32, self.cells, b, active)
+        nxt = dr.gather(mi.Float, self.nodes, dr.minimum(i + 1, self.n - 1), active)
+        return dr.select((x >= nxt) & (i + 1 < self.n - 1), i + 1, i)
 
 
 def _make_emitter_class():
@@ -211,11 +226,14 @@ def _make_emitter_class():
             self.intensity = props.get_emissive_texture("intensity")
             m = np.array(props["to_world"].matrix if "to_world" in props.keys() else np.eye(4), dtype=np.float32)
             self.to_world = mi.Transform4f(m)
+            self._to_local = self.to_world.inverse()
+            dr.make_opaque(self._to_local)
             d = self.dist
             self._h = mi.Float(d.h_deg.astype(np.float32))
             self._v = mi.Float(d.v_deg.astype(np.float32))
             self._rel = mi.Float((d.candela / d.peak_cd).astype(np.float32).ravel())
             self._nv = len(d.v_deg)
+            self._h_lookup, self._v_lookup = _AxisLookup(mi, d.h_deg), _AxisLookup(mi, d.v_deg)
             self._build_sampler()
             self.m_flags = mi.EmitterFlags.DeltaPosition
 
@@ -232,8 +250,8 @@ def _make_emitter_class():
             h, v = self._angles(d_local)
             d = self.dist
             inside = active & (h >= d.h_deg[0]) & (h <= d.h_deg[-1]) & (v >= d.v_deg[0]) & (v <= d.v_deg[-1])
-            i = _search(mi, dr, self._h, h, inside)
-            j = _search(mi, dr, self._v, v, inside)
+            i = self._h_lookup(mi, dr, h, inside)
+            j = self._v_lookup(mi, dr, v, inside)
             h0, h1 = dr.gather(mi.Float, self._h, i, inside), dr.gather(mi.Float, self._h, i + 1, inside)
             v0, v1 = dr.gather(mi.Float, self._v, j, inside), dr.gather(mi.Float, self._v, j + 1, inside)
             th = dr.clip((h - h0) / (h1 - h0), 0, 1)
@@ -300,12 +318,12 @@ def _make_emitter_class():
             dist = dr.norm(d)
             ds.d = d / dist
             ds.dist = dist
-            local = self.to_world.inverse() @ (-ds.d)
+            local = self._to_local @ (-ds.d)
             value = self._spectral(it, active) * (self.relative(dr.normalize(local), active) / dr.square(dist))
             return ds, dr.select(active, value, 0.0)
 
         def eval_direction(self, it, ds, active=True):
-            local = self.to_world.inverse() @ (-ds.d)
+            local = self._to_local @ (-ds.d)
             value = self._spectral(it, active) * (self.relative(dr.normalize(local), active) / dr.square(ds.dist))
             return dr.select(active, value, 0.0)
 
@@ -347,7 +365,8 @@ def _make_emitter_class():
             callback.put("intensity", self.intensity, mi.ParamFlags.Differentiable)
 
         def parameters_changed(self, keys):
-            pass
+            self._to_local = self.to_world.inverse()
+            dr.make_opaque(self._to_local)
 
         def to_string(self):
             return f"PhotometricEmitter[distribution={self.dist.path!r}, system={self.dist.system}]"

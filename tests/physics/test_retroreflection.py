@@ -278,3 +278,26 @@ def test_scene_key_errors_are_one_line(write_scene):
         with pytest.raises(SceneError) as e:
             load_scene(folder)
         assert key in str(e.value) and "\n" not in str(e.value)
+
+
+def test_printed_characters_blend(write_scene):
+    """The plate's use: a `blendbsdf` of ink and sheeting. With a uniform weight w on the sheeting
+    (bitmap weights act the same per texel) the recovered coefficient is w R_A + (1 - w) x ink's
+    diffuse term, here ink reflectance 0.03 and w = 0.6 at the 0.2 deg / 4 deg table point."""
+    alpha, beta, w, ink = 0.2, 4.0, 0.6, 0.03
+    spec = _scene(write_scene, alpha, beta, "mono", 16)
+    xml = spec.xml_path.read_text().replace(
+        '<bsdf type="retroreflective">',
+        f'<bsdf type="blendbsdf"><float name="weight" value="{w}"/>'
+        f'<bsdf type="diffuse"><spectrum name="reflectance" value="{ink}"/></bsdf>'
+        '<bsdf type="retroreflective">').replace("</bsdf>\n    </shape>", "</bsdf></bsdf>\n    </shape>")
+    spec.xml_path.write_text(xml)
+    r = Renderer(load_scene(spec.toml_path))
+    mean, var = r.render_with_error(list(range(11, 19)), 16)
+    ra, sigma_ra = _recovered_ra(spec, alpha, beta, mean, var)
+    # _recovered_ra removed the full diffuse base rho; the blend keeps w rho and adds (1 - w) ink
+    cam, lamp = _geometry(alpha, beta)
+    cos_v, cos_i = cam[2] / D_M, lamp[2] / D_M
+    diffuse_fix = ((w - 1) * RHO + (1 - w) * ink) * cos_i * cos_v / math.pi
+    expected = w * ASTM_III[beta][alpha] + diffuse_fix
+    assert abs(ra - expected) <= 5.4 * sigma_ra + 1e-3 * expected, (ra, expected)
