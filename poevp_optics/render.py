@@ -158,6 +158,9 @@ def plan_spectra(spec: SceneSpec, force_mode: str | None = None) -> SpectralPlan
             r = values[n]
             eff = float(np.mean(r)) if spectra.is_neutral(r) else spectra.integrate(response * weight * r) / norm
             params[n] = f"{eff:.9g}"
+    from .materials.bindings import plugin_xml_params  # photometric lamps, retroreflective sheeting
+
+    params.update(plugin_xml_params(spec, facts.defaults))
     if spec.plate.text:
         if spec.plate.param not in facts.defaults:
             raise SceneError(f"{file}: plate.param: the XML {spec.xml_path.name} declares no "

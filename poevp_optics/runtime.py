@@ -84,12 +84,16 @@ def choose_variant(mode: str, requested: str = "auto") -> tuple[str, str]:
 
 
 def set_variant(variant: str) -> None:
-    """Activate a Mitsuba variant (the only call site of mi.set_variant)."""
+    """Activate a Mitsuba variant (the only call site of mi.set_variant) and register our Python
+    plugins with it (materials/: retroreflective sheeting, photometric lamps)."""
     import mitsuba as mi
+
+    from .materials import register_plugins
 
     if mi.variant() != variant:
         mi.set_variant(variant)
         mi.set_log_level(mi.LogLevel.Error)  # Mitsuba's warnings are not ours to print
+    register_plugins()
 
 
 def register_asset_dir(path) -> None:

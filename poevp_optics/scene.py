@@ -12,7 +12,9 @@ Sections (DESIGN.md "Scene keys"; units in the key names):
     [timing]   fps, frames, exposure_s, exposure_offset_s, dmd_window_s,
                dmd_window_offset_s, outside_window       (offsets from the frame start)
     [motion.<id>]   kind = "linear" | "keyframes" | "static"; attached = [ids]
-    [spectra.<param>]  kind, source, intensity_cd | luminance_cd_per_m2 | illuminance_lux | scale
+    [spectra.<param>]  kind, source, intensity_cd | luminance_cd_per_m2 | illuminance_lux | scale,
+                       distribution (kind = "intensity": "file:<.ies|.ldt>", bound to $<param>_distribution)
+    [sheeting.<param>] source ("astm_d4956:I|II|III" or "file:<csv>"), efficiency  (materials/)
     [dmd] [relay] [sensor] [mask] [predictor] [loop] [outputs]   later stages' parameters
 """
 
@@ -117,6 +119,16 @@ class SpectrumSpec:
     luminance_cd_per_m2: float = _f(math.nan, min=0)
     illuminance_lux: float = _f(math.nan, min=0)
     scale: float = _f(1.0, min=0)
+    distribution: str = _f("")
+
+
+@dataclass(frozen=True)
+class SheetingSpec:
+    """[sheeting.<param>]: retroreflective sheeting bound to `$<param>` of a `retroreflective` BSDF
+    (materials/retroreflective.py): an R_A table and its efficiency bound (NaN: the preset's)."""
+
+    source: str = _f()
+    efficiency: float = _f(math.nan, gt=0, lt=1)
 
 
 @dataclass(frozen=True)
@@ -304,6 +316,7 @@ class SceneSpec:
     motion: Mapping[str, MotionSpec]
     spectra: Mapping[str, SpectrumSpec]
     flicker: Mapping[str, FlickerSpec]
+    sheeting: Mapping[str, SheetingSpec]
     dmd: DMDSpec
     objective: ObjectiveSpec
     relay: RelaySpec
@@ -368,7 +381,8 @@ SECTIONS = {
     "sensor": SensorSpec, "mask": MaskSpec, "predictor": PredictorSpec, "loop": LoopSpec,
     "outputs": OutputsSpec, "plate": PlateSpec, "chart": ChartSpec,
 }
-TABLE_SECTIONS = {"motion": MotionSpec, "spectra": SpectrumSpec, "flicker": FlickerSpec}
+TABLE_SECTIONS = {"motion": MotionSpec, "spectra": SpectrumSpec, "flicker": FlickerSpec,
+                  "sheeting": SheetingSpec}
 TOP_KEYS = {"description"}
 
 
@@ -575,6 +589,7 @@ def build_spec(raw: dict, path: Path, ctx: _Ctx | None = None, *, cross_checks: 
         _check_motion(ctx, f"motion.{ident}", m)
     for ident, s in tables["spectra"].items():
         _check_spectrum(ctx, f"spectra.{ident}", s)
+    _check_plugin_tables(ctx, path, tables["spectra"], tables["sheeting"])
     _check_sensor_and_relay(ctx, path, sec["sensor"], sec["relay"])
     _check_layout(ctx, sec)
     for ident in tables["flicker"]:
@@ -588,7 +603,7 @@ def build_spec(raw: dict, path: Path, ctx: _Ctx | None = None, *, cross_checks: 
         spectra_ = MappingProxyType({**spectra_, **_chart_spectra(ctx, path, sec["chart"], spectra_)})
     return SceneSpec(name=path.parent.name, toml_path=path, xml_path=xml_path,
                      description=description, motion=tables["motion"], spectra=spectra_,
-                     flicker=tables["flicker"],
+                     flicker=tables["flicker"], sheeting=tables["sheeting"],
                      raw=MappingProxyType(raw), **sec)
 
 
@@ -693,6 +708,34 @@ def _check_layout(ctx, sec: dict):
         resolve_layout(sec)
     except LayoutError as e:
         raise ctx.fail(e.key, str(e)) from None
+
+
+def _check_plugin_tables(ctx, path: Path, spectra_, sheeting):
+    """Photometric files of [spectra] lamps and [sheeting] tables (materials/): readable, in range."""
+    from .materials.photometric_lamp import LampFileError, resolve_distribution
+    from .materials.retroreflective import SheetingError, parse_sheeting, retro_law
+
+    for ident, s in spectra_.items():
+        if s.distribution:
+            if s.kind != "intensity":
+                raise ctx.fail(f"spectra.{ident}.distribution", "only a kind = 'intensity' lamp takes a distribution")
+            try:
+                resolve_distribution(s.distribution, path.parent)
+            except LampFileError as e:
+                raise ctx.fail(f"spectra.{ident}.distribution", str(e)) from None
+    for ident, sh in sheeting.items():
+        try:
+            retro_law(parse_sheeting(sheeting_string(sh, path.parent)))
+        except SheetingError as e:
+            raise ctx.fail(f"sheeting.{ident}", str(e)) from None
+
+
+def sheeting_string(sh: SheetingSpec, base_dir: Path) -> str:
+    """The `sheeting` property string a [sheeting.<param>] entry binds (file paths made absolute)."""
+    source = sh.source
+    if source.startswith("file:") and not Path(source[5:]).is_absolute() and (base_dir / source[5:]).is_file():
+        source = f"file:{(base_dir / source[5:]).resolve()}"
+    return source if math.isnan(sh.efficiency) else f"{source};efficiency={sh.efficiency:.9g}"
 
 
 def _check_sensor_and_relay(ctx, path: Path, sensor: SensorSpec, relay: RelaySpec):
