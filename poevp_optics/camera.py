@@ -51,7 +51,7 @@ class Camera:
         band_w = spectra.sensor_response_e_per_J(qe)
         self.psf = build_psf(spec.relay, pixel_pitch_m=self.params.pixel_pitch_m,
                              band_nm=spectra.WAVELENGTHS_NM, band_weights=band_w,
-                             base_dir=spec.toml_path.parent)
+                             base_dir=spec.toml_path.parent, image_shape=self.shape)
         self.taps = registration_taps(spec.dmd.registration, self.shape, self.shape) if self.dmd else None
         self.etendue_m2_sr = pixel_etendue_m2_sr(self.params)
         # lens transmission (objective) x relay transmission; DMD throughput is in the exposure
