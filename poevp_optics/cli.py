@@ -120,10 +120,11 @@ def cmd_render(args) -> int:
     with staged_dir(out, kind="render", protect=_reads(spec)) as stage:
         report = run_render(spec, stage, progress=not args.quiet)
     r = report["stages"]["render"]
-    roi = r["rel_error_roi"]
+    frame, roi = r["rel_error"], r["rel_error_roi"]
     print(f"poevp: rendered {report['frames']} frames of {spec.name} at "
           f"{report['resolution'][0]}x{report['resolution'][1]} ({r['path']}, {r['variant']}) in "
-          f"{report['total_seconds']:.1f} s; MC rel. error {r['rel_error']:.2%} frame"
+          f"{report['total_seconds']:.1f} s; MC rel. error "
+          + (f"{frame:.2%} frame" if frame is not None else "- (black frame)")
           + (f", {roi:.2%} ROI" if roi is not None else "") + f" -> {out}/report.json")
     return 0
 

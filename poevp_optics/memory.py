@@ -10,7 +10,8 @@ on scenes/smoke (llvm_ad_mono, 2 cores, numpy 2, DrJit 1.x):
 | frame pipeline  | P (300 + 16 K): film, K sub-frames, MC splits, DMD weights, sensor draws, reconstruction, EXR/PNG/tone-map buffers | 280-300 B/px at K = 2 (256^2 ... 2048^2), +6.4 B/px per extra sub-frame; spp does not matter (one wavefront per pixel) |
 | held exposures  | compare only: frames x P (4 K + 8)                     | the exposures list it keeps  |
 | PSF             | kernel n^2 x 16 + build strips + FFT buffers (`relay.fft_bytes`) | +27 MB at 1024^2, sigma 20 |
-| DMD tables      | 3 x V x S x (K + 1) x 8: V levels, S = bits + 3 segments (x2 with settle) | +400 MB / +900 MB at 16 bits, K = 16 / 32 |
+| DMD tables      | 4 x V x S x (K + 1) x 8: V levels, S = bits + 3 segments (x2 with settle) | 2.9-3.7 copies (`transmission_table` alone, V = 256 ... 65536, K = 16 ... 4096) |
+| JIT kernels     | K x 200 KiB + K^2 x 600 B: DrJit traces one gather and one FMA per sub-frame into one kernel | +80 MB at K = 256, +780 MB at K = 1024 (8x8 px) |
 | registration    | P x 400 (area-weighted taps and their construction)    | 345 B/px at 1024^2           |
 | predictor       | `DMVFNConfig.activation_bytes` (upper bound), flow 100 B/px | dmvfn_lite 50 B/px     |
 | chart captures  | chart only: repeats x P x 40 (stacked estimates, flags, electrons) | -                   |
@@ -38,7 +39,9 @@ PIPELINE_BYTES_PER_PX_SUBFRAME = 16
 REGISTRATION_BYTES_PER_PX = 400
 FLOW_BYTES_PER_PX = 100
 CHART_BYTES_PER_PX_REPEAT = 40
-DMD_TABLE_COPIES = 3
+DMD_TABLE_COPIES = 4
+JIT_BYTES_PER_SUBFRAME = 200 << 10
+JIT_BYTES_PER_SUBFRAME_SQUARED = 600
 
 
 class InsufficientMemory(UserError):
@@ -194,6 +197,9 @@ def estimate_run(spec, job: str = "render") -> MemoryEstimate:
     parts = {"libraries": Part(LIBRARIES_BYTES, ""),
              "frame pipeline": Part(px * (PIPELINE_BYTES_PER_PX + PIPELINE_BYTES_PER_PX_SUBFRAME * k),
                                     "render.resolution")}
+    if k > 16:
+        parts["JIT kernels"] = Part(k * JIT_BYTES_PER_SUBFRAME + k * k * JIT_BYTES_PER_SUBFRAME_SQUARED,
+                                    "render.subframes")
     if job == "compare":
         parts["held exposures"] = Part(spec.timing.frames * px * (4 * k + 8), "timing.frames")
     if job == "chart":

@@ -56,17 +56,17 @@ def check_run(spec: SceneSpec, job: str = "render", *, workers: int = 1, memory:
 
     if job not in JOBS:
         raise ValueError(f"unknown job {job!r}")
+    if job == "chart":
+        check_chart(spec)
+    check_relay(spec)                # the memory estimate reads the PSF file's size
     est = check_memory(spec, job, workers=workers) if memory else None
     plan = plan_spectra(spec)
     check_xml_references(spec, plan.xml_params)
     check_emitters(spec, plan.response_e_per_J)
     check_variant(spec, plan)
-    check_relay(spec)
     check_loop(spec, job)
     for name in (predictors or (spec.predictor.name,)):
         check_predictor(spec, job, name)
-    if job == "chart":
-        check_chart(spec)
     if load:
         from .render import Renderer
 
@@ -222,6 +222,9 @@ def check_chart(spec: SceneSpec) -> None:
         raise _fail(spec, "chart.patches", "not a chart scene (no [chart] section with patches)")
     if not spec.is_static:
         raise _fail(spec, "motion", "a dynamic-range chart must be static")
+    if spec.dmd.enabled and spec.chart.mask_source == "loop" and spec.predictor.name == "oracle":
+        raise _fail(spec, "predictor.name", "chart.mask_source = 'loop' runs a predictor on the chart: "
+                    "give one other than 'oracle' (e.g. 'hold'), or set chart.mask_source = 'oracle'")
 
 
 # ---------------------------------------------------------------------------- inputs
