@@ -389,14 +389,28 @@ def main(argv: list[str] | None = None) -> int:
     except UserError as e:
         print(f"poevp: error: {e}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("poevp: interrupted (Ctrl-C); partial output removed, earlier outputs untouched",
-              file=sys.stderr)
-        return 130
-    except runtime.Terminated:
-        print("poevp: terminated (SIGTERM); partial output removed, earlier outputs and finished "
-              "sweep points kept", file=sys.stderr)
-        return 143
+    except BaseException as e:
+        # a signal can land inside an import or a C extension, which re-raises it as its own
+        # error (ImportError, RuntimeError) with the signal's exception as the cause
+        if _caused_by(e, KeyboardInterrupt):
+            print("poevp: interrupted (Ctrl-C); partial output removed, earlier outputs untouched",
+                  file=sys.stderr)
+            return 130
+        if _caused_by(e, runtime.Terminated):
+            print("poevp: terminated (SIGTERM); partial output removed, earlier outputs and finished "
+                  "sweep points kept", file=sys.stderr)
+            return 143
+        raise
+
+
+def _caused_by(e: BaseException, kind: type) -> bool:
+    seen = set()
+    while e is not None and id(e) not in seen:
+        if isinstance(e, kind):
+            return True
+        seen.add(id(e))
+        e = e.__cause__ or e.__context__
+    return False
 
 
 if __name__ == "__main__":

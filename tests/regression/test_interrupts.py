@@ -1,5 +1,6 @@
 """Runs killed or failing half-way lose nothing (issue 14): render, chart and sweep under SIGTERM,
-SIGKILL and an exception (the sweep's SIGTERM: test_sweep.py; its exception: test_sweep_record.py). Earlier outputs stay byte-identical; SIGTERM exits 143 with one line
+SIGKILL and an exception (the sweep's SIGTERM and SIGKILL: test_sweep.py; its exception:
+test_sweep_record.py). Earlier outputs stay byte-identical; SIGTERM exits 143 with one line
 and removes its staging folder at once; after SIGKILL the next run into the same folder removes
 the staging folder the killed one left; two runs into one folder: the second refuses.
 """
@@ -15,7 +16,6 @@ import sys
 import time
 from pathlib import Path
 
-import pandas as pd
 import pytest
 
 from poevp_optics.cli import main
@@ -63,7 +63,7 @@ def wait_for(cond, proc: subprocess.Popen, timeout: float = 120.0) -> None:
 
 
 def staging_has(out: Path, pattern: str):
-    return lambda: any(s.glob(pattern) for s in out.parent.glob(f".{out.name}.staging-*"))
+    return lambda: any(any(s.glob(pattern)) for s in out.parent.glob(f".{out.name}.staging-*"))
 
 
 @pytest.mark.parametrize("command,scene,args,kind,pattern", [
@@ -128,38 +128,3 @@ def test_second_run_into_a_busy_folder_refuses(tmp_path):
     assert p.returncode == 0, err                  # the first run was not disturbed
     assert json.loads((out / "report.json").read_text())["frames"] == 8
     assert debris(out) == []
-
-
-# ---------------------------------------------------------------------------- sweep
-SWEEP_SET = ["--set", "render.resolution=[24,32]", "--set", "timing.frames=2", "--set", "render.spp=4",
-             "--set", "outputs.previews=false", "--set", "outputs.contact_sheet=false"]
-
-
-def sweep_cmd(out: Path, grid: str = "mask.target=0.2,0.35,0.5,0.65") -> list[str]:
-    return ["sweep", str(SCENES / "smoke"), "--out", str(out), "--workers", "2", "--quiet",
-            "--grid", grid, *SWEEP_SET]
-
-
-def finished_points(out: Path) -> dict[str, dict[str, str]]:
-    df = pd.read_parquet(out / "results.parquet")
-    return {k: tree(out / "points" / f"{k}-s0") for k in df["point_key"]}
-
-
-def test_sweep_sigkill_then_resume(tmp_path):
-    out = tmp_path / "sw"
-    p = start(sweep_cmd(out))
-    wait_for(lambda: (out / "results.parquet").is_file() and len(pd.read_parquet(out / "results.parquet")) >= 1, p)
-    p.kill()
-    p.communicate(timeout=60)
-    time.sleep(1.0)
-    done = finished_points(out)
-    assert 1 <= len(done) < 4
-    r = subprocess.run([sys.executable, "-m", "poevp_optics.cli", *sweep_cmd(out)], env=ENV,
-                       capture_output=True, text=True, timeout=600)
-    assert r.returncode == 0, r.stderr[-2000:]
-    df = pd.read_parquet(out / "results.parquet")
-    assert len(df) == 4 and df["status"].eq("ok").all()
-    for k, files in done.items():                  # finished points were not recomputed
-        assert tree(out / "points" / f"{k}-s0") == files
-    assert not list((out / "points").glob(".*.staging-*"))
-    assert not list(out.parent.glob(".sw.*"))
