@@ -135,9 +135,10 @@ def cmd_validate(args) -> int:
     from .scene import load_scene
 
     spec = load_scene(args.scene, _overrides(args))
-    pf = check_run(spec, args.job, load=args.load)
+    job = args.job or ("chart" if spec.chart.patches else "render")
+    pf = check_run(spec, job, load=args.load)
     plan = pf.plan
-    print(f"poevp: {spec.toml_path} is valid: {spec.timing.frames} frames, "
+    print(f"poevp: {spec.toml_path} is valid for `poevp {job}`: {spec.timing.frames} frames, "
           f"{spec.render.resolution[0]}x{spec.render.resolution[1]}, spp {spec.render.spp}, "
           f"{'static' if spec.is_static else ('PWM lamps on static geometry: ' + ', '.join(spec.flicker)) if spec.geometry_static else 'moving: ' + ', '.join(spec.motion)}; "
           f"render path {plan.mode} ({plan.reason}); {fits_note(pf.memory)}")
@@ -315,8 +316,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("validate", help="every check a run makes, short of rendering")
     _add_run_options(p)
-    p.add_argument("--job", default="render", choices=("render", "chart", "compare"),
-                   help="check the scene for this command (default render)")
+    p.add_argument("--job", choices=("render", "chart", "compare"),
+                   help="check the scene for this command (default: chart for a [chart] scene, else render)")
     p.add_argument("--load", action="store_true", help="also load the XML in Mitsuba")
     p.set_defaults(func=cmd_validate)
 
