@@ -31,7 +31,7 @@ def main(argv=None):
     rows = []
     for scene in args.scenes.split(","):
         out = RESULTS / "loop" / scene
-        with staged_dir(out) as stage:
+        with staged_dir(out, kind="compare") as stage:
             for r in compare(f"scenes/{scene}", args.predictors.split(","), args.modes.split(","),
                              stage, progress=False):
                 rows.append([scene] + [r[c] for c in COLUMNS])

@@ -67,7 +67,8 @@ class Camera:
         band_w = spectra.sensor_response_e_per_J(qe)
         self.psf = build_psf(spec.relay, pixel_pitch_m=self.params.pixel_pitch_m,
                              f_number=self.layout.sensor_f_number, band_nm=spectra.WAVELENGTHS_NM,
-                             band_weights=band_w, base_dir=spec.toml_path.parent)
+                             band_weights=band_w, base_dir=spec.toml_path.parent,
+                             image_shape=self.shape)
         reg = spec.dmd.registration if self.dmd else _IDENTITY
         self.registration = reg
         radius = self.psf.kernel.shape[0] // 2 if self.psf is not None else 0

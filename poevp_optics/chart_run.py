@@ -50,13 +50,14 @@ def settle_mask(spec: SceneSpec, cam: Camera, truth: np.ndarray, white_capture) 
     if spec.chart.mask_source == "oracle":
         return oracle_mask(spec, cam, truth, 0), {"source": "oracle", "frames": 0, "converged": True,
                                                   "history": []}
-    from .predict import make_predictor
+    from .predict import checked_prediction, make_predictor
 
     pred = make_predictor(spec.predictor.name, spec.predictor.weights, spec.predictor.resolution)
     mask, hist, frames = white, [], []
     p = cam.params
     min_level = min(spec.mask.min_level, top)
     for it in range(spec.chart.max_iterations):
+        n_bad = 0                        # prediction pixels that fell back to the last frame
         cap = cam.capture([truth], mask, it, _frame_seed(spec, it, 3))
         est, flags, _ = cam.reconstruct(cap, it)
         hist.append(_resize(predictor_input(spec.loop.mode, cam, white_capture, cap, est, flags, it),
@@ -64,12 +65,14 @@ def settle_mask(spec: SceneSpec, cam: Camera, truth: np.ndarray, white_capture) 
         if it + 1 < spec.loop.init_frames or len(hist) < pred.needs_frames:
             new = white
         else:
-            new = predicted_mask(spec, cam, _resize(pred(hist[-2:]), cam.shape), it)
+            guess, n_bad = checked_prediction(pred, hist[-2:])
+            new = predicted_mask(spec, cam, _resize(guess, cam.shape), it)
         sat = (flags.astype(np.int64) & 1) > 0
         movable = int(np.count_nonzero(sat & (cam.to_sensor(mask) > min_level)))
         changed = _stable_changed(mask, new, lev)
         frames.append({"frame": it, "saturated_fraction": float(np.mean(sat)),
-                       "saturated_movable": movable, "changed_fraction": changed})
+                       "saturated_movable": movable, "changed_fraction": changed,
+                       **({"prediction_fallback_pixels": n_bad} if n_bad else {})})
         if it + 1 >= spec.loop.init_frames and movable == 0 and changed < 1e-2:
             return mask, {"source": f"loop ({pred.name}, {spec.loop.mode})", "frames": it + 1,
                           "converged": True, "history": frames}

@@ -1,4 +1,9 @@
-"""`poevp` command line: render, validate, compare, chart, sweep, evaluate, train-predictor, info."""
+"""`poevp` command line: render, validate, compare, chart, sweep, evaluate, train-predictor, info.
+
+Exit status: 0 done; 1 a sweep finished with failed points (`--allow-failed`: 0); 2 bad input
+(one line on stderr naming the file and key, or the flag; nothing written); 130 Ctrl-C; 143
+SIGTERM (both: a message, partial output removed, earlier outputs untouched).
+"""
 
 from __future__ import annotations
 
@@ -9,103 +14,162 @@ import platform
 import sys
 from pathlib import Path
 
-from . import __version__
+from . import __version__, runtime
+from .user_error import UserError
+
+
+class _OneLineParser(argparse.ArgumentParser):
+    """Argument errors as one line (`poevp: error: argument --threads: ...`), exit 2."""
+
+    def error(self, message):
+        self.exit(2, f"poevp: error: {' '.join(message.split())}\n")
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}")
+    return value
+
+
+def _resolution_override(text: str) -> str:
+    try:
+        h, w = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected HxW, e.g. 368x640, got {text!r}") from None
+    return f"render.resolution=[{h},{w}]"
+
+
+class _Override(argparse.Action):
+    """`--set KEY=VALUE` and the shorthands (--frames, --spp, --resolution, --seed) become
+    `section.key=value` overrides in the order given, so the last one given wins."""
+
+    def __init__(self, option_strings, dest, key=None, **kwargs):
+        self.key = key
+        super().__init__(option_strings, dest, **kwargs)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        text = values if self.key is None else self.key(values)
+        setattr(namespace, self.dest, [*(getattr(namespace, self.dest, None) or []), text])
 
 
 def _add_run_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("scene", help="scene folder (holding scene.toml) or a .toml file")
-    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                   help="override a scene key, TOML value syntax (repeatable): render.spp=64")
-    p.add_argument("--frames", type=int, help="shorthand for --set timing.frames=N")
-    p.add_argument("--spp", type=int, help="shorthand for --set render.spp=N")
-    p.add_argument("--resolution", help="HxW, shorthand for --set render.resolution=[H,W]")
-    p.add_argument("--seed", type=int, help="shorthand for --set render.seed=S")
+    p.set_defaults(overrides=[])
+    p.add_argument("--set", dest="overrides", action=_Override, metavar="KEY=VALUE",
+                   help="override a scene key, TOML value syntax (repeatable; applied in order): render.spp=64")
+    p.add_argument("--frames", dest="overrides", action=_Override, type=int, metavar="N",
+                   key=lambda v: f"timing.frames={v}", help="shorthand for --set timing.frames=N")
+    p.add_argument("--spp", dest="overrides", action=_Override, type=int, metavar="N",
+                   key=lambda v: f"render.spp={v}", help="shorthand for --set render.spp=N")
+    p.add_argument("--resolution", dest="overrides", action=_Override, type=_resolution_override,
+                   metavar="HxW", key=lambda v: v, help="shorthand for --set render.resolution=[H,W]")
+    p.add_argument("--seed", dest="overrides", action=_Override, type=int, metavar="S",
+                   key=lambda v: f"render.seed={v}", help="shorthand for --set render.seed=S")
     p.add_argument("--accuracy", choices=("fast", "default", "reference"), default="default",
-                   help="spp, sub-frames and PSF support together (fast: 1/4 spp, K/2; reference: 4x, 4x)")
+                   help="spp, sub-frames and PSF support together, applied after every --set "
+                        "(fast: 1/4 spp, K/2; reference: 4x, 4x)")
 
 
 def _add_job_options(p: argparse.ArgumentParser, out_help: str) -> None:
     p.add_argument("--out", help=out_help)
-    p.add_argument("--threads", type=int, help="DrJit/torch/OpenCV threads (default: all cores)")
+    p.add_argument("--threads", type=_positive_int, help="DrJit/torch/OpenCV threads (default: all cores)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
 def _overrides(args) -> list[str]:
-    from .scene import SceneError
+    from .scene import SceneError, accuracy_overrides, parse_override
 
     out = list(args.overrides)
-    if getattr(args, "frames", None) is not None:
-        out.append(f"timing.frames={args.frames}")
-    if getattr(args, "spp", None) is not None:
-        out.append(f"render.spp={args.spp}")
-    if getattr(args, "seed", None) is not None:
-        out.append(f"render.seed={args.seed}")
-    if getattr(args, "resolution", None):
-        try:
-            h, w = (int(v) for v in args.resolution.lower().split("x"))
-        except ValueError:
-            raise SceneError(f"--resolution {args.resolution}: expected HxW, e.g. 368x640") from None
-        out.append(f"render.resolution=[{h},{w}]")
-    if getattr(args, "accuracy", "default") != "default":
-        from .scene import accuracy_overrides
-
-        out += accuracy_overrides(args.scene, out, args.accuracy)
+    preset = getattr(args, "accuracy", "default")
+    if preset != "default":
+        added = accuracy_overrides(args.scene, out, preset)
+        set_keys = {".".join(parse_override(o)[0]): o for o in out}
+        for a in added:
+            key = a.split("=", 1)[0]
+            if key == "relay.support_energy" and key in set_keys:
+                raise SceneError(f"--accuracy {preset} sets {key}, and so does --set {set_keys[key]}: "
+                                 "give one of them")
+        out += added
     return out
 
 
+def _reads(spec) -> tuple:
+    """Paths a run reads and must never be given as (or inside) its output folder."""
+    return (spec.toml_path, spec.toml_path.resolve().parent, spec.xml_path)
+
+
+def _out_dir(args, spec, suffix: str = "") -> Path:
+    return Path(args.out) if args.out else Path("out") / f"{spec.name}{suffix}"
+
+
 def cmd_render(args) -> int:
-    from . import runtime
-    from .io import staged_dir
+    from .io import check_output, staged_dir
     from .loop import run_render
+    from .preflight import check_run
     from .scene import load_scene
 
     spec = load_scene(args.scene, _overrides(args))
+    out = _out_dir(args, spec)
+    check_output(out, "render", protect=_reads(spec))
+    check_run(spec, "render")
     runtime.set_threads(args.threads)
-    out = Path(args.out) if args.out else Path("out") / spec.name
-    with staged_dir(out) as stage:
+    with staged_dir(out, kind="render", protect=_reads(spec)) as stage:
         report = run_render(spec, stage, progress=not args.quiet)
     r = report["stages"]["render"]
-    roi = r["rel_error_roi"]
+    frame, roi = r["rel_error"], r["rel_error_roi"]
     print(f"poevp: rendered {report['frames']} frames of {spec.name} at "
           f"{report['resolution'][0]}x{report['resolution'][1]} ({r['path']}, {r['variant']}) in "
-          f"{report['total_seconds']:.1f} s; MC rel. error {r['rel_error']:.2%} frame"
+          f"{report['total_seconds']:.1f} s; MC rel. error "
+          + (f"{frame:.2%} frame" if frame is not None else "- (black frame)")
           + (f", {roi:.2%} ROI" if roi is not None else "") + f" -> {out}/report.json")
     return 0
 
 
 def cmd_validate(args) -> int:
-    from .render import plan_spectra
+    from .memory import fits_note
+    from .preflight import check_run
     from .scene import load_scene
 
     spec = load_scene(args.scene, _overrides(args))
-    plan = plan_spectra(spec)
-    if args.load:
-        from .render import Renderer
-
-        Renderer(spec)  # loads the XML in Mitsuba and checks moving ids / ROI shape
-    print(f"poevp: {spec.toml_path} is valid: {spec.timing.frames} frames, "
-          f"{spec.render.resolution[0]}x{spec.render.resolution[1]}, "
+    job = args.job or ("chart" if spec.chart.patches else "render")
+    pf = check_run(spec, job, load=args.load)
+    plan = pf.plan
+    print(f"poevp: {spec.toml_path} is valid for `poevp {job}`: {spec.timing.frames} frames, "
+          f"{spec.render.resolution[0]}x{spec.render.resolution[1]}, spp {spec.render.spp}, "
           f"{'static' if spec.is_static else ('PWM lamps on static geometry: ' + ', '.join(spec.flicker)) if spec.geometry_static else 'moving: ' + ', '.join(spec.motion)}; "
-          f"render path {plan.mode} ({plan.reason})")
+          f"render path {plan.mode} ({plan.reason}); {fits_note(pf.memory)}")
     return 0
 
 
 def cmd_compare(args) -> int:
-    from . import runtime
     from .compare import compare
-    from .io import staged_dir
+    from .io import check_output, staged_dir
+    from .predict import PREDICTORS
+    from .preflight import check_run
     from .scene import SceneError, load_scene
 
-    spec = load_scene(args.scene, _overrides(args))
+    overrides = _overrides(args)
+    spec = load_scene(args.scene, overrides)
     preds = [p.strip() for p in args.predictors.split(",") if p.strip()]
     modes = [m.strip() for m in args.modes.split(",") if m.strip()]
     for m in modes:
         if m not in ("open", "raw", "demodulated"):
-            raise SceneError(f"--modes: unknown loop mode {m!r}")
+            raise SceneError(f"--modes {args.modes}: unknown loop mode {m!r} (open, raw, demodulated)")
+    for p in preds:
+        if p not in PREDICTORS:
+            raise SceneError(f"--predictors {args.predictors}: unknown predictor {p!r} ({', '.join(PREDICTORS)})")
+    if not preds or not modes:
+        raise SceneError("--predictors/--modes: give at least one of each")
+    out = _out_dir(args, spec, "-compare")
+    check_output(out, "compare", protect=_reads(spec))
+    check_run(spec, "compare", predictors=tuple(preds))
     runtime.set_threads(args.threads)
-    out = Path(args.out) if args.out else Path("out") / f"{spec.name}-compare"
-    with staged_dir(out) as stage:
-        rows = compare(args.scene, preds, modes, stage, _overrides(args), progress=not args.quiet)
+    with staged_dir(out, kind="compare", protect=_reads(spec)) as stage:
+        rows = compare(args.scene, preds, modes, stage, overrides, progress=not args.quiet)
     for r in rows:
         print(f"{r['predictor']:>11s} {r['mode']:>12s}  mask IoU {_f(r['mask_iou'])}  plate saturated "
               f"{_f(r['sat_loop_after_init'])} (LDR {_f(r['sat_ldr'])})  entropy {_f(r['entropy_loop_after_init'])}")
@@ -118,15 +182,17 @@ def _f(v):
 
 
 def cmd_chart(args) -> int:
-    from . import runtime
     from .chart_run import run_chart
-    from .io import staged_dir
+    from .io import check_output, staged_dir
+    from .preflight import check_run
     from .scene import load_scene
 
     spec = load_scene(args.scene, _overrides(args))
+    out = _out_dir(args, spec, "-chart")
+    check_output(out, "chart", protect=_reads(spec))
+    check_run(spec, "chart")
     runtime.set_threads(args.threads)
-    out = Path(args.out) if args.out else Path("out") / f"{spec.name}-chart"
-    with staged_dir(out) as stage:
+    with staged_dir(out, kind="chart", protect=_reads(spec)) as stage:
         r = run_chart(spec, stage, progress=not args.quiet)
     dr = r["dynamic_range_db"]
     line = "  ".join(f"{mode} {dr[mode]['iso15739']:.1f} dB" for mode in dr if dr[mode].get("iso15739") is not None)
@@ -144,29 +210,39 @@ def cmd_chart(args) -> int:
 
 
 def cmd_sweep(args) -> int:
+    from .io import check_output
+    from .scene import load_scene
     from .sweep import sweep
 
-    out = Path(args.out) if args.out else Path("out") / f"{Path(args.scene).resolve().name}-sweep"
+    spec = load_scene(args.scene, _overrides(args), cross_checks=False)
+    out = _out_dir(args, spec, "-sweep")
+    check_output(out, "sweep", protect=_reads(spec))
     df = sweep(args.scene, args.grid, out=out, seeds=args.seeds, workers=args.workers,
                scheduler=args.scheduler, job=args.job, base_overrides=_overrides(args),
                metric=args.plot, progress=not args.quiet, retry_failed=args.retry_failed,
                threads=args.threads)
+    n_failed = 0
     if df is not None:
         n_ok = int((df["status"] == "ok").sum())
-        print(f"poevp: sweep table {out}/results.parquet: {n_ok} ok, {len(df) - n_ok} failed")
+        n_failed = len(df) - n_ok
+        print(f"poevp: sweep table {out}/results.parquet: {n_ok} ok, {n_failed} failed")
         for _, r in df[df["status"] == "failed"].iterrows():
             print(f"poevp:   failed point {r['point']} seed {r['seed']}: {r['error']}")
+    if n_failed and not args.allow_failed:
+        print(f"poevp: {n_failed} sweep points failed (exit 1; --allow-failed exits 0; "
+              "--retry-failed runs them again)", file=sys.stderr)
+        return 1
     return 0
 
 
 def cmd_evaluate(args) -> int:
-    from . import runtime
     from .evaluate import E_LEVELS, evaluate
-    from .io import staged_dir
+    from .io import check_output, staged_dir
 
-    runtime.set_threads(args.threads)
     out = Path(args.out) if args.out else Path("out") / ("evaluate-quick" if args.quick else "evaluate")
-    with staged_dir(out) as stage:
+    check_output(out, "evaluate")
+    runtime.set_threads(args.threads)
+    with staged_dir(out, kind="evaluate") as stage:
         summary = evaluate(stage, quick=args.quick, progress=not args.quiet)
     e = str(max(E_LEVELS))
     for m, s in ((k, v) for k, v in summary.items() if k != "test_set"):
@@ -177,7 +253,6 @@ def cmd_evaluate(args) -> int:
 
 
 def cmd_train(args) -> int:
-    from . import runtime
     from .predict.dmvfn import default_weights
     from .predict.train import train
 
@@ -197,8 +272,6 @@ def info_dict() -> dict:
     import drjit as dr
     import mitsuba as mi
     import numpy as np
-
-    from . import runtime
 
     out = {"poevp_optics": __version__, "python": platform.python_version(),
            "mitsuba": mi.__version__, "drjit": dr.__version__, "numpy": np.__version__}
@@ -232,19 +305,19 @@ def cmd_info(args) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="poevp", description="POE-VP DMD camera simulator")
+    parser = _OneLineParser(prog="poevp", description="POE-VP DMD camera simulator")
     parser.add_argument("--version", action="version", version=f"poevp_optics {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("render", help="render a scene: radiance frames, previews, report.json")
     _add_run_options(p)
-    p.add_argument("--out", help="output folder (default out/<scene>); replaced whole on success")
-    p.add_argument("--threads", type=int, help="DrJit/torch threads (default: all cores)")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    _add_job_options(p, "output folder (default out/<scene>); replaced whole on success")
     p.set_defaults(func=cmd_render)
 
-    p = sub.add_parser("validate", help="parse and check a scene without rendering")
+    p = sub.add_parser("validate", help="every check a run makes, short of rendering")
     _add_run_options(p)
+    p.add_argument("--job", choices=("render", "chart", "compare"),
+                   help="check the scene for this command (default: chart for a [chart] scene, else render)")
     p.add_argument("--load", action="store_true", help="also load the XML in Mitsuba")
     p.set_defaults(func=cmd_validate)
 
@@ -264,14 +337,17 @@ def build_parser() -> argparse.ArgumentParser:
     _add_run_options(p)
     p.add_argument("--grid", action="append", default=[], required=True,
                    help="KEY=v1,v2,... | KEY=start:stop:num | KEY=log:start:stop:num (repeatable)")
-    p.add_argument("--seeds", type=int, default=1, help="seeds per point (render.seed, sensor.seed)")
-    p.add_argument("--out", help="default out/<scene>-sweep; rerunning resumes")
-    p.add_argument("--workers", type=int, help="local Dask worker processes (default: cores)")
+    p.add_argument("--seeds", type=_positive_int, default=1, help="seeds per point (render.seed, sensor.seed)")
+    p.add_argument("--out", help="default out/<scene>-sweep; rerunning the same sweep resumes")
+    p.add_argument("--workers", type=_positive_int, help="local Dask worker processes (default: cores)")
     p.add_argument("--scheduler", help="tcp://HOST:PORT of an existing Dask scheduler")
     p.add_argument("--job", default="render", choices=("render", "chart"))
     p.add_argument("--plot", metavar="METRIC", help="column to plot, e.g. metrics.saturated_fraction_roi.encoded")
     p.add_argument("--retry-failed", action="store_true", help="rerun points recorded as failed")
-    p.add_argument("--threads", type=int, help="DrJit/torch/OpenCV threads per worker (default cores // workers)")
+    p.add_argument("--allow-failed", action="store_true",
+                   help="exit 0 even when points failed (default: exit 1)")
+    p.add_argument("--threads", type=_positive_int,
+                   help="DrJit/torch/OpenCV threads per worker (default cores // workers)")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=cmd_sweep)
 
@@ -283,16 +359,16 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("train-predictor", help="train dmvfn_lite (or dmvfn) on rendered sequences")
     p.add_argument("--name", default="dmvfn_lite", choices=("dmvfn_lite", "dmvfn"))
     p.add_argument("--minutes", type=float, default=10.0, help="training time budget")
-    p.add_argument("--sequences", type=int, default=48)
-    p.add_argument("--val-sequences", type=int, default=8)
-    p.add_argument("--frames", type=int, default=6)
-    p.add_argument("--batch", type=int, default=4)
+    p.add_argument("--sequences", type=_positive_int, default=48)
+    p.add_argument("--val-sequences", type=_positive_int, default=8)
+    p.add_argument("--frames", type=_positive_int, default=6)
+    p.add_argument("--batch", type=_positive_int, default=4)
     p.add_argument("--lr", type=float, default=2e-3)
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--max-steps", type=int)
+    p.add_argument("--max-steps", type=_positive_int)
     p.add_argument("--out", default="out/train", help="checkpoints (resumable)")
     p.add_argument("--weights-out", help="default: assets/predictor/<name>.safetensors")
-    p.add_argument("--threads", type=int)
+    p.add_argument("--threads", type=_positive_int)
     p.set_defaults(func=cmd_train)
 
     p = sub.add_parser("info", help="versions, Mitsuba variant, libLLVM, devices")
@@ -303,23 +379,39 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from .scene import SceneError
-    from .spectra import SpectrumError
-
-    args = build_parser().parse_args(argv)
+    """Run one command; returns the exit status (module docstring)."""
     try:
-        return args.func(args)
-    except (SceneError, SpectrumError) as e:
+        args = build_parser().parse_args(argv)
+    except SystemExit as e:                        # --help, --version, argument errors
+        return e.code if isinstance(e.code, int) else 2
+    try:
+        with runtime.sigterm_raises():
+            return args.func(args)
+    except UserError as e:
         print(f"poevp: error: {e}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("poevp: interrupted; existing outputs left untouched", file=sys.stderr)
-        return 130
     except BaseException as e:
-        if type(e).__name__ == "Terminated":     # sweep.Terminated (SIGTERM)
-            print("poevp: terminated (SIGTERM); finished results kept", file=sys.stderr)
+        # a signal can land inside an import or a C extension, which re-raises it as its own
+        # error (ImportError, RuntimeError) with the signal's exception as the cause
+        if _caused_by(e, KeyboardInterrupt):
+            print("poevp: interrupted (Ctrl-C); partial output removed, earlier outputs untouched",
+                  file=sys.stderr)
+            return 130
+        if _caused_by(e, runtime.Terminated):
+            print("poevp: terminated (SIGTERM); partial output removed, earlier outputs and finished "
+                  "sweep points kept", file=sys.stderr)
             return 143
         raise
+
+
+def _caused_by(e: BaseException, kind: type) -> bool:
+    seen = set()
+    while e is not None and id(e) not in seen:
+        if isinstance(e, kind):
+            return True
+        seen.add(id(e))
+        e = e.__cause__ or e.__context__
+    return False
 
 
 if __name__ == "__main__":

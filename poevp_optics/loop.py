@@ -18,8 +18,9 @@ from .frame import Frame, Quantity
 from .camera import Camera
 from .dmd import attenuation_floor
 from .errors import physics_noise
-from .io import write_exr, write_png
+from .io import write_dn, write_exr, write_png
 from .masks import mask_levels, predicted_electrons
+from .predict import checked_prediction
 from .metrics import crop, entropy_8bit, mask_iou, relative_error, saturated_fraction, to_8bit
 from .reconstruct import reconstruct
 from .render import Renderer
@@ -225,10 +226,6 @@ def predictor_input(mode: str, camera: Camera, ldr, enc, est, flags, index: int)
     return x.astype(np.float32)
 
 
-def _png_dn(dn: np.ndarray, bits: int) -> np.ndarray:
-    return dn.astype(np.uint8) if bits <= 8 else dn.astype(np.uint16)
-
-
 def _mask_png(levels: np.ndarray, top: int) -> np.ndarray:
     return np.clip(np.rint(levels * 255.0 / top), 0, 255).astype(np.uint8)
 
@@ -318,7 +315,9 @@ def run_render(spec: SceneSpec, out_dir: Path, progress: bool = True, *, rendere
                 mask = oracle
             else:
                 tp = time.perf_counter()
-                pred = predictor(history[-2:])
+                pred, n_bad = checked_prediction(predictor, history[-2:])
+                if n_bad:
+                    rec["prediction_fallback_pixels"] = n_bad     # held the last frame there
                 mask = predicted_mask(spec, camera, _resize(pred, camera.shape), i)
                 predict_s.append(time.perf_counter() - tp)
                 rec["predict_seconds"] = predict_s[-1]
@@ -396,9 +395,9 @@ def run_render(spec: SceneSpec, out_dir: Path, progress: bool = True, *, rendere
                 write_exr(out_dir / "subframes" / f"{name}_sub{k:03d}.exr", {"Y": sub},
                           {**attrs, "poevp_quantity": f"photon radiance at t = {ex.subframe_times_s[k]!r} s "
                                                       "(mirror grid, guard band included)"})
-        write_png(out_dir / "capture" / f"{name}.png", _png_dn(enc.dn, bits))
+        write_dn(out_dir / "capture" / name, enc.dn, bits)
         if camera.dmd:
-            write_png(out_dir / "ldr" / f"{name}.png", _png_dn(ldr.dn, bits))
+            write_dn(out_dir / "ldr" / name, ldr.dn, bits)
             write_png(out_dir / "mask" / f"{name}.png", _mask_png(mask, camera.top_level))
         write_exr(out_dir / "exposure" / f"{name}.exr", {"Y": enc.exposure_s},
                   {**attrs, "poevp_quantity": "effective exposure (DMD duty x throughput incl. leakage)",
@@ -457,6 +456,7 @@ def _error_budget(spec, camera, per_frame, stage_s, temporal, render_s) -> dict:
         "temporal": temporal,
         "psf_truncation": {"rel": psf.truncation_error if psf is not None else 0.0,
                            "support_px": int(psf.kernel.shape[0]) if psf is not None else 1,
+                           **({"note": psf.note} if psf is not None and psf.note else {}),
                            "seconds": stage_s["relay"]},
         "poisson_sampler": {"rel": POISSON_BOUND, "method": "exact (Knuth < 10 e-, PTRS >= 10 e-); "
                             "float32 counts exact to 2^24 e-", "seconds": stage_s["sensor"]},
@@ -526,6 +526,9 @@ def _report(spec, renderer, camera, per_frame, stage_s, setup_s, t_write, t_run,
             for k, v in law_cmp.items()}
     p = camera.params
     notes = list(renderer.plan.notes)
+    if camera.dmd is not None and not loop_frames:
+        notes.append(f"every frame is one of the loop.init_frames = {spec.loop.init_frames} all-white "
+                     f"initialisation frames: no mask acted; this run shows the LDR camera only")
     if floor is not None and floor["white_fill_fraction"] > 0.01:
         ldr_sat = metrics["saturated_fraction_roi"]["ldr"]
         enc_sat = metrics["saturated_fraction_roi"]["encoded"]
@@ -537,6 +540,14 @@ def _report(spec, renderer, camera, per_frame, stage_s, setup_s, t_write, t_run,
             f"of suppression at most). Plate pixels brighter than 1/{floor['floor']:.2f} = "
             f"{1 / floor['floor']:.2f}x full well stay saturated: saturated plate fraction "
             f"{ldr_sat:.1%} (LDR) -> {enc_sat:.1%} (encoded).")
+    fell_back = [f["index"] for f in per_frame if f.get("prediction_fallback_pixels")]
+    if fell_back:
+        notes.append(f"predictor {predictor.name!r} gave NaN/Inf on frames {fell_back} "
+                     f"({sum(f['prediction_fallback_pixels'] for f in per_frame if f.get('prediction_fallback_pixels'))} "
+                     "pixels): those pixels held the last frame (the 'hold' prediction); per_frame "
+                     "'prediction_fallback_pixels' counts them")
+    if camera.psf is not None and camera.psf.note:
+        notes.append(f"relay PSF: {camera.psf.note}")
     total = time.perf_counter() - t_run
     report = {
         "scene": spec.name, "scene_file": str(spec.toml_path), "description": spec.description,

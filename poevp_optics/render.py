@@ -119,7 +119,9 @@ def plan_spectra(spec: SceneSpec, force_mode: str | None = None) -> SpectralPlan
     values = {n: absolute_spectrum(e) for n, e in spec.spectra.items()}
     emissive = [n for n, e in spec.spectra.items() if e.kind in _EMISSIVE_KINDS]
     reflect = [n for n, e in spec.spectra.items() if e.kind == "reflectance"]
-    shapes = [spectra.normalised_shape(values[n]) for n in emissive]
+    # a lamp switched off (0 cd) adds no light: its SPD shape does not matter to the plan
+    shapes = [spectra.normalised_shape(values[n]) for n in emissive
+              if spectra.integrate(response * values[n]) > 0]
     one_shape = all(np.allclose(s, shapes[0], rtol=1e-6, atol=1e-12) for s in shapes[1:]) if shapes else True
     flat = all(spectra.is_neutral(values[n]) for n in reflect)
     direct_only = facts.max_depth in (1, 2)
@@ -156,7 +158,8 @@ def plan_spectra(spec: SceneSpec, force_mode: str | None = None) -> SpectralPlan
             params[n] = f"{spectra.integrate(response * values[n]):.9g}"
         for n in reflect:
             r = values[n]
-            eff = float(np.mean(r)) if spectra.is_neutral(r) else spectra.integrate(response * weight * r) / norm
+            eff = (float(np.mean(r)) if spectra.is_neutral(r) or not norm > 0
+                   else spectra.integrate(response * weight * r) / norm)
             params[n] = f"{eff:.9g}"
     from .materials.bindings import plugin_xml_params  # photometric lamps, retroreflective sheeting
 

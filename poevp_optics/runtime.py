@@ -1,12 +1,15 @@
-"""The one place that sets process-wide state: Mitsuba variant, DrJit and torch threads.
+"""The one place that sets process-wide state: Mitsuba variant, DrJit and torch threads, the
+SIGTERM handler.
 
-STYLE.md 12: nothing else calls `mi.set_variant`, `dr.set_thread_count` or
-`torch.set_num_threads`.
+STYLE.md 12: nothing else calls `mi.set_variant`, `dr.set_thread_count`,
+`torch.set_num_threads` or `signal.signal`.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
+import signal
 import re
 import warnings
 from pathlib import Path
@@ -29,10 +32,54 @@ def _prefer_llvm19() -> None:
 _prefer_llvm19()
 
 
+class Terminated(BaseException):
+    """SIGTERM, raised in the main thread like KeyboardInterrupt (a BaseException, so no
+    `except Exception` on the way swallows it and every `finally` and staging cleanup runs)."""
+
+
+def _raise_terminated(signum, frame):
+    raise Terminated()
+
+
+@contextlib.contextmanager
+def sigterm_raises():
+    """Within the block, SIGTERM raises `Terminated` (handled like Ctrl-C: message, cleanup,
+    exit 143). Outside the main thread signals cannot be handled: the block runs as is."""
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = signal.signal(signal.SIGTERM, _raise_terminated)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, old)
+
+
+@contextlib.contextmanager
+def signals_deferred():
+    """Hold SIGTERM and SIGINT back for the block (an output folder being swapped into place)
+    and deliver them after it; only the main thread can do this, elsewhere the block just runs."""
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    held = {signal.SIGTERM, signal.SIGINT}
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, held)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+
 def set_threads(n: int | None) -> None:
     """Thread count for DrJit's LLVM backend, torch and OpenCV (None: leave the defaults)."""
     if n is None:
         return
+    if isinstance(n, bool) or not isinstance(n, int) or n < 1:
+        raise ValueError(f"thread count must be an integer >= 1, got {n!r}")
     import drjit as dr
 
     dr.set_thread_count(int(n))

@@ -30,13 +30,19 @@ from typing import Any, Mapping, get_args, get_origin, get_type_hints
 
 import numpy as np
 
+from .predict import PREDICTORS, TAKES_WEIGHTS
+from .tonemap import TONEMAP_METHODS
+from .user_error import UserError
 
-class SceneError(ValueError):
+
+class SceneError(UserError):
     """Invalid scene file or override; the message names the file and the key."""
 
 
 def _f(default=dataclasses.MISSING, **meta):
-    """Dataclass field with validation metadata: min, max, gt, lt, choices, length."""
+    """Dataclass field with validation metadata: min, max, gt, lt, choices, length; `unset`
+    (a value outside the bounds that means "from the preset") and `why` (said when a bound
+    fails: what the bound protects)."""
     if isinstance(default, (list, dict)):
         raise TypeError("use tuples for defaults")
     return field(default=default, metadata=meta)
@@ -157,7 +163,8 @@ class DMDSpec:
     enabled: bool = _f(True)
     bits: int = _f(8, min=1, max=16)
     bit_order: str = _f("lsb_first", choices=("lsb_first", "msb_first"))
-    contrast_ratio: float = _f(1000.0, min=1.0)
+    contrast_ratio: float = _f(1000.0, gt=1.0, why="at 1:1 an off mirror passes as much light as an on "
+                               "mirror, so no mask could dim anything")
     fill_factor: float = _f(0.92, gt=0, max=1.0)
     reflectance: float = _f(0.88, gt=0, max=1.0)
     settle_s: float = _f(0.0, min=0, max=1.0)
@@ -195,7 +202,7 @@ class SensorSpec:
     """[sensor]: preset plus overrides; NaN / -1 / "" mean "from the preset"."""
 
     preset: str = _f("IMX253", choices=("IMX253", "generic"))
-    bits: int = _f(-1, min=-1, max=24)
+    bits: int = _f(-1, min=1, max=24, unset=-1)      # DN are float32: exact integers up to 2^24
     full_well_e: float = _f(math.nan, gt=0)
     read_noise_e: float = _f(math.nan, min=0)
     gain_dn_per_e: float = _f(math.nan, gt=0)
@@ -229,8 +236,8 @@ class MaskSpec:
 class PredictorSpec:
     """[predictor]: video predictor by name."""
 
-    name: str = _f("oracle", choices=("oracle", "hold", "flow", "dmvfn", "dmvfn_lite"))
-    weights: str = _f("")
+    name: str = _f("oracle", choices=PREDICTORS)
+    weights: str = _f("")                            # relative paths: from the scene's folder
     resolution: tuple[int, int] = _f((368, 640), length=2, min=8, max=8192)
 
 
@@ -250,7 +257,7 @@ class OutputsSpec:
     subframes_exr: bool = _f(False)
     previews: bool = _f(True)
     contact_sheet: bool = _f(True)
-    tonemap: str = _f("reinhard2004")
+    tonemap: str = _f("reinhard2004", choices=tuple(TONEMAP_METHODS))
 
 
 @dataclass(frozen=True)
@@ -328,6 +335,7 @@ class SceneSpec:
     plate: PlateSpec
     chart: ChartSpec
     raw: Mapping[str, Any]
+    origin: str = ""               # the file and the --set overrides it was read with (messages)
 
     @property
     def accuracy(self) -> Accuracy:
@@ -405,16 +413,20 @@ def _check_number(ctx, key, value, meta, want_int):
             raise ctx.fail(key, f"expected an integer, got {value!r}")
     if not math.isfinite(value):
         raise ctx.fail(key, f"must be finite, got {value!r}")
+    if "unset" in meta and value == meta["unset"]:
+        return int(value) if want_int else float(value)
     lo, hi = meta.get("min"), meta.get("max")
+    hint = (f" (or {meta['unset']}: the preset's value)" if "unset" in meta else "") + \
+        (f": {meta['why']}" if "why" in meta else "")
     if "gt" in meta and not value > meta["gt"]:
-        raise ctx.fail(key, f"must be > {meta['gt']}, got {value!r}")
+        raise ctx.fail(key, f"must be > {meta['gt']}{hint}, got {value!r}")
     if "lt" in meta and not value < meta["lt"]:
-        raise ctx.fail(key, f"must be < {meta['lt']}, got {value!r}")
+        raise ctx.fail(key, f"must be < {meta['lt']}{hint}, got {value!r}")
     if lo is not None and value < lo:
         what = "negative times are not allowed" if key.endswith("_s") and lo == 0 else f"must be >= {lo}"
-        raise ctx.fail(key, f"{what}, got {value!r}")
+        raise ctx.fail(key, f"{what}{hint}, got {value!r}")
     if hi is not None and value > hi:
-        raise ctx.fail(key, f"must be <= {hi}, got {value!r}")
+        raise ctx.fail(key, f"must be <= {hi}{hint}, got {value!r}")
     return int(value) if want_int else float(value)
 
 
@@ -506,6 +518,13 @@ def apply_overrides(raw: dict, overrides: list[str]) -> dict:
     return out
 
 
+def scene_name(toml_path: Path) -> str:
+    """A scene's name: its folder's name, never empty (`poevp render .` inside the folder
+    names it like `poevp render scenes/x`); outputs default to out/<name>."""
+    p = Path(toml_path).resolve()
+    return p.parent.name or p.stem
+
+
 def resolve_scene_path(scene: str | Path) -> Path:
     """A scene is a folder holding scene.toml, or the .toml file itself."""
     p = Path(scene)
@@ -583,8 +602,14 @@ def build_spec(raw: dict, path: Path, ctx: _Ctx | None = None, *, cross_checks: 
     xml_path = (path.parent / render.xml).resolve()
     if not xml_path.is_file():
         raise ctx.fail("render.xml", f"Mitsuba scene file not found: {xml_path}")
+    sec["predictor"] = _check_predictor(ctx, path, sec["predictor"], cross_checks)
+    _check_plate(ctx, sec["plate"])
     if cross_checks:
         _check_timing(ctx, sec["timing"])
+        _check_accuracy(ctx, render)
+        if sec["dmd"].enabled:
+            _check_dmd_use(ctx, sec["dmd"], sec["timing"], sec["mask"])
+        _check_sensor_levels(ctx, sec["sensor"])
     for ident, m in tables["motion"].items():
         _check_motion(ctx, f"motion.{ident}", m)
     for ident, s in tables["spectra"].items():
@@ -601,10 +626,10 @@ def build_spec(raw: dict, path: Path, ctx: _Ctx | None = None, *, cross_checks: 
     spectra_ = tables["spectra"]
     if sec["chart"].patches:
         spectra_ = MappingProxyType({**spectra_, **_chart_spectra(ctx, path, sec["chart"], spectra_)})
-    return SceneSpec(name=path.parent.name, toml_path=path, xml_path=xml_path,
+    return SceneSpec(name=scene_name(path), toml_path=path, xml_path=xml_path,
                      description=description, motion=tables["motion"], spectra=spectra_,
                      flicker=tables["flicker"], sheeting=tables["sheeting"],
-                     raw=MappingProxyType(raw), **sec)
+                     raw=MappingProxyType(raw), origin=str(ctx.file), **sec)
 
 
 def _chart_spectra(ctx, path: Path, chart: ChartSpec, given) -> dict:
@@ -644,6 +669,61 @@ def _check_timing(ctx, t: TimingSpec):
                        f"1/fps = {period:.6g} s")
 
 
+def _check_accuracy(ctx, r: RenderSpec):
+    if r.spp < r.mc_splits:
+        raise ctx.fail("render.spp", f"must be >= render.mc_splits = {r.mc_splits} (the Monte Carlo "
+                       f"error comes from {r.mc_splits} independent-seed renders, each needs a "
+                       f"sample), got {r.spp}")
+
+
+def _check_dmd_use(ctx, dmd: DMDSpec, t: TimingSpec, mask: MaskSpec):
+    """A DMD that can act on the capture: its window overlaps the exposure, and the mask law
+    has levels below white to use."""
+    e0, e1 = t.exposure_offset_s, t.exposure_offset_s + t.exposure_s
+    d0, d1 = t.dmd_window_offset_s, t.dmd_window_offset_s + t.dmd_window_s
+    if min(e1, d1) - max(e0, d0) <= 0:
+        raise ctx.fail("timing.dmd_window_offset_s",
+                       f"the DMD window [{d0:.6g}, {d1:.6g}] s misses the exposure [{e0:.6g}, "
+                       f"{e1:.6g}] s (from the frame start): no mask could act on the capture")
+    top = (1 << dmd.bits) - 1
+    if mask.law != "white" and mask.min_level >= top:
+        raise ctx.fail("mask.min_level", f"must be < {top}, the white level of a {dmd.bits}-bit DMD "
+                       f"(dmd.bits), so the mask law has a level that dims; got {mask.min_level}")
+
+
+def _check_sensor_levels(ctx, sensor: SensorSpec):
+    """The preset with the scene's overrides leaves codes between black level and top code."""
+    from .sensor import PRESETS
+
+    bits = sensor.bits if sensor.bits != -1 else PRESETS[sensor.preset].bits
+    top = (1 << bits) - 1
+    if not math.isnan(sensor.offset_dn) and sensor.offset_dn >= top:
+        raise ctx.fail("sensor.offset_dn", f"must be below the top code {top} of the {bits}-bit ADC "
+                       f"(sensor.bits), or no signal could be read; got {sensor.offset_dn:g}")
+
+
+def _check_plate(ctx, plate: PlateSpec):
+    if plate.text and not plate.text.strip():
+        raise ctx.fail("plate.text", f"blank text {plate.text!r}: give the plate's characters, "
+                       "or leave it out ('') for the XML's own texture")
+
+
+def _check_predictor(ctx, path: Path, pred: PredictorSpec, cross_checks: bool) -> PredictorSpec:
+    """Resolve `weights` against the scene's folder (as render.xml is) and check it is used."""
+    if not pred.weights:
+        return pred
+    if cross_checks and pred.name not in TAKES_WEIGHTS:
+        raise ctx.fail("predictor.weights", f"predictor {pred.name!r} takes no weights (only "
+                       f"{', '.join(TAKES_WEIGHTS)} do); remove the key or change predictor.name")
+    w = Path(pred.weights).expanduser()
+    w = w if w.is_absolute() else (path.parent / w)
+    w = w.resolve()
+    if not w.is_file():
+        raise ctx.fail("predictor.weights", f"weights file not found: {w}"
+                       + (" (relative paths are read from the scene's folder)" if not Path(pred.weights).is_absolute() else ""))
+    return dataclasses.replace(pred, weights=str(w))
+
+
 def _check_motion(ctx, key, m: MotionSpec):
     if m.kind == "keyframes":
         if len(m.times_s) < 1 or len(m.times_s) != len(m.offsets_m):
@@ -680,6 +760,12 @@ def _check_spectrum(ctx, key, s: SpectrumSpec):
         values = load_spectrum(s.source, emissive=s.kind != "reflectance")
     except SpectrumError as e:
         raise ctx.fail(f"{key}.source", str(e)) from None
+    if s.kind != "reflectance":
+        from .spectra import integrate, photopic_v
+
+        if not integrate(photopic_v() * values) > 0:
+            raise ctx.fail(f"{key}.source", f"{s.source}: the spectrum has no visible power (zero "
+                           f"under V(lambda)), so it cannot be scaled to {_PHOTOMETRIC[s.kind]}")
     if s.kind == "reflectance" and float(np.max(values * s.scale)) > 1.0 + 1e-9:
         raise ctx.fail(f"{key}.scale", f"reflectance exceeds 1 (max {np.max(values * s.scale):.4g}): "
                        "energy would not be conserved")

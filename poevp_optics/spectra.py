@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from .units import LUMINOUS_EFFICACY_MAX_LM_PER_W, photons_per_joule
+from .user_error import UserError
 
 #: Rendering grid (nm): Mitsuba's spectral range is 360-830 nm.
 WAVELENGTH_MIN_NM = 360.0
@@ -35,7 +36,7 @@ WAVELENGTHS_NM = np.arange(WAVELENGTH_MIN_NM, WAVELENGTH_MAX_NM + 0.5 * WAVELENG
 ASSETS_DIR = Path(__file__).resolve().parent.parent / "assets"
 
 
-class SpectrumError(ValueError):
+class SpectrumError(UserError):
     """A spectrum source that cannot be resolved."""
 
 
@@ -121,14 +122,19 @@ def coverage_note(name: str, source, response: np.ndarray, threshold: float = 0.
 
 def read_table(path: Path) -> tuple[np.ndarray, np.ndarray]:
     """Read a two-column CSV (wavelength_nm, value) with optional header and # comments."""
-    rows = []
-    for line_no, line in enumerate(path.read_text().splitlines(), 1):
+    rows, lines = [], []
+    try:
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError) as e:
+        raise SpectrumError(f"{path}: not a readable text file ({type(e).__name__})") from None
+    for line_no, line in enumerate(text.splitlines(), 1):
         line = line.split("#", 1)[0].strip()
         if not line:
             continue
         parts = [p.strip() for p in line.split(",")]
         try:
             rows.append((float(parts[0]), float(parts[1])))
+            lines.append(line_no)
         except (ValueError, IndexError):
             if rows:  # a header is only allowed before the data
                 raise SpectrumError(f"{path}:{line_no}: expected 'wavelength_nm,value'") from None
@@ -137,6 +143,12 @@ def read_table(path: Path) -> tuple[np.ndarray, np.ndarray]:
     arr = np.asarray(rows, dtype=np.float64)
     if not np.all(np.isfinite(arr)) or np.any(arr[:, 1] < 0):
         raise SpectrumError(f"{path}: values must be finite and non-negative")
+    # a table out of order or with a repeated wavelength is a broken file, not one to guess at
+    step = np.diff(arr[:, 0])
+    if np.any(step <= 0):
+        i = int(np.argmax(step <= 0)) + 1
+        raise SpectrumError(f"{path}:{lines[i]}: wavelength {arr[i, 0]:g} nm after {arr[i - 1, 0]:g} nm: "
+                            "wavelengths must increase strictly (no repeats, no reordering)")
     return arr[:, 0], arr[:, 1]
 
 

@@ -6,9 +6,19 @@ Grid syntax (`--grid KEY=VALUES`, KEY any dotted scene key):
   `log:start:stop:num`   `num` log-spaced values (numpy.geomspace)
 
 Every point is first validated without running (`load_scene(..., cross_checks=False)`): an
-unknown key or a bad value stops the sweep with the scene error and nothing is written. A
-point whose combination is impossible (timing beyond the frame period) or that raises while
-running is recorded as `failed` with its message; the others go on.
+unknown key or a bad value stops the sweep with the scene error and nothing is written; so does
+a sweep whose largest point, times the workers running at once, does not fit in memory
+(memory.py). A point whose combination is impossible (timing beyond the frame period, any
+check of preflight.py) or that raises while running is recorded as `failed` with its message;
+the others go on, and `poevp sweep` exits 1 when any point failed.
+
+A sweep is its scene file (however named: `scenes/x` and `scenes/x/scene.toml` are one), job,
+seeds, grid (keys in any order: the grid is sorted by key) and the effective scene after the
+base overrides. Its record `sweep.json` also holds the SHA-256 of every file the points read
+(TOML, XML and the files it names, spectrum tables, PSF image, predictor weights). A rerun of
+the same sweep resumes; a rerun whose record differs, or whose files changed since, is refused
+with what differs, so old and new points never mix in one table. Point folders are named by a
+hash of the point's effective scene table, not of the override text.
 
 Execution: Dask distributed (https://distributed.dask.org): an embedded `LocalCluster` of
 worker processes, one thread each, with DrJit/torch/OpenCV threads = cores // workers, or an
@@ -27,14 +37,14 @@ import itertools
 import json
 import math
 import os
-import signal
 import time
 from pathlib import Path
 
 import numpy as np
 
-from .io import atomic_path, staged_dir, write_json
-from .scene import SceneError, load_scene, parse_override
+from .io import atomic_path, locked_dir, staged_dir, write_json
+from .runtime import Terminated, sigterm_raises
+from .scene import SceneError, apply_overrides, load_scene, parse_override, resolve_scene_path
 
 SEED_KEYS = ("render.seed", "sensor.seed")
 GRID_HELP = "KEY=v1,v2,... | KEY=start:stop:num | KEY=log:start:stop:num"
@@ -114,8 +124,22 @@ def point_overrides(keys, values, seed: int) -> list[str]:
     return out + [f"{k}={seed}" for k in SEED_KEYS if k not in keys]
 
 
-def point_key(overrides: list[str]) -> str:
-    return hashlib.sha1("\n".join(overrides).encode()).hexdigest()[:12]
+def _canonical(obj) -> str:
+    return json.dumps(obj, sort_keys=True, separators=(",", ":"), default=str)
+
+
+def point_key(raw_table: dict) -> str:
+    """A point's name: hash of its effective scene table (after every override), so the same
+    point gets the same folder whatever order its overrides were given in."""
+    return hashlib.sha1(_canonical(raw_table).encode()).hexdigest()[:12]
+
+
+def file_sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
 
 
 # ---------------------------------------------------------------------------- one point
@@ -144,11 +168,14 @@ def run_point(scene: str, overrides: list[str], out_dir: str, job: str, threads:
     """Run one point in this (worker) process; never raises: failures come back as rows."""
     from . import runtime
 
+    from .preflight import check_run
+
     t0 = time.perf_counter()
     try:
         runtime.set_threads(threads)
         spec = load_scene(scene, overrides)
-        with staged_dir(out_dir) as stage:
+        check_run(spec, job, memory=False)
+        with staged_dir(out_dir, kind=job) as stage:
             if job == "chart":
                 from .chart_run import run_chart
 
@@ -233,12 +260,31 @@ def plot_metric(df, keys: list[str], metric: str, path: Path) -> Path | None:
 
 
 # ---------------------------------------------------------------------------- driver
-class Terminated(BaseException):
-    """SIGTERM, raised like KeyboardInterrupt so no `except Exception` on the way swallows it."""
+def _record(toml: Path, job: str, seeds: int, grid: dict, base_raw: dict, specs) -> dict:
+    """What identifies a sweep, and the hashes of every file its points read."""
+    from .preflight import input_files
+
+    files = {}
+    for spec in specs:
+        for f in input_files(spec):
+            files.setdefault(str(f), None)
+    return {"scene": str(toml), "job": job, "seeds": seeds,
+            "grid": {k: grid[k] for k in sorted(grid)},
+            "effective_scene_sha256": hashlib.sha256(_canonical(base_raw).encode()).hexdigest(),
+            "inputs_sha256": {f: file_sha256(Path(f)) for f in sorted(files)}}
 
 
-def _on_sigterm(signum, frame):
-    raise Terminated()
+def _differences(old: dict, new: dict) -> list[str]:
+    out = []
+    for key in ("scene", "job", "seeds", "grid", "effective_scene_sha256"):
+        if json.loads(json.dumps(old.get(key))) != json.loads(json.dumps(new[key])):
+            what = {"effective_scene_sha256": "the scene after --set overrides"}.get(key, key)
+            out.append(f"{what} differs")
+    old_in, new_in = old.get("inputs_sha256") or {}, new["inputs_sha256"]
+    for f in sorted(set(old_in) | set(new_in)):
+        if old_in.get(f) != new_in.get(f):
+            out.append(f"{f} {'changed' if f in old_in and f in new_in else 'is new' if f in new_in else 'is no longer read'}")
+    return out
 
 
 def sweep(scene: str, grid_args: list[str], *, out: Path, seeds: int = 1, workers: int | None = None,
@@ -252,7 +298,7 @@ def sweep(scene: str, grid_args: list[str], *, out: Path, seeds: int = 1, worker
         raise SceneError(f"--job {job}: must be 'render' or 'chart'")
     if seeds < 1:
         raise SceneError(f"--seeds {seeds}: must be >= 1")
-    grid = [parse_grid(g) for g in grid_args]
+    grid = sorted((parse_grid(g) for g in grid_args), key=lambda kv: kv[0])
     keys = [k for k, _ in grid]
     if len(set(keys)) != len(keys):
         raise SceneError(f"--grid: a key appears twice ({', '.join(keys)})")
@@ -261,28 +307,46 @@ def sweep(scene: str, grid_args: list[str], *, out: Path, seeds: int = 1, worker
     base = list(base_overrides)
     combos = list(itertools.product(*[v for _, v in grid]))
     # validate every point before anything runs or is written
-    for values in combos:
-        load_scene(scene, base + point_overrides(keys, values, 0), cross_checks=False)
+    specs = [load_scene(scene, base + point_overrides(keys, values, 0), cross_checks=False)
+             for values in combos]
+    toml = resolve_scene_path(scene).resolve()
+    base_raw = load_scene(scene, base, cross_checks=False).raw
+    if not scheduler:                  # a remote cluster's memory is not this machine's
+        from .memory import check_memory, estimate_run
+
+        n_workers = max(1, min(workers or os.cpu_count() or 1, len(combos) * seeds))
+        biggest = max(specs, key=lambda sp: estimate_run(sp, job).total_bytes)
+        check_memory(biggest, job, workers=n_workers,
+                     where=f"{toml} (largest sweep point, {n_workers} at once)")
+    record = _record(toml, job, seeds, dict(grid), dict(base_raw), specs)
     out = Path(out)
-    manifest = {"scene": str(Path(scene).resolve()), "job": job, "base_overrides": base,
-                "grid": {k: v for k, v in grid}, "seeds": seeds}
-    mpath = out / "sweep.json"
-    if mpath.is_file():
-        old = json.loads(mpath.read_text())
-        if {k: old.get(k) for k in manifest} != json.loads(json.dumps(manifest)):
-            raise SceneError(f"{out}: holds a different sweep ({mpath}); choose another --out")
-    out.mkdir(parents=True, exist_ok=True)
-    write_json(mpath, manifest)
+    with locked_dir(out, kind="sweep", protect=(toml, toml.parent)):
+        mpath = out / "sweep.json"
+        if mpath.is_file():
+            diffs = _differences(json.loads(mpath.read_text()), record)
+            if diffs:
+                raise SceneError(f"{out}: holds a different sweep or one whose inputs changed since it "
+                                 f"started ({'; '.join(diffs)}); give another --out, or remove {out} to "
+                                 "start over")
+        write_json(mpath, record)
+        with sigterm_raises():
+            return _run_sweep(scene, out, keys, combos, seeds, base, job, workers, scheduler, metric,
+                              progress, retry_failed, threads, log, tqdm)
+
+
+def _run_sweep(scene, out, keys, combos, seeds, base, job, workers, scheduler, metric, progress,
+               retry_failed, threads, log, tqdm):
     import shutil
+    import tomllib
 
     for stale in (out / "points").glob(".*.staging-*") if (out / "points").is_dir() else ():
         shutil.rmtree(stale, ignore_errors=True)        # points killed mid-write last time
-
+    raw = tomllib.loads(resolve_scene_path(scene).read_text())
     tasks = []
     for idx, values in enumerate(combos):
         for s in range(seeds):
             ov = base + point_overrides(keys, values, s)
-            k = point_key(ov)
+            k = point_key(apply_overrides(raw, ov))
             row = {"point": idx, "seed": s, "point_key": k,
                    **{f"grid.{key}": (json.dumps(v) if isinstance(v, (list, tuple)) else v)
                       for key, v in zip(keys, values)}}
@@ -314,7 +378,6 @@ def _execute(scene, todo, rows, out, job, workers, scheduler, progress, log, tqd
 
     cores = os.cpu_count() or 1
     cluster = None
-    old = signal.signal(signal.SIGTERM, _on_sigterm)
     df = None
     try:
         if scheduler:
@@ -348,7 +411,6 @@ def _execute(scene, todo, rows, out, job, workers, scheduler, progress, log, tqd
         log(f"poevp sweep: interrupted; {len(rows)} finished points are in {out}/results.parquet")
         raise
     finally:
-        signal.signal(signal.SIGTERM, old)
         if cluster is not None:
             cluster.close()
     return df

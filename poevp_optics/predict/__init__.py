@@ -14,8 +14,10 @@ Every predictor takes `history` (oldest first, at least 2 frames) and returns on
 
 from __future__ import annotations
 
-from .base import Predictor, make_predictor
+from .base import Predictor, checked_prediction, make_predictor
 
-__all__ = ["Predictor", "make_predictor", "PREDICTORS"]
+__all__ = ["Predictor", "make_predictor", "checked_prediction", "PREDICTORS", "TAKES_WEIGHTS"]
 
 PREDICTORS = ("oracle", "hold", "flow", "dmvfn", "dmvfn_lite")
+#: Predictors that load trained weights (`[predictor] weights`); the others take none.
+TAKES_WEIGHTS = ("dmvfn", "dmvfn_lite")

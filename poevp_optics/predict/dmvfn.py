@@ -25,6 +25,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from ..user_error import UserError
 from .base import Predictor
 
 ASSETS = Path(__file__).resolve().parents[2] / "assets" / "predictor"
@@ -38,6 +39,24 @@ class DMVFNConfig:
     depth: int = 4                        # 3x3 convolutions in each block's body
     routing: bool = True
     input_downsample: int = 1             # lite: blocks see the frames at 1/4 resolution
+
+    @property
+    def min_input_px(self) -> int:
+        """Smallest frame side (px) the network takes: its coarsest block works at
+        1/(input_downsample x scale) resolution and needs at least one pixel there."""
+        return self.input_downsample * max(self.scales)
+
+    def activation_bytes(self, h: int, w: int) -> int:
+        """Upper bound of inference memory (bytes) on h x w frames: the largest block's input,
+        encoder and body activations (float32; blocks run one after another) plus 30 float32
+        maps at full size (frames, flows, mask, warps, the OpenCV remap grids)."""
+        c_in = 4 * self.channels + 5
+        per_px = 0.0
+        for s, width in zip(self.scales, self.widths):
+            f = self.input_downsample * s
+            per_px = max(per_px, (c_in + 5) / f ** 2 + (width / 2) / (2 * f) ** 2
+                         + width * (self.depth + 2) / (4 * f) ** 2)
+        return int(4 * h * w * (per_px + 30))
 
 
 FULL = DMVFNConfig()
@@ -172,8 +191,8 @@ def count_macs(model: DMVFN, h: int, w: int) -> int:
 
 
 # ----------------------------------------------------------------------------- weights
-class WeightsError(ValueError):
-    """Missing, corrupted or mismatched predictor weights."""
+class WeightsError(UserError):
+    """Missing, corrupted, non-finite or mismatched predictor weights."""
 
 
 def save_weights(model: DMVFN, path: Path, meta: dict) -> None:
@@ -201,6 +220,11 @@ def load_weights(path: Path, expect: DMVFNConfig | None = None) -> tuple[DMVFN, 
         tensors = load_file(str(path))
     except (SafetensorError, OSError, ValueError) as e:
         raise WeightsError(f"{path}: not a readable safetensors file ({e})") from None
+    for key, t in tensors.items():
+        if t.is_floating_point() and not bool(torch.isfinite(t).all()):
+            n = int((~torch.isfinite(t)).sum())
+            raise WeightsError(f"{path}: weights hold NaN or Inf ({n} of {t.numel()} values of {key}): "
+                               "a corrupted or diverged training run")
     try:
         raw = json.loads(meta["config"])
         cfg = DMVFNConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in raw.items()})
@@ -224,6 +248,7 @@ class DMVFNPredictor(Predictor):
     def __init__(self, model: DMVFN, name: str, weights_path: Path | None, meta: dict | None = None):
         self.model = model.eval()
         self.name = name
+        self.min_input_px = model.cfg.min_input_px
         self.weights_path = weights_path
         self.meta = meta or {}
 

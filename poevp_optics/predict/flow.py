@@ -17,6 +17,7 @@ from .base import Predictor
 
 class FlowExtrapolation(Predictor):
     name = "flow"
+    min_input_px = 12             # OpenCV's DIS refuses frames narrower or lower than 12 px
 
     def __init__(self, preset: int = cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST):
         self.dis = cv2.DISOpticalFlow_create(preset)

@@ -15,7 +15,7 @@ def _smoke(*overrides):
 
 
 def test_rel_error_falls_as_inverse_sqrt_spp():
-    spec = _smoke("render.mc_splits=8", "render.spectral_mode='spectral'")
+    spec = _smoke("render.mc_splits=8", "render.spp=8", "render.spectral_mode='spectral'")
     r = Renderer(spec)
     spps = [8, 32, 128, 512]
     errs = []

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from poevp_optics import spectra
-from poevp_optics.io import read_exr, read_png, staged_dir, write_exr, write_png
+from poevp_optics.io import MARKER, _umask, read_exr, read_png, staged_dir, write_exr, write_png
 from poevp_optics.plates import plate_texture
 from poevp_optics.scene import MotionSpec, SceneError, apply_overrides, parse_override
 from poevp_optics.units import PLANCK_J_S, SPEED_OF_LIGHT_M_PER_S, photons_per_joule
@@ -94,17 +94,18 @@ def test_png_roundtrip_16bit(tmp_path):
 
 def test_staged_dir_replaces_whole_or_nothing(tmp_path):
     out = tmp_path / "out"
-    with staged_dir(out) as s:
+    with staged_dir(out, kind="render") as s:
         (s / "a.txt").write_text("1")
     with pytest.raises(RuntimeError):
-        with staged_dir(out) as s:
+        with staged_dir(out, kind="render") as s:
             (s / "b.txt").write_text("2")
             raise RuntimeError("boom")
-    assert sorted(p.name for p in out.iterdir()) == ["a.txt"]
-    with staged_dir(out) as s:
+    assert sorted(p.name for p in out.iterdir()) == [MARKER, "a.txt"]
+    with staged_dir(out, kind="render") as s:
         (s / "c.txt").write_text("3")
-    assert sorted(p.name for p in out.iterdir()) == ["c.txt"]
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
+    assert sorted(p.name for p in out.iterdir()) == [MARKER, "c.txt"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]     # no lock, no staging left
+    assert (out.stat().st_mode & 0o777) == 0o777 & ~_umask()           # not mkdtemp's 0700
 
 
 def test_plate_texture_has_ink_and_sheeting():

@@ -1,0 +1,16 @@
+"""The one base class of errors caused by what the user gave (files, keys, flags, folders).
+
+The command line prints such an error as one line (`poevp: error: <message>`) and exits 2; the
+message names the file and the key (or the flag) and the allowed range. Anything else that
+escapes a command is a bug and keeps its traceback.
+"""
+
+from __future__ import annotations
+
+
+class UserError(ValueError):
+    """Bad input: the message is one line naming the file and key (or flag) at fault."""
+
+    def __init__(self, message: str):
+        # one line, whatever the cause's text held (Mitsuba and OS messages can be multi-line)
+        super().__init__(" ".join(str(message).split()))
