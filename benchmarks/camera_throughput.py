@@ -18,8 +18,8 @@ from benchmarks.common import machine_line, markdown_table, save_figure, save_te
 
 
 def measure(shape, k, psf):
-    from poevp_optics.camera import Camera
-    from poevp_optics.scene import load_scene
+    from poevp_optics.camera.camera import Camera
+    from poevp_optics.scene.spec import load_scene
 
     spec = load_scene("scenes/highbeam_plate", [f"render.resolution=[{shape[0]},{shape[1]}]",
                                                 f"relay.psf='{psf}'", "relay.sigma_px=1.2"])

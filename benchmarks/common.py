@@ -29,7 +29,7 @@ def markdown_table(header: list[str], rows: list[list]) -> str:
 
 
 def save_figure(fig, name: str) -> Path:
-    from poevp_optics.io import atomic_path
+    from poevp_optics.core.io import atomic_path
 
     path = RESULTS / name
     with atomic_path(path) as tmp:
@@ -38,7 +38,7 @@ def save_figure(fig, name: str) -> Path:
 
 
 def save_text(name: str, text: str) -> Path:
-    from poevp_optics.io import atomic_path
+    from poevp_optics.core.io import atomic_path
 
     path = RESULTS / name
     with atomic_path(path) as tmp:

@@ -18,9 +18,9 @@ SCENES = ["highbeam_plate", "heldout_swerve", "heldout_receding", "reversal"]
 
 
 def main(argv=None):
-    from poevp_optics import runtime
-    from poevp_optics.compare import COLUMNS, compare
-    from poevp_optics.io import staged_dir
+    from poevp_optics.core import runtime
+    from poevp_optics.apps.compare import COLUMNS, compare
+    from poevp_optics.core.io import staged_dir
 
     ap = argparse.ArgumentParser()
     ap.add_argument("--scenes", default=",".join(SCENES))

@@ -22,12 +22,12 @@ H, W = 368, 640
 def main():
     import torch
 
-    from poevp_optics import runtime
-    from poevp_optics.loop import predicted_mask
-    from poevp_optics.camera import Camera
-    from poevp_optics.predict import make_predictor
-    from poevp_optics.predict.dmvfn import DMVFN, FULL, LITE, count_macs, count_parameters
-    from poevp_optics.scene import load_scene
+    from poevp_optics.core import runtime
+    from poevp_optics.apps.render_run import predicted_mask
+    from poevp_optics.camera.camera import Camera
+    from poevp_optics.control.predictors import make_predictor
+    from poevp_optics.control.predictors.dmvfn import DMVFN, FULL, LITE, count_macs, count_parameters
+    from poevp_optics.scene.spec import load_scene
 
     runtime.set_threads(2)
     rng = np.random.default_rng(0)
@@ -43,7 +43,7 @@ def main():
     for name in ("hold", "flow", "dmvfn_lite", "dmvfn"):
         if name == "dmvfn":
             # full DMVFN: no trained weights ship unless trained on a GPU; time random init
-            from poevp_optics.predict.dmvfn import DMVFNPredictor
+            from poevp_optics.control.predictors.dmvfn import DMVFNPredictor
             pred = DMVFNPredictor(DMVFN(FULL).eval(), "dmvfn (random init)", None)
         else:
             pred = make_predictor(name)

@@ -32,9 +32,9 @@ def render_overhead(shape, spp=16):
     straight from the XML with the same parameters, through the same sensor/film."""
     import mitsuba as mi
 
-    from poevp_optics.loop import _seeds
-    from poevp_optics.render import Renderer
-    from poevp_optics.scene import load_scene
+    from poevp_optics.apps.render_run import _seeds
+    from poevp_optics.render.renderer import Renderer
+    from poevp_optics.scene.spec import load_scene
 
     spec = load_scene("scenes/highbeam_plate", [f"render.resolution=[{shape[0]},{shape[1]}]"])
     ours = Renderer(spec)
@@ -47,8 +47,8 @@ def render_overhead(shape, spp=16):
 
 
 def chain_vs_copy(shape):
-    from poevp_optics.camera import Camera
-    from poevp_optics.scene import load_scene
+    from poevp_optics.camera.camera import Camera
+    from poevp_optics.scene.spec import load_scene
 
     spec = load_scene("scenes/highbeam_plate", [f"render.resolution=[{shape[0]},{shape[1]}]"])
     cam = Camera(spec)
@@ -71,10 +71,10 @@ def chain_vs_copy(shape):
 
 
 def closed_loop_fps(names=("hold", "flow", "dmvfn_lite"), frames=12):
-    from poevp_optics.camera import Camera
-    from poevp_optics.loop import _resize, predicted_mask, predictor_input
-    from poevp_optics.predict import make_predictor
-    from poevp_optics.scene import load_scene
+    from poevp_optics.camera.camera import Camera
+    from poevp_optics.apps.render_run import _resize, predicted_mask, predictor_input
+    from poevp_optics.control.predictors import make_predictor
+    from poevp_optics.scene.spec import load_scene
 
     spec = load_scene("scenes/highbeam_plate", ["predictor.name='flow'", "loop.mode='demodulated'"])
     cam = Camera(spec)
@@ -113,21 +113,21 @@ def sample():
     while not stop[0]:
         peak[0] = max(peak[0], rss()); time.sleep(0.0005)
 stage, h, w = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
-from poevp_optics.scene import load_scene
-from poevp_optics.camera import Camera
+from poevp_optics.scene.spec import load_scene
+from poevp_optics.camera.camera import Camera
 spec = load_scene("scenes/highbeam_plate", [f"render.resolution=[{h},{w}]"])
 rng = np.random.default_rng(0)
 rad = rng.uniform(1e14, 1e18, (h, w)).astype(np.float32)
 mask = rng.integers(0, 256, (h, w)).astype(np.float64)
 if stage == "render":
-    from poevp_optics.render import Renderer
+    from poevp_optics.render.renderer import Renderer
     r = Renderer(spec)
 elif stage == "camera":
     cam = Camera(spec)                 # first capture measured: DrJit's pool grows once
 elif stage == "reconstruct":
     cam = Camera(spec); cam.capture([rad], mask, 0, 0)
 elif stage == "predict":
-    from poevp_optics.predict import make_predictor
+    from poevp_optics.control.predictors import make_predictor
     p = make_predictor("flow"); f = (rad / rad.max() * 255).astype(np.float32); p([f, f])
 peak0 = rss()
 th = threading.Thread(target=sample); th.start()
@@ -155,7 +155,7 @@ def memory(stage, shape):
 
 
 def main():
-    from poevp_optics import runtime
+    from poevp_optics.core import runtime
 
     runtime.set_threads(2)
     lines = [f"# Stage performance\n\nMachine: {machine_line()}. Medians of 5 warm runs; floors "

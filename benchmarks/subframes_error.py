@@ -56,25 +56,25 @@ class Rules:
     relative to the exposure start (returns (H, W) arrays)."""
 
     def __init__(self, sched, levels):
-        from poevp_optics.dmd import switch_times_s
+        from poevp_optics.camera.dmd import switch_times_s
 
         self.sched, self.levels = sched, np.asarray(levels)
         self.T = sched.exposure_s
         self.switch = switch_times_s(sched) - sched.exposure_start_s
 
     def nodes(self, k, pwm):
-        from poevp_optics.dmd import node_times_s
+        from poevp_optics.camera.dmd import node_times_s
 
         return node_times_s(0.0, self.T, k, self.switch if pwm else ())
 
     def plane(self, L, nodes, levels=None):
-        from poevp_optics.dmd import on_time_table
+        from poevp_optics.camera.dmd import on_time_table
 
         w = on_time_table(self.levels if levels is None else levels, self.sched, nodes)
         return np.einsum("vk,khw->vhw", w, np.stack([L(t) for t in nodes]))
 
     def before(self, L, k):
-        from poevp_optics.dmd import interval_on_time_table
+        from poevp_optics.camera.dmd import interval_on_time_table
 
         w = interval_on_time_table(self.levels, self.sched, k)
         mids = (np.arange(k) + 0.5) * self.T / k
@@ -83,8 +83,8 @@ class Rules:
 
 def part_a():
     """Smooth synthetic highlight: order of each rule per level (noise-free)."""
-    from poevp_optics.dmd import Schedule
-    from poevp_optics.scene import DMDSpec, TimingSpec
+    from poevp_optics.camera.dmd import Schedule
+    from poevp_optics.scene.spec import DMDSpec, TimingSpec
 
     h, w = 24, 96
     y, x = np.mgrid[0:h, 0:w].astype(np.float64)
@@ -106,10 +106,10 @@ def part_a():
 
 def _dense(name, frame, res, spp):
     """256 common-random-number renders of one exposure (cached) and the plate box."""
-    from poevp_optics.camera import Camera
-    from poevp_optics.dmd import node_times_s
-    from poevp_optics.render import Renderer
-    from poevp_optics.scene import load_scene
+    from poevp_optics.camera.camera import Camera
+    from poevp_optics.camera.dmd import node_times_s
+    from poevp_optics.render.renderer import Renderer
+    from poevp_optics.scene.spec import load_scene
 
     spec = load_scene(f"scenes/{name}", [f"render.resolution={list(res)}", f"timing.frames={frame + 1}"])
     path = CACHE / f"dense_{name}_{frame}_{res[0]}x{res[1]}_{spp}.npz"
@@ -132,8 +132,8 @@ def _dense(name, frame, res, spp):
 
 
 def part_b(name, frame, res, spp):
-    from poevp_optics.camera import Camera
-    from poevp_optics.loop import oracle_mask
+    from poevp_optics.camera.camera import Camera
+    from poevp_optics.apps.render_run import oracle_mask
 
     spec, imgs, times, box = _dense(name, frame, res, spp)
     rel = times - times[0]
@@ -163,7 +163,7 @@ def part_b(name, frame, res, spp):
     rules_m = Rules(cam.schedule(frame), uq)
 
     def encoded(nodes):
-        from poevp_optics.dmd import on_time_table
+        from poevp_optics.camera.dmd import on_time_table
 
         wt = on_time_table(uq, cam.schedule(frame), nodes)[inv]
         return np.einsum("hwk,khw->hw", wt, np.stack([L(t) for t in nodes]))
@@ -177,19 +177,19 @@ def part_b(name, frame, res, spp):
     return spec, rows, curves, enc, (L, rel, box, mask)
 
 
-def part_c(spec, frame, dense):
+def part_c(spec, frame, dense, spps=(128, 512)):
     """The run's own estimate (independent seeds, this frame's oracle mask, temporal_spp 64)
     against the true error of the encoded plate. The truth: the rule on the run's nodes against
     one-bit-plane-step samples of the window in which the plate's mask levels are lit, rendered
-    with common random numbers at 128 and 512 spp; what is left of the CRN noise in the
-    difference falls as 1/spp, so true^2 = (512 e_512^2 - 128 e_128^2) / (512 - 128)."""
+    with common random numbers at two spp (a, b); what is left of the CRN noise in the
+    difference falls as 1/spp, so true^2 = (b e_b^2 - a e_a^2) / (b - a)."""
     import dataclasses
 
-    from poevp_optics.camera import Camera
-    from poevp_optics.dmd import node_times_s, on_time_table
-    from poevp_optics.errors import temporal_error
-    from poevp_optics.loop import render_exposures
-    from poevp_optics.render import Renderer
+    from poevp_optics.camera.camera import Camera
+    from poevp_optics.camera.dmd import node_times_s, on_time_table
+    from poevp_optics.analysis.error_budget import temporal_error
+    from poevp_optics.apps.render_run import render_exposures
+    from poevp_optics.render.renderer import Renderer
 
     _, _, box, mask = dense
     spec = dataclasses.replace(spec, render=dataclasses.replace(spec.render, temporal_spp=64))
@@ -213,25 +213,26 @@ def part_c(spec, frame, dense):
 
     def encoded(nodes, images):
         # int over [0, lit_end]: the hat rule restricted to the lit window (both rules share it)
-        from poevp_optics.dmd import Schedule
+        from poevp_optics.camera.dmd import Schedule
 
         sub = dataclasses.replace(sched, exposure_s=float(nodes[-1]))
         wt = on_time_table(uq, sub, nodes)[inv]
         return np.einsum("hwk,khw->hw", wt, np.stack([images[round(float(t) / lit_end * 1e9)] for t in nodes]))
 
     errs = {}
-    for spp in (128, 512):
+    lo, hi = spps
+    for spp in spps:
         imgs = {}
         for t in np.unique(np.concatenate([dense_t, fine])):
             r.set_time(float(t0 + t))
             imgs[round(float(t) / lit_end * 1e9)] = r.render_once(4242, spp).astype(np.float64)
         a, b = encoded(fine, imgs), encoded(dense_t, imgs)
         errs[spp] = float(_rel_err(a, b, box))
-    true2 = (512 * errs[512] ** 2 - 128 * errs[128] ** 2) / (512 - 128)
+    true2 = (hi * errs[hi] ** 2 - lo * errs[lo] ** 2) / (hi - lo)
     true = float(np.sqrt(max(true2, 0.0)))
     # the rest of the exposure (leakage only for these levels) is integrated alike by both rules
     return {"scene": spec.name, "nodes": len(ex.subframe_times_s), "estimate": est["rel"],
-            "resolved": est["resolved"], "true": true, "true_128": errs[128], "true_512": errs[512],
+            "resolved": est["resolved"], "true": true, "true_lo": errs[lo], "true_hi": errs[hi], "spps": spps,
             "ratio": est["rel"] / true if est["rel"] and true else None, "spp": est["spp"],
             "estimate_seconds": est["seconds"]}
 
@@ -245,15 +246,15 @@ def main():
             f"switching times). Slope of log error vs log intervals, from 8 intervals on.\n\n"
             f"## A. Smooth synthetic highlight (noise-free, 45 px per exposure)\n\n"
             + markdown_table(["rule", "level", *header_k, "slope"], rows_a) + "\n\n")
-    cases = [("highbeam_plate", 8, (184, 320), 32), ("fast_pass", 1, (184, 320), 32)]
+    cases = [("highbeam_plate", 8, (184, 320), 32, (128, 512)), ("fast_pass", 1, (184, 320), 32, (32, 128))]
     # part B's references use 32 spp: the plate's CRN noise floor is ~3e-3 there (part C)
     all_rows, encs, checks, all_curves = [], [], [], {}
-    for name, frame, res, spp in cases:
+    for name, frame, res, spp, spps in cases:
         spec, rows, curves, enc, dense = part_b(name, frame, res, spp)
         all_rows += rows
         encs.append([name, enc["K"], enc["nodes"], enc["plate_levels"], enc["uniform"], enc["uniform + PWM"]])
         all_curves[name] = curves
-        checks.append(part_c(spec, frame, dense))
+        checks.append(part_c(spec, frame, dense, spps))
         print(checks[-1])
     text += ("## B. Rendered plates (184x320, 256 common-random-number samples as reference)\n\n"
              + markdown_table(["scene", "rule", "level", *header_k, "slope"], all_rows)
@@ -263,12 +264,12 @@ def main():
              + "\n\n## C. The run's temporal-error estimate vs the true error (oracle mask, scene K, PWM nodes)\n\n"
              + "Estimate: errors.temporal_error at render.temporal_spp = 64. True: the same nodes against "
                "samples one LSB bit-plane apart over the window in which the plate's levels are lit, "
-               "common random numbers at 128 and 512 spp, the CRN noise (~1/spp) extrapolated out.\n\n"
-             + markdown_table(["scene", "nodes", "spp", "estimate", "resolved", "true", "(128 / 512 spp)",
-                               "estimate / true", "seconds"],
+               "common random numbers at two spp, the CRN noise (~1/spp) extrapolated out.\n\n"
+             + markdown_table(["scene", "nodes", "spp", "estimate", "resolved", "true",
+                               "CRN error at the two spp", "estimate / true", "seconds"],
                               [[c["scene"], c["nodes"], c["spp"], c["estimate"], c["resolved"], c["true"],
-                                f"{c['true_128']:.4g} / {c['true_512']:.4g}", c["ratio"],
-                                c["estimate_seconds"]] for c in checks])
+                                f"{c['true_lo']:.4g} @ {c['spps'][0]} / {c['true_hi']:.4g} @ {c['spps'][1]}",
+                                c["ratio"], c["estimate_seconds"]] for c in checks])
              + "\n\nRendered L(t) is not smooth: a texture edge crossing a box-filtered pixel puts kinks in "
                "L(t), so the asymptotic order on a real plate lies between 1 and 2 (part B), while on a "
                "smooth L(t) every level converges at order 2 with hat weights and the midpoint rule's "
@@ -283,7 +284,7 @@ def main():
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, len(cases), figsize=(6 * len(cases), 4.2))
-    for ax, (name, *_rest) in zip(axes, cases):
+    for ax, (name, *_rest) in zip(axes, cases):  # noqa: B007
         for (rname, v), errs in all_curves[name].items():
             style = {"before": "x--", "uniform": "o:", "uniform + PWM": "s-"}[rname]
             ax.loglog(np.array(KS) - 1, errs, style, c=f"C{LEVELS.index(v)}", label=f"{rname}, level {v}", ms=3)

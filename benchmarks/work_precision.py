@@ -23,8 +23,8 @@ from benchmarks.common import machine_line, markdown_table, save_figure, save_te
 
 
 def psf_support():
-    from poevp_optics import spectra
-    from poevp_optics.relay import airy_psf, convolve
+    from poevp_optics.sources import spectra
+    from poevp_optics.camera.relay import airy_psf, convolve
 
     resp = spectra.sensor_response_e_per_J(spectra.load_spectrum("file:spectra/imx253_mono_qe.csv", emissive=True))
     img = np.full((368, 640), 1.0)
@@ -41,10 +41,10 @@ def psf_support():
 
 
 def float_precision():
-    from poevp_optics.camera import Camera
-    from poevp_optics.dmd import transmission_table
-    from poevp_optics.scene import load_scene
-    from poevp_optics.sensor import NoiseSwitches
+    from poevp_optics.camera.camera import Camera
+    from poevp_optics.camera.dmd import transmission_table
+    from poevp_optics.scene.spec import load_scene
+    from poevp_optics.camera.sensor import NoiseSwitches
 
     spec = load_scene("scenes/highbeam_plate", ["render.subframes=8"])
     cam = Camera(spec, NoiseSwitches.off())
@@ -70,7 +70,7 @@ def poisson_methods():
     import drjit as dr
     from drjit.auto import PCG32, Float, UInt32
 
-    from poevp_optics.sensor import poisson
+    from poevp_optics.camera.sensor import poisson
 
     n = 1_000_000
     rows = []
@@ -99,7 +99,7 @@ def poisson_methods():
 
 
 def main():
-    from poevp_optics import runtime
+    from poevp_optics.core import runtime
 
     runtime.set_threads(2)
     psf = psf_support()

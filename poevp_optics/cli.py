@@ -14,8 +14,9 @@ import platform
 import sys
 from pathlib import Path
 
-from . import __version__, runtime
-from .user_error import UserError
+from poevp_optics import __version__
+from poevp_optics.core import runtime
+from poevp_optics.core.exceptions import UserError
 
 
 class _OneLineParser(argparse.ArgumentParser):
@@ -81,7 +82,7 @@ def _add_job_options(p: argparse.ArgumentParser, out_help: str) -> None:
 
 
 def _overrides(args) -> list[str]:
-    from .scene import SceneError, accuracy_overrides, parse_override
+    from poevp_optics.scene.spec import SceneError, accuracy_overrides, parse_override
 
     out = list(args.overrides)
     preset = getattr(args, "accuracy", "default")
@@ -107,10 +108,10 @@ def _out_dir(args, spec, suffix: str = "") -> Path:
 
 
 def cmd_render(args) -> int:
-    from .io import check_output, staged_dir
-    from .loop import run_render
-    from .preflight import check_run
-    from .scene import load_scene
+    from poevp_optics.core.io import check_output, staged_dir
+    from poevp_optics.apps.render_run import run_render
+    from poevp_optics.apps.preflight import check_run
+    from poevp_optics.scene.spec import load_scene
 
     spec = load_scene(args.scene, _overrides(args))
     out = _out_dir(args, spec)
@@ -130,9 +131,9 @@ def cmd_render(args) -> int:
 
 
 def cmd_validate(args) -> int:
-    from .memory import fits_note
-    from .preflight import check_run
-    from .scene import load_scene
+    from poevp_optics.apps.memory import fits_note
+    from poevp_optics.apps.preflight import check_run
+    from poevp_optics.scene.spec import load_scene
 
     spec = load_scene(args.scene, _overrides(args))
     job = args.job or ("chart" if spec.chart.patches else "render")
@@ -146,11 +147,11 @@ def cmd_validate(args) -> int:
 
 
 def cmd_compare(args) -> int:
-    from .compare import compare
-    from .io import check_output, staged_dir
-    from .predict import PREDICTORS
-    from .preflight import check_run
-    from .scene import SceneError, load_scene
+    from poevp_optics.apps.compare import compare
+    from poevp_optics.core.io import check_output, staged_dir
+    from poevp_optics.control.predictors import PREDICTORS
+    from poevp_optics.apps.preflight import check_run
+    from poevp_optics.scene.spec import SceneError, load_scene
 
     overrides = _overrides(args)
     spec = load_scene(args.scene, overrides)
@@ -182,10 +183,10 @@ def _f(v):
 
 
 def cmd_chart(args) -> int:
-    from .chart_run import run_chart
-    from .io import check_output, staged_dir
-    from .preflight import check_run
-    from .scene import load_scene
+    from poevp_optics.apps.chart import run_chart
+    from poevp_optics.core.io import check_output, staged_dir
+    from poevp_optics.apps.preflight import check_run
+    from poevp_optics.scene.spec import load_scene
 
     spec = load_scene(args.scene, _overrides(args))
     out = _out_dir(args, spec, "-chart")
@@ -210,9 +211,9 @@ def cmd_chart(args) -> int:
 
 
 def cmd_sweep(args) -> int:
-    from .io import check_output
-    from .scene import load_scene
-    from .sweep import sweep
+    from poevp_optics.core.io import check_output
+    from poevp_optics.scene.spec import load_scene
+    from poevp_optics.apps.sweep import sweep
 
     spec = load_scene(args.scene, _overrides(args), cross_checks=False)
     out = _out_dir(args, spec, "-sweep")
@@ -236,8 +237,8 @@ def cmd_sweep(args) -> int:
 
 
 def cmd_evaluate(args) -> int:
-    from .evaluate import E_LEVELS, evaluate
-    from .io import check_output, staged_dir
+    from poevp_optics.apps.evaluate import E_LEVELS, evaluate
+    from poevp_optics.core.io import check_output, staged_dir
 
     out = Path(args.out) if args.out else Path("out") / ("evaluate-quick" if args.quick else "evaluate")
     check_output(out, "evaluate")
@@ -253,8 +254,8 @@ def cmd_evaluate(args) -> int:
 
 
 def cmd_train(args) -> int:
-    from .predict.dmvfn import default_weights
-    from .predict.train import train
+    from poevp_optics.control.predictors.dmvfn import default_weights
+    from poevp_optics.apps.train import train
 
     runtime.set_threads(args.threads)
     weights = Path(args.weights_out) if args.weights_out else default_weights(args.name)

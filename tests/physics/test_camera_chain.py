@@ -6,13 +6,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from poevp_optics.camera import Camera
-from poevp_optics.dmd import transmission_table
-from poevp_optics.reconstruct import UNEXPOSED, reconstruct
-from poevp_optics.relay import airy_psf, convolve, gaussian_psf, measured_psf
-from poevp_optics.scene import load_scene
-from poevp_optics.sensor import NoiseSwitches
-from poevp_optics import spectra
+from poevp_optics.camera.camera import Camera
+from poevp_optics.camera.dmd import transmission_table
+from poevp_optics.camera.reconstruct import UNEXPOSED, reconstruct
+from poevp_optics.camera.relay import airy_psf, convolve, gaussian_psf, measured_psf
+from poevp_optics.scene.spec import load_scene
+from poevp_optics.camera.sensor import NoiseSwitches
+from poevp_optics.sources import spectra
 from tests.conftest import ROOT, SCENES
 
 H, W = 32, 48
@@ -111,8 +111,8 @@ def test_airy_width_scales_with_f_number():
 
 def test_veiling_glare_kernel_splits_energy_and_conserves_flux():
     """(1 - g) core + g halo: unit sum, the halo's share outside the core's support is ~g."""
-    from poevp_optics.relay import build_psf
-    from poevp_optics.scene import RelaySpec
+    from poevp_optics.camera.relay import build_psf
+    from poevp_optics.scene.spec import RelaySpec
 
     g = 0.05
     psf = build_psf(RelaySpec(psf="gaussian", sigma_px=1.0, glare_fraction=g, glare_sigma_px=12.0),
@@ -137,7 +137,7 @@ def test_full_well_clip_is_flagged_when_the_adc_is_not_the_limit():
     pixel driven to 1.2 full well must be flagged saturated: the flag threshold is 5 sigma of
     that post-clip noise below full well, missing a fraction Phi(-5) ~ 3e-7 (expected 4e-4 of
     the 1536 pixels here). The old test (>= full well (1 - 1e-6)) missed about a quarter."""
-    from poevp_optics.reconstruct import SATURATED
+    from poevp_optics.camera.reconstruct import SATURATED
 
     spec, cam = _camera(0.0333, "sensor.bits=12", "sensor.gain_dn_per_e=0.3", noise=True)
     p = cam.params
@@ -192,7 +192,7 @@ def test_psf_crosstalk_at_a_mask_edge_is_flagged():
     scene. Near the edge the dark-mirror pixels receive the white side's light through the PSF
     and divide it by their own (tiny) exposure: they read up to ~5x their radiance. They must
     carry flag 8 (crosstalk); pixels far from the edge must not."""
-    from poevp_optics.reconstruct import CROSSTALK
+    from poevp_optics.camera.reconstruct import CROSSTALK
 
     spec, cam = _camera(0.0333, "relay.psf=gaussian", "relay.sigma_px=3.0", "sensor.bits=12")
     g = cam.guard_px
@@ -218,8 +218,8 @@ def test_one_optical_layout_gives_etendue_and_diffraction():
     """Etendue and the Airy PSF use the same working f-number at the sensor (layout.py):
     sensor.f_number = 2 with no relay stop gives f/2 for both (the Airy core is narrower than
     at f/4); the objective's f-number follows as 2 / magnification; contradictions are errors."""
-    from poevp_optics.scene import SceneError
-    from poevp_optics.sensor import pixel_etendue_m2_sr
+    from poevp_optics.scene.spec import SceneError
+    from poevp_optics.camera.sensor import pixel_etendue_m2_sr
 
     spec2, cam2 = _camera(0.0333, "relay.psf=airy", "sensor.f_number=2.0")
     spec4, cam4 = _camera(0.0333, "relay.psf=airy", "sensor.f_number=4.0")
@@ -244,7 +244,7 @@ def test_one_optical_layout_gives_etendue_and_diffraction():
 def test_unexposed_threshold_is_relative_to_the_white_exposure():
     """Level 0 with contrast 1e9 passes 1e-9 of white: a real (if dim) exposure at 1 us and at
     10 s alike; with contrast 1e13 it is below the 1e-12 relative threshold: unexposed, 0."""
-    from poevp_optics.reconstruct import UNEXPOSED
+    from poevp_optics.camera.reconstruct import UNEXPOSED
 
     for exposure in (1e-6, 10.0):
         for cr, unexposed in ((1e9, False), (1e13, True)):
@@ -256,7 +256,7 @@ def test_unexposed_threshold_is_relative_to_the_white_exposure():
 
 
 def test_noise_free_dn_honours_the_dark_current_switch():
-    from poevp_optics.sensor import NoiseSwitches
+    from poevp_optics.camera.sensor import NoiseSwitches
 
     spec, cam = _camera(10.0, "sensor.bits=12", "sensor.dark_current_e_per_s=100.0")
     on = cam.noise_free_dn(np.zeros((2, 2)))

@@ -13,8 +13,8 @@ import math
 import numpy as np
 import pytest
 
-from poevp_optics.chart_run import PAPER_DB, run_chart
-from poevp_optics.scene import SceneError, load_scene
+from poevp_optics.apps.chart import PAPER_DB, run_chart
+from poevp_optics.scene.spec import SceneError, load_scene
 
 from ..conftest import SCENES
 

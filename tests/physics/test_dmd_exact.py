@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from poevp_optics.dmd import DMD, Schedule, on_time_table, transmission_table
-from poevp_optics.scene import DMDSpec, TimingSpec
+from poevp_optics.camera.dmd import DMD, Schedule, on_time_table, transmission_table
+from poevp_optics.scene.spec import DMDSpec, TimingSpec
 
 
 def _closed_form(v, bits, t_s, t_i, t_d0, t_d, outside_on, msb_first):

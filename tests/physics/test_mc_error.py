@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from poevp_optics.loop import _rel_error, _seeds
-from poevp_optics.render import Renderer
-from poevp_optics.scene import load_scene
+from poevp_optics.apps.render_run import _rel_error, _seeds
+from poevp_optics.render.renderer import Renderer
+from poevp_optics.scene.spec import load_scene
 from tests.conftest import SCENES
 
 

@@ -17,11 +17,11 @@ import math
 import numpy as np
 import pytest
 
-from poevp_optics import spectra
-from poevp_optics.render import Renderer, absolute_spectrum
-from poevp_optics.scene import load_scene
-from poevp_optics.sensor import IMX253
-from poevp_optics.spectra import ASSETS_DIR
+from poevp_optics.sources import spectra
+from poevp_optics.render.renderer import Renderer, absolute_spectrum
+from poevp_optics.scene.spec import load_scene
+from poevp_optics.camera.sensor import IMX253
+from poevp_optics.sources.spectra import ASSETS_DIR
 
 D_M = 25.0
 RHO = 0.5
@@ -98,7 +98,7 @@ def _file_candela(path, dirs):
 
 
 def _peak_cd(path):
-    from poevp_optics.materials.photometric_lamp import load_distribution
+    from poevp_optics.render.materials.photometric_lamp import load_distribution
 
     return load_distribution(str(path)).peak_cd
 
@@ -177,7 +177,7 @@ def test_wall_illuminance_matches_file_candela(write_scene, lamp_file, points, m
 
 
 def test_bad_distribution_keys_are_one_line_errors(write_scene):
-    from poevp_optics.scene import SceneError
+    from poevp_optics.scene.spec import SceneError
 
     base = """
     [spectra.wall]

@@ -14,10 +14,10 @@ import math
 import numpy as np
 import pytest
 
-from poevp_optics import spectra
-from poevp_optics.render import Renderer, absolute_spectrum
-from poevp_optics.scene import load_scene
-from poevp_optics.sensor import IMX253
+from poevp_optics.sources import spectra
+from poevp_optics.render.renderer import Renderer, absolute_spectrum
+from poevp_optics.scene.spec import load_scene
+from poevp_optics.camera.sensor import IMX253
 
 from tests.helpers import PLANE_XML
 

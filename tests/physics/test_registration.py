@@ -8,9 +8,9 @@ import math
 import numpy as np
 import pytest
 
-from poevp_optics.camera import Camera
-from poevp_optics.registration import _mirror_coords, apply_taps, apply_taps_numpy, forward_taps
-from poevp_optics.scene import RegistrationSpec, load_scene
+from poevp_optics.camera.camera import Camera
+from poevp_optics.camera.registration import _mirror_coords, apply_taps, apply_taps_numpy, forward_taps
+from poevp_optics.scene.spec import RegistrationSpec, load_scene
 from tests.conftest import SCENES
 
 H, W = 48, 64
@@ -72,7 +72,7 @@ def test_predicted_mask_lands_on_the_highlight_after_a_registration_round_trip()
     """A highlight predicted on the sensor grid (clipped 8-bit) is dimmed by mirrors that the
     relay images onto that highlight: the exposure seen by the sensor there is low, and far
     away it is white. Without the inverse map the dark patch would sit 20 px off."""
-    from poevp_optics.loop import predicted_mask
+    from poevp_optics.apps.render_run import predicted_mask
 
     spec = load_scene(SCENES / "smoke", [f"render.resolution=[{H},{W}]", "mask.smooth_px=1.0",
                                          "dmd.registration.offset_px=[20.0, -6.0]",
@@ -97,7 +97,7 @@ def test_reconstruction_is_compared_on_the_sensor_grid(tmp_path):
     registered onto the sensor grid, not the mirror-grid truth: with the noise off (12-bit, so
     ADC rounding stays ~1 %) it equals the identity map's error; comparing with the mirror-grid
     truth would add the 3 px shift of a textured plate (tens of %)."""
-    from poevp_optics.loop import run_render
+    from poevp_optics.apps.render_run import run_render
 
     errs = []
     for reg in (["dmd.registration.offset_px=[3.0, 2.0]"], []):

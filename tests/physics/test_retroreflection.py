@@ -18,10 +18,10 @@ import math
 import numpy as np
 import pytest
 
-from poevp_optics import spectra
-from poevp_optics.render import Renderer, absolute_spectrum
-from poevp_optics.scene import load_scene
-from poevp_optics.sensor import IMX253
+from poevp_optics.sources import spectra
+from poevp_optics.render.renderer import Renderer, absolute_spectrum
+from poevp_optics.scene.spec import load_scene
+from poevp_optics.camera.sensor import IMX253
 
 D_M = 10.0
 RHO = 0.5
@@ -113,7 +113,7 @@ CASES = [(a, b) for b in (4.0, 30.0) for a in (0.1, 0.2, 0.5)] + [(1.0, 4.0)]
 
 @pytest.mark.parametrize("mode", ["mono", "spectral"])
 def test_rendered_luminance_coefficient_matches_astm_table(write_scene, mode):
-    from poevp_optics.materials.retroreflective import SHEETINGS, retro_law
+    from poevp_optics.render.materials.retroreflective import SHEETINGS, retro_law
 
     sigma = retro_law(SHEETINGS["astm_d4956:III"]).tail_sigma_deg
     spp = 64 if mode == "mono" else 256
@@ -141,7 +141,7 @@ def test_rendered_luminance_coefficient_matches_astm_table(write_scene, mode):
 # ------------------------------------------------------------------ the BSDF on its own
 @pytest.fixture(params=["llvm_ad_mono", "llvm_ad_spectral"])
 def variant(request):
-    from poevp_optics import runtime
+    from poevp_optics.core import runtime
 
     runtime.set_variant(request.param)
     return request.param
@@ -199,7 +199,7 @@ def test_eval_pdf_sample_agree_and_energy_is_bounded(variant):
     """sample() weight = eval / pdf; bs.pdf = pdf(wo); and the albedo sum(weight)/N, i.e. the
     retroreflected + diffuse fraction, equals eta(beta) + rho <= efficiency + rho."""
     import mitsuba as mi
-    from poevp_optics.materials.retroreflective import SHEETINGS, retro_law
+    from poevp_optics.render.materials.retroreflective import SHEETINGS, retro_law
 
     law = retro_law(SHEETINGS["astm_d4956:I"])
     b, ctx, n = _bsdf(rho=0.3), mi.BSDFContext(), 200_000
@@ -244,7 +244,7 @@ def test_sampling_chi2_on_a_wide_lobe(variant):
 
 
 def test_table_errors_name_the_source(tmp_path):
-    from poevp_optics.materials.retroreflective import SheetingError, parse_sheeting, retro_law
+    from poevp_optics.render.materials.retroreflective import SheetingError, parse_sheeting, retro_law
 
     with pytest.raises(SheetingError, match="unknown preset"):
         parse_sheeting("astm_d4956:IX")
@@ -257,7 +257,7 @@ def test_table_errors_name_the_source(tmp_path):
 
 
 def test_scene_key_errors_are_one_line(write_scene):
-    from poevp_optics.scene import SceneError
+    from poevp_optics.scene.spec import SceneError
 
     cam, lamp = _geometry(0.2, 4.0)
     xml = SHEET_XML.format(cx=cam[0], cy=cam[1], cz=cam[2], lx=lamp[0], ly=lamp[1], lz=lamp[2])

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from drjit.auto import Float
 
-from poevp_optics.scene import SensorSpec
-from poevp_optics.sensor import NoiseSwitches, Sensor, resolve_sensor
+from poevp_optics.scene.spec import SensorSpec
+from poevp_optics.camera.sensor import NoiseSwitches, Sensor, resolve_sensor
 
 N = 200_000
 

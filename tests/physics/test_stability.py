@@ -15,16 +15,16 @@ import json
 import numpy as np
 import pytest
 
-from poevp_optics.camera import Camera
-from poevp_optics.dmd import _interval_moments, node_times_s, throughput_on
-from poevp_optics.flicker import on_intervals
-from poevp_optics.io import read_exr
-from poevp_optics.loop import _flicker_bases, render_exposures, run_render
-from poevp_optics.masks import mask_levels
-from poevp_optics.reconstruct import SATURATED, reconstruct
-from poevp_optics.render import Renderer
-from poevp_optics.scene import load_scene
-from poevp_optics.sensor import NoiseSwitches
+from poevp_optics.camera.camera import Camera
+from poevp_optics.camera.dmd import _interval_moments, node_times_s, throughput_on
+from poevp_optics.sources.flicker import on_intervals
+from poevp_optics.core.io import read_exr
+from poevp_optics.apps.render_run import _flicker_bases, render_exposures, run_render
+from poevp_optics.control.masks import mask_levels
+from poevp_optics.camera.reconstruct import SATURATED, reconstruct
+from poevp_optics.render.renderer import Renderer
+from poevp_optics.scene.spec import load_scene
+from poevp_optics.camera.sensor import NoiseSwitches
 
 from ..conftest import SCENES
 
@@ -48,7 +48,7 @@ def test_extreme_scene_outputs_are_finite_and_bounded(tmp_path, name):
         chans, _ = read_exr(exr)
         for c, a in chans.items():
             assert np.all(np.isfinite(a)), f"{exr}:{c}"
-    from poevp_optics.io import read_png
+    from poevp_optics.core.io import read_png
 
     top = (1 << spec.sensor.bits) - 1 if spec.sensor.bits > 0 else 255
     for png in tmp_path.glob("capture/*.png"):
@@ -69,7 +69,7 @@ def test_reconstruction_never_exceeds_truth_beyond_its_noise(name):
     worst = 0.0
     for ex in render_exposures(spec, renderer, progress=False):
         subs = list(ex.subframes) if not spec.is_static else [ex.radiance.data]
-        from poevp_optics.loop import oracle_mask
+        from poevp_optics.apps.render_run import oracle_mask
 
         mask = oracle_mask(spec, cam, ex.radiance.data, ex.index)
         cap = cam.capture(subs, mask, ex.index, seed=1000 + ex.index, basis=ex.basis,
@@ -107,7 +107,7 @@ def test_float32_chain_matches_float64_on_the_noise_free_path(name):
     mask = np.tile(np.linspace(0, cam.top_level, ex.radiance.data.shape[1]).round(), (ex.radiance.data.shape[0], 1))
     times = ex.subframe_times_s if len(subs) > 1 and not ex.basis else None
     cap = cam.capture(subs, mask, 0, seed=1, basis=ex.basis, times_s=times)
-    from poevp_optics.dmd import transmission_table
+    from poevp_optics.camera.dmd import transmission_table
 
     if ex.basis:
         table = np.stack(cam.basis_tables(0, ex.basis, True), axis=1)

@@ -7,9 +7,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from poevp_optics.dmd import (Schedule, interval_on_time_table, node_times_s, on_time_table,
+from poevp_optics.camera.dmd import (Schedule, interval_on_time_table, node_times_s, on_time_table,
                               switch_times_s)
-from poevp_optics.scene import DMDSpec, TimingSpec, load_scene
+from poevp_optics.scene.spec import DMDSpec, TimingSpec, load_scene
 from tests.conftest import SCENES
 
 H, W = 12, 96
@@ -85,10 +85,10 @@ def test_temporal_error_estimate_tracks_the_true_error_of_the_encoded_plate():
     plate: the rule on the same nodes against 161 samples rendered with one seed (common random
     numbers, so the difference is the quadrature's, not noise) on fast_pass, where the plate
     sweeps ~50 px across this small frame within the exposure."""
-    from poevp_optics.camera import Camera
-    from poevp_optics.errors import temporal_error
-    from poevp_optics.loop import oracle_mask, render_exposures
-    from poevp_optics.render import Renderer
+    from poevp_optics.camera.camera import Camera
+    from poevp_optics.analysis.error_budget import temporal_error
+    from poevp_optics.apps.render_run import oracle_mask, render_exposures
+    from poevp_optics.render.renderer import Renderer
 
     spec = load_scene(SCENES / "fast_pass", ["render.resolution=[92,160]", "render.spp=32",
                                              "render.subframes=5", "timing.frames=2"])

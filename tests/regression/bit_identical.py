@@ -50,7 +50,7 @@ def _array_hash(a: np.ndarray) -> str:
 
 
 def hash_outputs(folder: Path) -> dict:
-    from poevp_optics.io import read_exr, read_png
+    from poevp_optics.core.io import read_exr, read_png
 
     out = {}
     for f in sorted(p for p in folder.rglob("*") if p.is_file()):

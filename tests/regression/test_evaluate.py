@@ -8,8 +8,8 @@ import pytest
 
 pytest.importorskip("rapidocr_onnxruntime")
 
-from poevp_optics.evaluate import E_LEVELS, METHODS, evaluate  # noqa: E402
-from poevp_optics.recognize import correct, normalise  # noqa: E402
+from poevp_optics.apps.evaluate import E_LEVELS, METHODS, evaluate  # noqa: E402
+from poevp_optics.analysis.recognition import correct, normalise  # noqa: E402
 
 
 def test_normalisation_and_exact_match():

@@ -14,8 +14,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from poevp_optics.scene import SceneError, load_scene
-from poevp_optics.sweep import SEED_KEYS, flatten_report, parse_grid, point_overrides, sweep
+from poevp_optics.scene.spec import SceneError, load_scene
+from poevp_optics.apps.sweep import SEED_KEYS, flatten_report, parse_grid, point_overrides, sweep
 
 from ..conftest import ROOT, SCENES
 
@@ -70,7 +70,7 @@ def test_2x3x2_sweep_equals_single_renders_and_records_failures(tmp_path):
     assert (out / "plot_metrics_saturated_fraction_roi_encoded.png").is_file()
     pd.testing.assert_frame_equal(pd.read_parquet(out / "results.parquet"), df)
     # one point run on its own, as `poevp render` runs it, gives the same numbers
-    from poevp_optics.loop import run_render
+    from poevp_optics.apps.render_run import run_render
 
     row = ok.iloc[3]
     values = [row["grid.timing.exposure_s"], row["grid.mask.a"], row["grid.mask.b"]]

@@ -11,7 +11,7 @@ import shutil
 import pandas as pd
 import pytest
 
-from poevp_optics import sweep as sweep_mod
+from poevp_optics.apps import sweep as sweep_mod
 from poevp_optics.cli import main
 from tests.conftest import SCENES
 

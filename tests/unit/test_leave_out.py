@@ -22,7 +22,7 @@ def _run(tmp_path, *sets, name="r"):
 
 
 def test_delta_psf_runs_no_convolution(tmp_path, monkeypatch):
-    import poevp_optics.camera as camera
+    import poevp_optics.camera.camera as camera
 
     def boom(*a, **k):
         raise AssertionError("convolve called for a delta PSF")

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from poevp_optics.masks import mask_levels, smooth_envelope, target_levels, threshold_exp, threshold_ratio
-from poevp_optics.scene import MaskSpec
+from poevp_optics.control.masks import mask_levels, smooth_envelope, target_levels, threshold_exp, threshold_ratio
+from poevp_optics.scene.spec import MaskSpec
 
 X = np.arange(256, dtype=np.float64)
 
@@ -90,9 +90,9 @@ def test_predicted_electrons_remove_the_black_level():
     """x on the 8-bit scale is offset + gain e (rescaled): the black level reads 0 e-, a value
     halfway to the top code (clipped_gain aside) the matching electrons. The old conversion
     read 3 DN of black as 123 e-."""
-    from poevp_optics.masks import predicted_electrons
-    from poevp_optics.scene import SensorSpec
-    from poevp_optics.sensor import resolve_sensor
+    from poevp_optics.control.masks import predicted_electrons
+    from poevp_optics.scene.spec import SensorSpec
+    from poevp_optics.camera.sensor import resolve_sensor
 
     p = resolve_sensor(SensorSpec())
     black_8 = p.offset_dn * 255.0 / p.max_dn

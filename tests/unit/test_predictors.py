@@ -9,11 +9,11 @@ import pytest
 import torch
 
 from poevp_optics.cli import main
-from poevp_optics.predict import make_predictor
-from poevp_optics.predict.dmvfn import (FULL, LITE, DMVFN, WeightsError, count_parameters,
+from poevp_optics.control.predictors import make_predictor
+from poevp_optics.control.predictors.dmvfn import (FULL, LITE, DMVFN, WeightsError, count_parameters,
                                         load_weights, save_weights)
-from poevp_optics.predict.flow import FlowExtrapolation, forward_splat
-from poevp_optics.predict.metrics import highlight_iou, ms_ssim, psnr
+from poevp_optics.control.predictors.flow import FlowExtrapolation, forward_splat
+from poevp_optics.analysis.prediction_metrics import highlight_iou, ms_ssim, psnr
 from tests.conftest import SCENES
 
 
@@ -131,9 +131,9 @@ def test_no_predictor_without_dmd(tmp_path):
 def test_predictor_input_per_mode():
     from types import SimpleNamespace
 
-    from poevp_optics.camera import Camera
-    from poevp_optics.loop import predictor_input
-    from poevp_optics.scene import load_scene
+    from poevp_optics.camera.camera import Camera
+    from poevp_optics.apps.render_run import predictor_input
+    from poevp_optics.scene.spec import load_scene
 
     spec = load_scene(SCENES / "smoke", ["render.resolution=[8,8]"])
     cam = Camera(spec)

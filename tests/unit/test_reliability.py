@@ -38,7 +38,7 @@ def _brute_force(img: np.ndarray, k: np.ndarray) -> np.ndarray:
 
 
 def test_fft_path_equals_the_definition_for_kernels_wider_than_the_image():
-    from poevp_optics.relay import PSF, convolve
+    from poevp_optics.camera.relay import PSF, convolve
 
     rng = np.random.default_rng(3)
     img = rng.uniform(0, 1, (5, 7))
@@ -50,7 +50,7 @@ def test_fft_path_equals_the_definition_for_kernels_wider_than_the_image():
 
 
 def test_fft_size_does_not_grow_with_the_kernel():
-    from poevp_optics.relay import fft_bytes, fft_shape
+    from poevp_optics.camera.relay import fft_bytes, fft_shape
 
     assert fft_shape((368, 640), 7435) == fft_shape((368, 640), 1279)
     assert fft_bytes((368, 640), 100001) == fft_bytes((368, 640), 1279)
@@ -59,7 +59,7 @@ def test_fft_size_does_not_grow_with_the_kernel():
 
 
 def test_sigma_1000_psf_is_capped_at_the_image_and_runs_by_fft(tmp_path):
-    from poevp_optics.relay import DIRECT_MAX_PX, gaussian_psf, max_support_px
+    from poevp_optics.camera.relay import DIRECT_MAX_PX, gaussian_psf, max_support_px
 
     psf = gaussian_psf(1000.0, cap_px=max_support_px((48, 64)))
     assert psf.kernel.shape == (127, 127) and psf.kernel.shape[0] > DIRECT_MAX_PX
@@ -79,8 +79,8 @@ def test_sigma_1000_psf_is_capped_at_the_image_and_runs_by_fft(tmp_path):
 # ---------------------------------------------------------------------------- memory
 def test_memory_estimate_bounds_the_measured_peak(tmp_path):
     """The estimate is an upper bound of peak RSS, and not a wild one (under 2x)."""
-    from poevp_optics.memory import estimate_run
-    from poevp_optics.scene import load_scene
+    from poevp_optics.apps.memory import estimate_run
+    from poevp_optics.scene.spec import load_scene
 
     args = ["--frames", "1", "--resolution", "512x512", "--spp", "2"]
     spec = load_scene(SCENES / "smoke", ["timing.frames=1", "render.resolution=[512,512]", "render.spp=2"])
@@ -102,7 +102,7 @@ def test_memory_estimate_bounds_the_measured_peak(tmp_path):
 
 
 def test_available_memory_honours_the_limit(monkeypatch):
-    from poevp_optics.memory import available_bytes, parse_bytes
+    from poevp_optics.apps.memory import available_bytes, parse_bytes
 
     assert parse_bytes("512M") == 512 << 20 and parse_bytes("1.5G") == int(1.5 * (1 << 30))
     monkeypatch.setenv("POEVP_MEMORY_LIMIT", "1G")
@@ -112,7 +112,7 @@ def test_available_memory_honours_the_limit(monkeypatch):
 
 # ---------------------------------------------------------------------------- captures
 def test_20_bit_captures_are_written_losslessly(tmp_path):
-    from poevp_optics.io import read_dn
+    from poevp_optics.core.io import read_dn
 
     out = tmp_path / "deep"
     assert main(["render", str(SCENES / "smoke"), "--out", str(out), "--quiet", "--frames", "1",
@@ -127,7 +127,7 @@ def test_20_bit_captures_are_written_losslessly(tmp_path):
 
 
 def test_capture_writer_never_wraps(tmp_path):
-    from poevp_optics.io import read_dn, write_dn
+    from poevp_optics.core.io import read_dn, write_dn
 
     with pytest.raises(ValueError, match="integers in"):
         write_dn(tmp_path / "a", np.array([[70000.0]]), 16)
@@ -156,8 +156,8 @@ class _NaNPredictor:
 
 
 def test_non_finite_prediction_falls_back_and_is_reported(tmp_path, monkeypatch):
-    from poevp_optics import predict
-    from poevp_optics.predict import checked_prediction
+    from poevp_optics.control import predictors as predict
+    from poevp_optics.control.predictors import checked_prediction
 
     hist = [np.full((4, 6), 7.0, np.float32), np.full((4, 6), 9.0, np.float32)]
     pred, n_bad = checked_prediction(_NaNPredictor(), hist)
@@ -177,7 +177,7 @@ def test_nan_weights_are_refused_at_load(tmp_path):
     from safetensors import safe_open
     from safetensors.torch import load_file, save_file
 
-    from poevp_optics.predict.dmvfn import WeightsError, load_weights
+    from poevp_optics.control.predictors.dmvfn import WeightsError, load_weights
 
     src = ROOT / "assets" / "predictor" / "dmvfn_lite.safetensors"
     with safe_open(str(src), framework="pt") as f:

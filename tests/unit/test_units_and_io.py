@@ -7,11 +7,11 @@ import math
 import numpy as np
 import pytest
 
-from poevp_optics import spectra
-from poevp_optics.io import MARKER, _umask, read_exr, read_png, staged_dir, write_exr, write_png
-from poevp_optics.plates import plate_texture
-from poevp_optics.scene import MotionSpec, SceneError, apply_overrides, parse_override
-from poevp_optics.units import PLANCK_J_S, SPEED_OF_LIGHT_M_PER_S, photons_per_joule
+from poevp_optics.sources import spectra
+from poevp_optics.core.io import MARKER, _umask, read_exr, read_png, staged_dir, write_exr, write_png
+from poevp_optics.sources.plates import plate_texture
+from poevp_optics.scene.spec import MotionSpec, SceneError, apply_overrides, parse_override
+from poevp_optics.core.units import PLANCK_J_S, SPEED_OF_LIGHT_M_PER_S, photons_per_joule
 
 
 def test_photometric_scaling_round_trips():

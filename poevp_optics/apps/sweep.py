@@ -1,0 +1,416 @@
+"""`poevp sweep`: a grid of scene variations run in parallel on Dask, resumable, one tidy table.
+
+Grid syntax (`--grid KEY=VALUES`, KEY any dotted scene key):
+  `v1,v2,...`            values in TOML syntax (`[320,320]`, `'flow'`, `0.01`)
+  `start:stop:num`       `num` equally spaced values, both ends included (numpy.linspace)
+  `log:start:stop:num`   `num` log-spaced values (numpy.geomspace)
+
+Every point is first validated without running (`load_scene(..., cross_checks=False)`): an
+unknown key or a bad value stops the sweep with the scene error and nothing is written; so does
+a sweep whose largest point, times the workers running at once, does not fit in memory
+(memory.py). A point whose combination is impossible (timing beyond the frame period, any
+check of preflight.py) or that raises while running is recorded as `failed` with its message;
+the others go on, and `poevp sweep` exits 1 when any point failed.
+
+A sweep is its scene file (however named: `scenes/x` and `scenes/x/scene.toml` are one), job,
+seeds, grid (keys in any order: the grid is sorted by key) and the effective scene after the
+base overrides. Its record `sweep.json` also holds the SHA-256 of every file the points read
+(TOML, XML and the files it names, spectrum tables, PSF image, predictor weights). A rerun of
+the same sweep resumes; a rerun whose record differs, or whose files changed since, is refused
+with what differs, so old and new points never mix in one table. Point folders are named by a
+hash of the point's effective scene table, not of the override text.
+
+Execution: Dask distributed (https://distributed.dask.org): an embedded `LocalCluster` of
+worker processes, one thread each, with DrJit/torch/OpenCV threads = cores // workers, or an
+existing cluster (`--scheduler tcp://HOST:PORT`). Each point writes its own folder
+`points/<key>-s<seed>/` (staged, so a killed point leaves nothing half-written) and the table
+`results.parquet` + `results.csv` is rewritten atomically after every finished point. A rerun of
+the same command skips the finished points (ok or failed), so killing a sweep loses at most the
+points in flight. Timing columns (`*.seconds`) naturally differ between runs; every other
+column of a point is reproducible from its seeds.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+import json
+import math
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+from poevp_optics.core.io import atomic_path, locked_dir, staged_dir, write_json
+from poevp_optics.core.runtime import Terminated, sigterm_raises
+from poevp_optics.scene.spec import SceneError, apply_overrides, load_scene, parse_override, resolve_scene_path
+
+SEED_KEYS = ("render.seed", "sensor.seed")
+GRID_HELP = "KEY=v1,v2,... | KEY=start:stop:num | KEY=log:start:stop:num"
+
+
+# ---------------------------------------------------------------------------- grid
+def _split_values(text: str) -> list[str]:
+    """Split at commas that are not inside brackets or quotes."""
+    out, depth, quote, cur = [], 0, None, ""
+    for ch in text:
+        if quote:
+            quote = None if ch == quote else quote
+        elif ch in "'\"":
+            quote = ch
+        elif ch in "[{":
+            depth += 1
+        elif ch in "]}":
+            depth -= 1
+        elif ch == "," and depth == 0:
+            out.append(cur.strip())
+            cur = ""
+            continue
+        cur += ch
+    out.append(cur.strip())
+    return [v for v in out if v != ""]
+
+
+def _is_number(s: str) -> bool:
+    try:
+        float(s)
+        return True
+    except ValueError:
+        return False
+
+
+def parse_grid(text: str) -> tuple[str, list]:
+    """'key=values' -> (key, [python values]); see the module docstring for the syntax."""
+    key, eq, vals = text.partition("=")
+    key, vals = key.strip(), vals.strip()
+    if not eq or not key or not vals:
+        raise SceneError(f"--grid {text}: expected {GRID_HELP}")
+    parts = vals.split(":")
+    if parts[0] == "log" and len(parts) == 4 and all(_is_number(p) for p in parts[1:]):
+        a, b, n = float(parts[1]), float(parts[2]), parts[3]
+        if not n.isdigit() or int(n) < 1 or a <= 0 or b <= 0:
+            raise SceneError(f"--grid {text}: a log range needs start, stop > 0 and an integer count")
+        values = [float(v) for v in np.geomspace(a, b, int(n))]
+    elif len(parts) == 3 and all(_is_number(p) for p in parts):
+        if not parts[2].isdigit() or int(parts[2]) < 1:
+            raise SceneError(f"--grid {text}: the count of start:stop:num must be a positive integer")
+        lin = np.linspace(float(parts[0]), float(parts[1]), int(parts[2]))
+        ints = all(p.lstrip("-").isdigit() for p in parts[:2]) and np.allclose(lin, np.round(lin))
+        values = [int(round(v)) for v in lin] if ints else [float(v) for v in lin]
+    else:
+        values = [parse_override(f"{key}={v}")[1] for v in _split_values(vals)]
+    if not values:
+        raise SceneError(f"--grid {text}: no values")
+    if len({json.dumps(v) for v in values}) != len(values):
+        raise SceneError(f"--grid {text}: repeated values")
+    return key, values
+
+
+def toml_literal(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, str):
+        return json.dumps(v)
+    if isinstance(v, float):
+        return repr(v) if math.isfinite(v) else ("nan" if math.isnan(v) else ("inf" if v > 0 else "-inf"))
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(toml_literal(x) for x in v) + "]"
+    return str(v)
+
+
+def point_overrides(keys, values, seed: int) -> list[str]:
+    out = [f"{k}={toml_literal(v)}" for k, v in zip(keys, values)]
+    return out + [f"{k}={seed}" for k in SEED_KEYS if k not in keys]
+
+
+def _canonical(obj) -> str:
+    return json.dumps(obj, sort_keys=True, separators=(",", ":"), default=str)
+
+
+def point_key(raw_table: dict) -> str:
+    """A point's name: hash of its effective scene table (after every override), so the same
+    point gets the same folder whatever order its overrides were given in."""
+    return hashlib.sha1(_canonical(raw_table).encode()).hexdigest()[:12]
+
+
+def file_sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+# ---------------------------------------------------------------------------- one point
+def flatten_report(report: dict) -> dict:
+    """Scalar metrics of a run's report as dotted columns (metrics, stages, DR, limits)."""
+    out = {}
+
+    def walk(prefix, obj):
+        if isinstance(obj, dict):
+            for k, v in obj.items():
+                if not str(k).startswith("_"):
+                    walk(f"{prefix}.{k}", v)
+        elif isinstance(obj, (int, float)) and not isinstance(obj, bool):
+            out[prefix] = float(obj)
+
+    for sec in ("metrics", "stages", "dynamic_range_db", "limits", "render"):
+        if sec in report:
+            walk(sec, report[sec])
+    if "settle" in report:
+        out["settle.frames"] = float(report["settle"]["frames"])
+    out["total_seconds"] = float(report.get("total_seconds", math.nan))
+    return out
+
+
+def run_point(scene: str, overrides: list[str], out_dir: str, job: str, threads: int) -> dict:
+    """Run one point in this (worker) process; never raises: failures come back as rows."""
+    from poevp_optics.core import runtime
+
+    from poevp_optics.apps.preflight import check_run
+
+    t0 = time.perf_counter()
+    try:
+        runtime.set_threads(threads)
+        spec = load_scene(scene, overrides)
+        check_run(spec, job, memory=False)
+        with staged_dir(out_dir, kind=job) as stage:
+            if job == "chart":
+                from poevp_optics.apps.chart import run_chart
+
+                report = run_chart(spec, stage, progress=False)
+            else:
+                from poevp_optics.apps.render_run import run_render
+
+                report = run_render(spec, stage, progress=False)
+                report.pop("_kept", None)
+        return {"status": "ok", "error": "", **flatten_report(report),
+                "point_seconds": time.perf_counter() - t0}
+    except Exception as e:  # noqa: BLE001 - a failed point is data, not a crash
+        msg = str(e).strip().splitlines()[0] if str(e).strip() else ""
+        return {"status": "failed", "error": f"{type(e).__name__}: {msg}",
+                "point_seconds": time.perf_counter() - t0}
+
+
+# ---------------------------------------------------------------------------- table + plots
+def write_table(rows: list[dict], out: Path):
+    import pandas as pd
+
+    df = pd.DataFrame(rows)
+    df = df.sort_values(["point", "seed"], kind="stable").reset_index(drop=True)
+    with atomic_path(out / "results.parquet") as tmp:
+        df.to_parquet(tmp, index=False)
+    with atomic_path(out / "results.csv") as tmp:
+        df.to_csv(tmp, index=False)
+    return df
+
+
+def read_table(out: Path):
+    import pandas as pd
+
+    p = out / "results.parquet"
+    return pd.read_parquet(p) if p.is_file() else None
+
+
+def plot_metric(df, keys: list[str], metric: str, path: Path) -> Path | None:
+    """Line plot (one key) or heat maps (two keys; one panel per value of any further keys)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ok = df[df["status"] == "ok"]
+    if metric not in ok.columns or ok.empty:
+        return None
+    gkeys = [f"grid.{k}" for k in keys]
+    mean = ok.groupby(gkeys, dropna=False)[metric].agg(["mean", "std", "count"]).reset_index()
+    if len(keys) == 1:
+        fig, ax = plt.subplots(figsize=(6, 4))
+        x = mean[gkeys[0]].astype(float)
+        ax.errorbar(x, mean["mean"], yerr=mean["std"].fillna(0), marker="o", capsize=3)
+        ax.set(xlabel=keys[0], ylabel=metric, title=f"{metric} (mean over seeds)")
+    else:
+        order = sorted(range(len(keys)), key=lambda i: -mean[gkeys[i]].nunique())
+        kx, ky, rest = gkeys[order[0]], gkeys[order[1]], [gkeys[i] for i in order[2:]]
+        combos = [()] if not rest else list(mean[rest].drop_duplicates().itertuples(index=False, name=None))
+        fig, axes = plt.subplots(1, len(combos), figsize=(5 * len(combos), 4), squeeze=False)
+        vmin, vmax = np.nanmin(mean["mean"]), np.nanmax(mean["mean"])
+        for ax, combo in zip(axes[0], combos):
+            sub = mean
+            for k, v in zip(rest, combo):
+                sub = sub[sub[k] == v]
+            xs, ys = sorted(sub[kx].unique()), sorted(sub[ky].unique())
+            grid = np.full((len(ys), len(xs)), np.nan)
+            for _, r in sub.iterrows():
+                grid[ys.index(r[ky]), xs.index(r[kx])] = r["mean"]
+            im = ax.imshow(grid, origin="lower", aspect="auto", vmin=vmin, vmax=vmax, cmap="viridis")
+            for (j, i), v in np.ndenumerate(grid):
+                if np.isfinite(v):
+                    ax.text(i, j, f"{v:.3g}", ha="center", va="center", fontsize=8, color="w")
+            ax.set_xticks(range(len(xs)), [f"{v:g}" if isinstance(v, float) else str(v) for v in xs])
+            ax.set_yticks(range(len(ys)), [f"{v:g}" if isinstance(v, float) else str(v) for v in ys])
+            ax.set(xlabel=kx[5:], ylabel=ky[5:],
+                   title=", ".join(f"{k[5:]}={v}" for k, v in zip(rest, combo)) or metric)
+        fig.colorbar(im, ax=axes[0].tolist(), label=metric)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110, format="png", bbox_inches="tight")
+    plt.close(fig)
+    return path
+
+
+# ---------------------------------------------------------------------------- driver
+def _record(toml: Path, job: str, seeds: int, grid: dict, base_raw: dict, specs) -> dict:
+    """What identifies a sweep, and the hashes of every file its points read."""
+    from poevp_optics.apps.preflight import input_files
+
+    files = {}
+    for spec in specs:
+        for f in input_files(spec):
+            files.setdefault(str(f), None)
+    return {"scene": str(toml), "job": job, "seeds": seeds,
+            "grid": {k: grid[k] for k in sorted(grid)},
+            "effective_scene_sha256": hashlib.sha256(_canonical(base_raw).encode()).hexdigest(),
+            "inputs_sha256": {f: file_sha256(Path(f)) for f in sorted(files)}}
+
+
+def _differences(old: dict, new: dict) -> list[str]:
+    out = []
+    for key in ("scene", "job", "seeds", "grid", "effective_scene_sha256"):
+        if json.loads(json.dumps(old.get(key))) != json.loads(json.dumps(new[key])):
+            what = {"effective_scene_sha256": "the scene after --set overrides"}.get(key, key)
+            out.append(f"{what} differs")
+    old_in, new_in = old.get("inputs_sha256") or {}, new["inputs_sha256"]
+    for f in sorted(set(old_in) | set(new_in)):
+        if old_in.get(f) != new_in.get(f):
+            out.append(f"{f} {'changed' if f in old_in and f in new_in else 'is new' if f in new_in else 'is no longer read'}")
+    return out
+
+
+def sweep(scene: str, grid_args: list[str], *, out: Path, seeds: int = 1, workers: int | None = None,
+          scheduler: str | None = None, job: str = "render", base_overrides: list[str] = (),
+          metric: str | None = None, progress: bool = True, retry_failed: bool = False,
+          threads: int | None = None, log=print):
+    """Run the grid; returns the results DataFrame. See the module docstring."""
+    from tqdm import tqdm
+
+    if job not in ("render", "chart"):
+        raise SceneError(f"--job {job}: must be 'render' or 'chart'")
+    if seeds < 1:
+        raise SceneError(f"--seeds {seeds}: must be >= 1")
+    grid = sorted((parse_grid(g) for g in grid_args), key=lambda kv: kv[0])
+    keys = [k for k, _ in grid]
+    if len(set(keys)) != len(keys):
+        raise SceneError(f"--grid: a key appears twice ({', '.join(keys)})")
+    if not grid:
+        raise SceneError("--grid: give at least one KEY=VALUES")
+    base = list(base_overrides)
+    combos = list(itertools.product(*[v for _, v in grid]))
+    # validate every point before anything runs or is written
+    specs = [load_scene(scene, base + point_overrides(keys, values, 0), cross_checks=False)
+             for values in combos]
+    toml = resolve_scene_path(scene).resolve()
+    base_raw = load_scene(scene, base, cross_checks=False).raw
+    if not scheduler:                  # a remote cluster's memory is not this machine's
+        from poevp_optics.apps.memory import check_memory, estimate_run
+
+        n_workers = max(1, min(workers or os.cpu_count() or 1, len(combos) * seeds))
+        biggest = max(specs, key=lambda sp: estimate_run(sp, job).total_bytes)
+        check_memory(biggest, job, workers=n_workers,
+                     where=f"{toml} (largest sweep point, {n_workers} at once)")
+    record = _record(toml, job, seeds, dict(grid), dict(base_raw), specs)
+    out = Path(out)
+    with locked_dir(out, kind="sweep", protect=(toml, toml.parent)):
+        mpath = out / "sweep.json"
+        if mpath.is_file():
+            diffs = _differences(json.loads(mpath.read_text()), record)
+            if diffs:
+                raise SceneError(f"{out}: holds a different sweep or one whose inputs changed since it "
+                                 f"started ({'; '.join(diffs)}); give another --out, or remove {out} to "
+                                 "start over")
+        write_json(mpath, record)
+        with sigterm_raises():
+            return _run_sweep(scene, out, keys, combos, seeds, base, job, workers, scheduler, metric,
+                              progress, retry_failed, threads, log, tqdm)
+
+
+def _run_sweep(scene, out, keys, combos, seeds, base, job, workers, scheduler, metric, progress,
+               retry_failed, threads, log, tqdm):
+    import shutil
+    import tomllib
+
+    for stale in (out / "points").glob(".*.staging-*") if (out / "points").is_dir() else ():
+        shutil.rmtree(stale, ignore_errors=True)        # points killed mid-write last time
+    raw = tomllib.loads(resolve_scene_path(scene).read_text())
+    tasks = []
+    for idx, values in enumerate(combos):
+        for s in range(seeds):
+            ov = base + point_overrides(keys, values, s)
+            k = point_key(apply_overrides(raw, ov))
+            row = {"point": idx, "seed": s, "point_key": k,
+                   **{f"grid.{key}": (json.dumps(v) if isinstance(v, (list, tuple)) else v)
+                      for key, v in zip(keys, values)}}
+            tasks.append((row, ov, str(out / "points" / f"{k}-s{s}")))
+    prev = read_table(out)
+    done = {}
+    if prev is not None:
+        for r in prev.to_dict("records"):
+            if r["status"] == "ok" or (r["status"] == "failed" and not retry_failed):
+                done[r["point_key"]] = r
+    rows = [done[t[0]["point_key"]] for t in tasks if t[0]["point_key"] in done]
+    todo = [t for t in tasks if t[0]["point_key"] not in done]
+    log(f"poevp sweep: {len(tasks)} runs ({len(combos)} points x {seeds} seeds), "
+        f"{len(rows)} already finished, {len(todo)} to run -> {out}")
+    df = write_table(rows, out) if rows else None
+    if todo:
+        df = _execute(scene, todo, rows, out, job, workers, scheduler, progress, log, tqdm, threads)
+    if df is not None and metric:
+        path = plot_metric(df, keys, metric, out / f"plot_{metric.replace('.', '_')}.png")
+        if path:
+            log(f"poevp sweep: plot -> {path}")
+        else:
+            log(f"poevp sweep: no ok rows with column {metric!r}; no plot")
+    return df
+
+
+def _execute(scene, todo, rows, out, job, workers, scheduler, progress, log, tqdm, threads=None):
+    from dask.distributed import Client, LocalCluster, as_completed
+
+    cores = os.cpu_count() or 1
+    cluster = None
+    df = None
+    try:
+        if scheduler:
+            client = Client(scheduler)
+            threads = threads or 1
+        else:
+            n = max(1, min(workers or cores, len(todo)))
+            threads = threads or max(1, cores // n)
+            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                                   dashboard_address=":0", silence_logs=40)
+            client = Client(cluster)
+        if client.dashboard_link:
+            log(f"poevp sweep: Dask dashboard {client.dashboard_link}")
+        futs = {}
+        for row, ov, folder in todo:
+            f = client.submit(run_point, scene, ov, folder, job, threads, pure=False,
+                              key=f"poevp-point-{row['point_key']}-s{row['seed']}")
+            futs[f] = row
+        bar = tqdm(total=len(futs), desc="sweep", unit="point", disable=not progress or None)
+        for f in as_completed(futs):
+            try:
+                res = f.result()
+            except Exception as e:  # noqa: BLE001 - a worker died under this point
+                res = {"status": "failed", "error": f"{type(e).__name__}: {e}"}
+            rows.append({**futs[f], **res})
+            df = write_table(rows, out)
+            bar.update(1)
+        bar.close()
+        client.close()
+    except (Terminated, KeyboardInterrupt):
+        log(f"poevp sweep: interrupted; {len(rows)} finished points are in {out}/results.parquet")
+        raise
+    finally:
+        if cluster is not None:
+            cluster.close()
+    return df

@@ -1,0 +1,87 @@
+"""Training data from the simulator itself: procedurally varied plate sequences, rendered and
+passed through the LDR camera (DMD white, IMX253 8-bit, noise on), cached as a small .npz.
+
+Varied per sequence (seeded): plate text, lateral and closing speed (direction), start distance
+and lateral offset, high-beam intensity, exposure time. Frames are at the predictor resolution.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import string
+from pathlib import Path
+
+import numpy as np
+from poevp_optics.core.paths import SCENES_DIR
+
+SCENE = SCENES_DIR / "highbeam_plate"
+LETTERS = string.ascii_uppercase.replace("I", "").replace("O", "")
+
+
+def random_plate_text(rng: np.random.Generator) -> str:
+    return (f"{''.join(rng.choice(list(LETTERS), 2))} {rng.integers(0, 10)}"
+            f"{''.join(rng.choice(list(LETTERS + string.digits), 4))}")
+
+
+def sequence_overrides(rng: np.random.Generator, resolution=(368, 640)) -> list[str]:
+    vx = float(rng.uniform(-2.0, 2.0))
+    vz = float(rng.uniform(-12.0, 3.0))
+    x0 = float(rng.uniform(-0.7, 0.7))
+    z0 = float(rng.uniform(-3.0, 8.0))
+    cd = float(rng.uniform(4e4, 2.5e5))
+    exp_s = float(rng.uniform(0.008, 0.033))
+    return [f"plate.text={json.dumps(random_plate_text(rng))}",
+            f"motion.plate.velocity_m_per_s=[{vx}, 0.0, {vz}]",
+            f"motion.plate.start_offset_m=[{x0}, 0.0, {z0}]",
+            f"spectra.highbeam.intensity_cd={cd}",
+            f"timing.exposure_s={exp_s}", f"timing.dmd_window_s={exp_s}",
+            f"render.resolution=[{resolution[0]}, {resolution[1]}]",
+            "render.subframes=1", "render.spp=4", "render.mc_splits=2"]
+
+
+def render_ldr_sequence(overrides: list[str], frames: int, seed: int) -> np.ndarray:
+    """(frames, H, W) uint8 LDR captures of the default scene under `overrides`."""
+    from poevp_optics.camera.camera import Camera
+    from poevp_optics.analysis.metrics import to_8bit
+    from poevp_optics.render.renderer import Renderer
+    from poevp_optics.scene.spec import load_scene
+
+    spec = load_scene(SCENE, [*overrides, f"timing.frames={frames}", f"render.seed={seed}"])
+    cam = Camera(spec)
+    r = Renderer(spec, guard_px=cam.guard_px)
+    out = []
+    white = cam.white_mask()
+    for i in range(frames):
+        r.set_time(float(spec.subframe_times_s(i)[0]))
+        rad = r.render_once(seed * 1000 + i, spec.render.spp)
+        cap = cam.capture([rad], white, i, seed * 1000 + i)
+        out.append(to_8bit(cap.dn, cam.params.max_dn).astype(np.uint8))
+    return np.stack(out)
+
+
+def cache_dir() -> Path:
+    return Path(os.environ.get("POEVP_CACHE_DIR", Path.home() / ".cache" / "poevp_optics")) / "predictor_data"
+
+
+def build_dataset(n_sequences: int, frames: int, seed: int, resolution=(368, 640),
+                  progress: bool = True) -> np.ndarray:
+    """(N, T, H, W) uint8, cached by its parameters."""
+    from tqdm import tqdm
+
+    key = hashlib.sha1(json.dumps([n_sequences, frames, seed, list(resolution), "v1"]).encode()).hexdigest()[:16]
+    path = cache_dir() / f"seq_{key}.npz"
+    if path.exists():
+        return np.load(path)["frames"]
+    rng = np.random.default_rng(seed)
+    seqs = []
+    for i in tqdm(range(n_sequences), desc="render training sequences", disable=not progress or None):
+        seqs.append(render_ldr_sequence(sequence_overrides(rng, resolution), frames, seed * 100000 + i))
+    arr = np.stack(seqs)
+    from poevp_optics.core.io import atomic_path
+
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as f:
+            np.savez_compressed(f, frames=arr)
+    return arr

@@ -1,0 +1,271 @@
+"""One capture of the DMD camera: radiance sub-frames + mask -> DN (DMD -> relay -> sensor).
+
+The optical path of the real camera (DESIGN.md): objective -> image on the DMD -> each mirror
+sends light to the relay for its PWM share of the exposure -> relay lens (PSF) -> sensor. So the
+relay PSF acts on (mask x scene), and the sensor sees the registered, blurred DMD-plane image.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from poevp_optics.sources import spectra
+from poevp_optics.camera.dmd import DMD, Schedule, interval_transmission, node_time_weights_s, throughput_on, transmission_table
+from poevp_optics.camera.registration import apply_taps, apply_taps_numpy, box_to_sensor, forward_taps, is_identity, to_mirror
+from poevp_optics.camera.relay import build_psf, convolve
+from poevp_optics.scene.spec import SceneSpec
+from poevp_optics.camera.sensor import NoiseSwitches, Sensor, pixel_etendue_m2_sr, resolve_sensor
+
+
+_IDENTITY = type("IdentityRegistration", (), {"scale": 1.0, "rotation_deg": 0.0, "offset_px": (0.0, 0.0)})()
+
+
+def _sync(x):
+    import drjit as dr
+
+    dr.eval(x)
+    dr.sync_thread()
+    return x
+
+
+@dataclass
+class Capture:
+    """A measured frame and what produced it (numpy arrays on the sensor grid)."""
+
+    dn: np.ndarray                    # digital numbers, integer-valued float32
+    exposure_s: np.ndarray            # effective exposure per pixel, s (DMD throughput incl.)
+    signal_e: np.ndarray              # noise-free photo-electrons reaching each pixel
+    seconds: dict = field(default_factory=dict)
+    exposure_blurred_s: np.ndarray | None = None   # exposure seen through the relay PSF (None: delta)
+
+
+class Camera:
+    """The DMD camera of a scene: DMD, relay PSF and a sensor instance (fixed-pattern noise).
+
+    Grids: the sensor grid is `render.resolution` (`shape`); the mirror grid (`mirror_shape`) is
+    what the renderer draws: the sensor's footprint on the DMD plus a guard band wide enough for
+    the relay PSF (`guard_px` mirrors on each side, registration.py), so light from beyond the
+    sensor's field spills in through the blur as it does from the DMD's outer mirrors; the guard
+    is cropped before the sensor and never enters metrics.
+    """
+
+    def __init__(self, spec: SceneSpec, switches: NoiseSwitches | None = None):
+        from poevp_optics.scene.spec import resolve_layout
+
+        self.spec = spec
+        self.shape = tuple(spec.render.resolution)
+        self.layout = resolve_layout(spec)
+        self.params = dataclasses.replace(resolve_sensor(spec.sensor), f_number=self.layout.sensor_f_number)
+        self.sensor = Sensor(self.params, self.shape, switches)
+        self.dmd = DMD(spec.dmd) if spec.dmd.enabled else None
+        qe = spectra.load_spectrum(self.params.qe, emissive=True)
+        band_w = spectra.sensor_response_e_per_J(qe)
+        self.psf = build_psf(spec.relay, pixel_pitch_m=self.params.pixel_pitch_m,
+                             f_number=self.layout.sensor_f_number, band_nm=spectra.WAVELENGTHS_NM,
+                             band_weights=band_w, base_dir=spec.toml_path.parent,
+                             image_shape=self.shape)
+        reg = spec.dmd.registration if self.dmd else _IDENTITY
+        self.registration = reg
+        radius = self.psf.kernel.shape[0] // 2 if self.psf is not None else 0
+        self.sensor_guard_px = min(radius, spec.relay.guard_max_px)
+        h, w = self.shape
+        self.extended_shape = (h + 2 * self.sensor_guard_px, w + 2 * self.sensor_guard_px)
+        if is_identity(reg):
+            self.guard_px = self.sensor_guard_px
+        else:   # mirrors needed to cover the guard ring through the affine map (+1 for sampling)
+            self.guard_px = int(math.ceil(self.sensor_guard_px / reg.scale)) + (1 if self.sensor_guard_px else 0)
+        self.mirror_shape = (h + 2 * self.guard_px, w + 2 * self.guard_px)
+        self.taps = forward_taps(reg, self.mirror_shape, self.extended_shape)
+        self._sensor_taps = None
+        self.etendue_m2_sr = pixel_etendue_m2_sr(self.params)
+        # lens transmission (objective) x relay transmission; DMD throughput is in the exposure
+        self.throughput = self.params.optical_throughput * (spec.relay.transmission if self.dmd else 1.0)
+
+    # ------------------------------------------------------------------ grids
+    def _crop(self, img: np.ndarray) -> np.ndarray:
+        g = self.sensor_guard_px
+        h, w = self.shape
+        return img[g:g + h, g:g + w]
+
+    def to_sensor(self, mirror_image: np.ndarray) -> np.ndarray:
+        """A mirror-grid (render-grid) image as the sensor pixels see it, without blur or noise
+        (area-weighted registration; float64): the ground truth on the sensor grid."""
+        img = np.asarray(mirror_image, dtype=np.float64)
+        if self.taps is None:
+            g = self.guard_px
+            h, w = self.shape
+            return img[g:g + h, g:g + w]
+        if self._sensor_taps is None:
+            self._sensor_taps = forward_taps(self.registration, self.mirror_shape, self.shape)
+        return apply_taps_numpy(img, self._sensor_taps, self.shape)
+
+    def to_mirror(self, sensor_image: np.ndarray) -> np.ndarray:
+        """A sensor-grid picture (a predicted frame) placed on the mirror grid (registration.py)."""
+        return to_mirror(sensor_image, self.registration, self.mirror_shape, self.shape)
+
+    def box_to_sensor(self, box):
+        """A mirror-grid box (y0, x0, y1, x1) as the sensor-grid box holding its image."""
+        return box_to_sensor(box, self.registration, self.mirror_shape, self.shape)
+
+    def white_mask(self) -> np.ndarray | None:
+        """All mirrors at the top level (the LDR twin), on the mirror grid; None without a DMD."""
+        return np.full(self.mirror_shape, float(self.top_level)) if self.dmd else None
+
+    @property
+    def top_level(self) -> int:
+        return self.dmd.levels if self.dmd else 255
+
+    def schedule(self, frame_index: int) -> Schedule:
+        return Schedule.for_frame(self.spec.dmd, self.spec.timing, self.spec.frame_start_s(frame_index))
+
+    def level_exposure_s(self, frame_index: int) -> np.ndarray:
+        """Effective exposure (s) of every mask level over the whole exposure (float64)."""
+        levels = np.arange(self.top_level + 1)
+        return transmission_table(levels, self.spec.dmd, self.schedule(frame_index), 1)[:, 0]
+
+    def white_exposure_s(self, frame_index: int) -> float:
+        if not self.dmd:
+            return self.spec.timing.exposure_s
+        return float(self.level_exposure_s(frame_index)[-1])
+
+    def electrons_per_radiance(self) -> float:
+        """Electrons per (e- s-1 m-2 sr-1) per second of effective exposure."""
+        return self.etendue_m2_sr * self.throughput
+
+    def basis_tables(self, frame_index: int, basis: tuple[str, ...], lit: bool) -> list[np.ndarray]:
+        """Exposure (s) per DMD level of each emitter-group image: 'rest' sees the whole
+        exposure; a PWM lamp only its drive: the exact integral over the lamp's on-intervals
+        (plus off_fraction of the rest). `lit`: DMD levels in use (False: DMD off / absent)."""
+        from poevp_optics.sources.flicker import on_intervals
+
+        sched = self.schedule(frame_index)
+        t0, t1 = sched.exposure_start_s, sched.exposure_start_s + sched.exposure_s
+        if lit:
+            levels = np.arange(self.top_level + 1)
+            span = lambda a, b: interval_transmission(levels, self.spec.dmd, sched, a, b)  # noqa: E731
+        else:
+            thr = throughput_on(self.spec.dmd) if self.dmd is not None else 1.0
+            span = lambda a, b: np.array([(b - a) * thr])  # noqa: E731
+        full = span(t0, t1)
+        out = []
+        for name in basis:
+            if name == "rest":
+                out.append(full)
+                continue
+            fl = self.spec.flicker[name]
+            on = sum((span(a, b) for a, b in on_intervals(t0, t1, fl)), np.zeros_like(full))
+            out.append(on + fl.off_fraction * (full - on))
+        return out
+
+    def _check_inputs(self, subframes, mask_levels, frame_index: int) -> None:
+        """Radiance must be finite and >= 0 on the mirror grid; clear errors, not a hung sampler."""
+        for j, sub in enumerate(subframes):
+            a = np.asarray(sub)
+            if a.shape != self.mirror_shape:
+                raise ValueError(f"frame {frame_index}: radiance sample {j} has shape {a.shape}, the "
+                                 f"camera's mirror grid is {self.mirror_shape} (sensor {self.shape} + "
+                                 f"guard {self.guard_px} px)")
+            if not np.all(np.isfinite(a)):
+                bad = int(np.count_nonzero(~np.isfinite(a)))
+                raise ValueError(f"frame {frame_index}: radiance sample {j} has {bad} NaN/Inf pixels")
+            if a.size and float(a.min()) < 0:
+                raise ValueError(f"frame {frame_index}: radiance sample {j} is negative (min {a.min():.3g})")
+        if mask_levels is not None and np.shape(mask_levels) != self.mirror_shape:
+            raise ValueError(f"frame {frame_index}: mask has shape {np.shape(mask_levels)}, the mirror "
+                             f"grid is {self.mirror_shape}")
+
+    def nodes_rel(self, frame_index: int, k: int, times_s=None) -> np.ndarray | int:
+        """Radiance node times relative to the frame's exposure start (s), or K (uniform)."""
+        if times_s is None:
+            return k
+        rel = np.asarray(times_s, dtype=np.float64) - self.spec.exposure_window_s(frame_index)[0]
+        if rel.size != k:
+            raise ValueError(f"frame {frame_index}: {k} radiance samples but {rel.size} sample times")
+        return rel
+
+    def capture(self, subframes, mask_levels, frame_index: int, seed: int,
+                basis: tuple[str, ...] = (), times_s=None) -> Capture:
+        """Expose the sensor to K radiance samples (mirror grid) through `mask_levels` (mirror grid;
+        None: no DMD or all white without one). times_s: the samples' absolute times (the
+        scene's `subframe_times_s`); None: K uniform nodes over the exposure (`node_times_s`).
+
+        basis: when given, `subframes` are emitter-group images named by it (flickering lamps,
+        `Camera.basis_tables`) rather than time samples: their exposures are exact integrals."""
+        import drjit as dr
+        from drjit.auto import Float
+
+        self._check_inputs(subframes, mask_levels, frame_index)
+        k = len(subframes)
+        h, w = self.shape
+        n_mirrors = self.mirror_shape[0] * self.mirror_shape[1]
+        secs = {}
+        t0 = time.perf_counter()
+        subs = [Float(np.ascontiguousarray(s, dtype=np.float32).ravel()) for s in subframes]
+        if basis:
+            lit = self.dmd is not None and mask_levels is not None
+            tables = self.basis_tables(frame_index, tuple(basis), lit)
+            if lit:
+                weights = self.dmd.table_weights(mask_levels, tables)
+            else:
+                weights = [dr.full(Float, float(t[0]), n_mirrors) for t in tables]
+        elif self.dmd is not None and mask_levels is not None:
+            weights, _ = self.dmd.exposure_weights(mask_levels, self.schedule(frame_index),
+                                                   self.nodes_rel(frame_index, k, times_s))
+        else:
+            thr = throughput_on(self.spec.dmd) if self.dmd is not None else 1.0
+            dt = node_time_weights_s(self.spec.timing.exposure_s, self.nodes_rel(frame_index, k, times_s))
+            weights = [dr.full(Float, float(d * thr), n_mirrors) for d in dt]
+        plane = weights[0] * subs[0]
+        for j in range(1, k):
+            plane = dr.fma(weights[j], subs[j], plane)
+        if basis:                            # 'rest' is exposed over the whole window
+            expo = weights[list(basis).index("rest")]
+        else:
+            expo = weights[0]
+            for j in range(1, k):
+                expo = expo + weights[j]
+        if self.taps is not None:
+            plane = apply_taps(plane, self.taps)
+            expo = apply_taps(expo, self.taps)
+        _sync((plane, expo))
+        secs["dmd"] = time.perf_counter() - t0
+        t1 = time.perf_counter()
+        expo_np = np.array(expo).reshape(self.extended_shape)
+        expo_blur = None
+        if self.psf is not None:
+            blurred = convolve(np.array(plane, dtype=np.float64).reshape(self.extended_shape), self.psf)
+            plane = Float(np.ascontiguousarray(self._crop(blurred), dtype=np.float32).ravel())
+            expo_blur = self._crop(convolve(expo_np.astype(np.float64), self.psf)).astype(np.float32)
+        elif self.sensor_guard_px:
+            plane = Float(np.ascontiguousarray(self._crop(np.array(plane).reshape(self.extended_shape))).ravel())
+        secs["relay"] = time.perf_counter() - t1
+        t2 = time.perf_counter()
+        signal = plane * float(self.electrons_per_radiance())
+        dn, _ = self.sensor.capture(signal, self.spec.timing.exposure_s, seed)
+        _sync(dn)
+        secs["sensor"] = time.perf_counter() - t2
+        return Capture(np.array(dn).reshape(h, w), np.ascontiguousarray(self._crop(expo_np)),
+                       np.array(signal).reshape(h, w), secs, expo_blur)
+
+    def reconstruct(self, cap: Capture, frame_index: int):
+        """(radiance estimate, flags, signal electrons) of a capture (reconstruct.py)."""
+        from poevp_optics.camera.reconstruct import reconstruct
+
+        return reconstruct(cap.dn, cap.exposure_s, self.params, self.etendue_m2_sr, self.throughput,
+                           self.spec.timing.exposure_s, self.sensor.switches.dark_current,
+                           white_exposure_s=self.white_exposure_s(frame_index),
+                           exposure_blurred_s=cap.exposure_blurred_s,
+                           crosstalk_tolerance=self.spec.relay.crosstalk_tolerance)
+
+    def noise_free_dn(self, electrons: np.ndarray) -> np.ndarray:
+        """Sensor transfer without noise: offset + gain min(e + dark, full well), clipped; dark
+        current only when the sensor's switch has it on (as `Sensor.capture`)."""
+        p = self.params
+        dark = p.dark_current_e_per_s * self.spec.timing.exposure_s if self.sensor.switches.dark_current else 0.0
+        e = np.minimum(electrons + dark, p.full_well_e)
+        return np.clip(np.rint(p.offset_dn + p.gain_dn_per_e * e), 0, p.max_dn)

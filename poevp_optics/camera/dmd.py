@@ -1,0 +1,333 @@
+"""DMD: grayscale mask -> binary bit-plane PWM -> per-mirror time weights over the exposure.
+
+Parameter table (`[dmd]`, `[timing]`):
+
+| key                  | type  | unit | default   | sweepable | meaning |
+|----------------------|-------|------|-----------|-----------|---------|
+| bits                 | int   | bit  | 8         | yes | B bit-planes, durations t_D 2^b / (2^B - 1) |
+| bit_order            | str   | -    | lsb_first | yes | order of the planes inside the window |
+| contrast_ratio       | float | -    | 1000      | yes | off-state leakage = 1 / contrast_ratio |
+| fill_factor          | float | -    | 0.92      | yes | mirror area fraction (DLP6500 ~0.92) |
+| reflectance          | float | -    | 0.88      | yes | aluminium mirror reflectance x window transmission |
+| settle_s             | float | s    | 0         | yes | mirror transition time per switch (linear ramp) |
+| dmd_window_s         | float | s    | 1/60      | yes | t_D, display window |
+| dmd_window_offset_s  | float | s    | 0         | yes | window start from the frame start |
+| outside_window       | str   | -    | white     | yes | mirrors all on ("white") or off ("dark") outside the window |
+
+Sources: bit-plane PWM with binary-weighted durations and white fill outside t_D (paper Sec. 7,
+Fig. 7; TI DLPC900 programmer's guide, pattern sequences); mirror reset + motion ~4.5 + 8 us
+(DLP9500 data, FACTS.md); contrast ratio 1000:1-2000:1 typical (TI application notes).
+
+Model: a mirror's on-state level m(t) in [0, 1] is piecewise linear: constant within a plane,
+ramping at slope 1/settle_s toward the new state after each plane boundary (a ramp cut short by
+the next boundary continues from the level reached). The light reaching the relay is
+throughput * (m + (1 - m) / contrast_ratio). The scene radiance L(t) is known at K nodes in
+time (`node_times_s`: the exposure's ends and K - 2 equally spaced times between them; its
+midpoint for K = 1) and taken as piecewise linear between them, so a mirror at level v collects
+sum_j W_j(v) L_j with W_j(v) = int m_v(t) phi_j(t) dt, phi_j the hat function of node j. Because
+m depends on the mirror only through its grey level v, these integrals are computed exactly,
+once, for every level in closed form (float64 `on_time_table`: Simpson's rule is exact for the
+piecewise-quadratic m phi), and each mirror then looks up its level (a DrJit gather): exact for
+any schedule, bit order and window offset, and second order in 1/K for every level.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from poevp_optics.scene.spec import DMDSpec, TimingSpec
+
+
+@dataclass(frozen=True)
+class Schedule:
+    """Absolute times (s) of the exposure and display window of one frame."""
+
+    exposure_start_s: float
+    exposure_s: float
+    window_start_s: float
+    window_s: float
+    outside_on: bool
+    bits: int
+    msb_first: bool
+    settle_s: float
+
+    @classmethod
+    def for_frame(cls, dmd: DMDSpec, timing: TimingSpec, frame_start_s: float) -> "Schedule":
+        return cls(frame_start_s + timing.exposure_offset_s, timing.exposure_s,
+                   frame_start_s + timing.dmd_window_offset_s, timing.dmd_window_s,
+                   timing.outside_window == "white", dmd.bits, dmd.bit_order == "msb_first",
+                   dmd.settle_s)
+
+    def plane_intervals(self) -> list[tuple[int, float, float]]:
+        """(bit, start_s, end_s) of each bit-plane, in display order."""
+        n = (1 << self.bits) - 1
+        order = range(self.bits - 1, -1, -1) if self.msb_first else range(self.bits)
+        out, t = [], self.window_start_s
+        for b in order:
+            d = self.window_s * (1 << b) / n
+            out.append((b, t, t + d))
+            t += d
+        return out
+
+
+def _segments(levels: np.ndarray, sched: Schedule):
+    """Piecewise-linear m(t) for each grey level: arrays (V, S) of t0, t1, m0, m1."""
+    v = levels.astype(np.int64)
+    t_lo = min(sched.exposure_start_s, sched.window_start_s)
+    t_hi = max(sched.exposure_start_s + sched.exposure_s, sched.window_start_s + sched.window_s)
+    outside = 1.0 if sched.outside_on else 0.0
+    events = [(t_lo, np.full(v.shape, outside))]
+    for b, t0, _ in sched.plane_intervals():
+        events.append((t0, ((v >> b) & 1).astype(np.float64)))
+    events.append((sched.window_start_s + sched.window_s, np.full(v.shape, outside)))
+    events.append((max(t_hi, sched.window_start_s + sched.window_s), np.full(v.shape, outside)))
+    t0s, t1s, m0s, m1s = [], [], [], []
+    level = np.full(v.shape, outside)
+    for (ta, target), (tb, _) in zip(events[:-1], events[1:]):
+        span = tb - ta
+        if span <= 0:
+            continue
+        if sched.settle_s <= 0:
+            level = target.copy()
+            t0s += [np.full(v.shape, ta)]; t1s += [np.full(v.shape, tb)]
+            m0s += [level]; m1s += [level]
+            continue
+        reach = np.abs(target - level) * sched.settle_s        # time to finish the ramp
+        t_ramp_end = ta + np.minimum(reach, span)
+        step = np.sign(target - level) * (t_ramp_end - ta) / sched.settle_s
+        ramp_end_level = level + step
+        t0s += [np.full(v.shape, ta), t_ramp_end]
+        t1s += [t_ramp_end, np.full(v.shape, tb)]
+        m0s += [level, ramp_end_level]
+        m1s += [ramp_end_level, ramp_end_level]
+        level = ramp_end_level
+    return (np.stack(t0s, 1), np.stack(t1s, 1), np.stack(m0s, 1), np.stack(m1s, 1))
+
+
+def node_times_s(t0_s: float, t1_s: float, k: int, extra_s=()) -> np.ndarray:
+    """Times (s) of the radiance samples of the exposure [t0, t1]: its midpoint for K = 1, else
+    K equally spaced nodes including both ends, joined by `extra_s` (e.g. the DMD's switching
+    times, `switch_times_s`) that fall inside. Between nodes the radiance is taken as piecewise
+    linear in time (hat-function quadrature, `on_time_table`)."""
+    if k < 1:
+        raise ValueError(f"K = {k}: need at least one radiance sample per exposure")
+    if k == 1:
+        return np.array([(t0_s + t1_s) / 2])
+    t = t0_s + np.arange(k) * ((t1_s - t0_s) / (k - 1))
+    t[-1] = t1_s
+    extra = np.asarray(extra_s, dtype=np.float64)
+    if extra.size:
+        tol = 1e-9 * (t1_s - t0_s)
+        inside = extra[(extra > t0_s + tol) & (extra < t1_s - tol)]
+        t = np.sort(np.concatenate([t, inside]))
+        t = t[np.concatenate([[True], np.diff(t) > tol])]
+    return t
+
+
+def switch_times_s(sched: "Schedule") -> np.ndarray:
+    """Absolute times (s) at which mirrors may switch: the display window's edges and every
+    bit-plane boundary. A mask level's on-time is a union of intervals between them, so radiance
+    nodes there resolve even the shortest planes (a level lit only by its low bits integrates
+    L(t) over a millisecond, which K uniform nodes alone resolve only for K >> T / 1 ms)."""
+    out = [sched.window_start_s]
+    out += [b for _, _, b in sched.plane_intervals()]
+    return np.array(out)
+
+
+def _nodes_rel(sched: "Schedule", nodes) -> np.ndarray:
+    """Node times relative to the exposure start (s): an int K means K uniform nodes."""
+    if np.isscalar(nodes):
+        return node_times_s(0.0, sched.exposure_s, int(nodes))
+    rel = np.asarray(nodes, dtype=np.float64)
+    if rel.ndim != 1 or rel.size < 1 or np.any(np.diff(rel) <= 0):
+        raise ValueError("radiance nodes must be a non-empty increasing array of times")
+    if rel.size > 1 and (abs(rel[0]) > 1e-9 * sched.exposure_s
+                         or abs(rel[-1] - sched.exposure_s) > 1e-9 * sched.exposure_s):
+        raise ValueError("radiance nodes must include both ends of the exposure")
+    return rel
+
+
+def node_time_weights_s(exposure_s: float, nodes) -> np.ndarray:
+    """Integral over the exposure of each node's hat function (s): the trapezoid weights
+    (h_j-1 + h_j) / 2 (h/2 at the ends); t_I for a single node. They sum to t_I. `nodes`: an
+    int K (uniform) or node times relative to the exposure start."""
+    if np.isscalar(nodes):
+        nodes = node_times_s(0.0, exposure_s, int(nodes))
+    rel = np.asarray(nodes, dtype=np.float64)
+    if rel.size == 1:
+        return np.array([exposure_s])
+    h = np.diff(rel)
+    w = np.zeros(rel.size)
+    w[:-1] += h / 2
+    w[1:] += h / 2
+    return w
+
+
+#: Cells (levels x segments x intervals) evaluated per block, bounding the memory of the tables.
+_BLOCK_CELLS = 1 << 21
+
+
+def _interval_moments(levels: np.ndarray, sched: Schedule, edges_rel: np.ndarray):
+    """Zeroth and first moments of the mirror level m(t) over each interval [e_i, e_i+1]
+    (times relative to the exposure start, s): A_i = int m dt and B_i = int m (t - e_i) dt,
+    arrays (len(levels), len(edges) - 1), float64. m is piecewise linear, so A is exact by the
+    trapezoid rule and B (quadratic integrand) by Simpson's rule."""
+    levels = np.asarray(levels)
+    t0, t1, m0, m1 = _segments(levels, sched)
+    t0, t1 = t0 - sched.exposure_start_s, t1 - sched.exposure_start_s
+    dur = t1 - t0
+    slope = np.divide(m1 - m0, dur, out=np.zeros_like(dur), where=dur > 0)
+    n_int = len(edges_rel) - 1
+    v_all, s_all = t0.shape
+    A = np.empty((v_all, n_int))
+    B = np.empty((v_all, n_int))
+    step_i = max(1, min(n_int, _BLOCK_CELLS // max(1, v_all * s_all)))
+    step_v = max(1, min(v_all, _BLOCK_CELLS // max(1, s_all * step_i)))
+    for v0 in range(0, v_all, step_v):
+        vs = slice(v0, v0 + step_v)
+        a0, a1, am0, asl = (x[vs, :, None] for x in (t0, t1, m0, slope))
+        for i0 in range(0, n_int, step_i):
+            i1 = min(i0 + step_i, n_int)
+            lo = edges_rel[None, None, i0:i1]
+            hi = edges_rel[None, None, i0 + 1:i1 + 1]
+            c0 = np.clip(a0, lo, hi)
+            c1 = np.clip(a1, lo, hi)
+            w = c1 - c0
+            mc0 = am0 + asl * (c0 - a0)
+            mc1 = am0 + asl * (c1 - a0)
+            A[vs, i0:i1] = np.sum(w * (mc0 + mc1) * 0.5, axis=1)
+            mid = 0.5 * (c0 + c1)
+            B[vs, i0:i1] = np.sum(
+                w / 6.0 * (mc0 * (c0 - lo) + 2.0 * (mc0 + mc1) * (mid - lo) + mc1 * (c1 - lo)), axis=1)
+    return A, B
+
+
+def on_time_table(levels: np.ndarray, sched: Schedule, nodes) -> np.ndarray:
+    """Exact on-state time (s) of mirrors at each grey level weighted by each node's hat function:
+    W_j(v) = int m_v(t) phi_j(t) dt over the exposure, array (len(levels), K), float64.
+    `nodes`: an int K (uniform nodes, `node_times_s`) or node times relative to the exposure
+    start (a single node: phi = 1 over the whole exposure).
+
+    With radiance samples L_j at the nodes, the capture integral int m_v(t) L(t) dt is
+    sum_j W_j(v) L_j for the piecewise-linear interpolant of L: second order in the node spacing
+    for a smooth L(t), however the on-time of a level is placed in time (a midpoint rule on K
+    sub-intervals is only first order when a level's few short planes sit off a sub-interval's
+    centre). Every W_j >= 0 and sum_j W_j(v) is the exact total on-time.
+    """
+    rel = _nodes_rel(sched, nodes)
+    if rel.size == 1:
+        return _interval_moments(levels, sched, np.array([0.0, sched.exposure_s]))[0]
+    A, B = _interval_moments(levels, sched, rel)
+    h = np.diff(rel)[None, :]
+    out = np.zeros((A.shape[0], rel.size))
+    out[:, :-1] += A - B / h            # falling half of hat j over [t_j, t_j+1]
+    out[:, 1:] += B / h                 # rising half of hat j over [t_j-1, t_j]
+    return np.maximum(out, 0.0)         # A - B/h >= 0 exactly; drop -1e-18 rounding
+
+
+def interval_on_time_table(levels: np.ndarray, sched: Schedule, k: int) -> np.ndarray:
+    """Exact on-state time (s) of each level in each of K equal sub-intervals of the exposure,
+    (len(levels), K): the weights of the midpoint-product rule (each sub-interval's on-time times
+    the radiance at its centre), first order in 1/K. Kept for comparisons (benchmarks)."""
+    edges = sched.exposure_s * np.arange(k + 1) / k
+    edges[-1] = sched.exposure_s
+    return _interval_moments(levels, sched, edges)[0]
+
+
+def throughput_on(dmd: DMDSpec) -> float:
+    """Fraction of incident light an on-state mirror sends to the relay: fill x reflectance."""
+    return dmd.fill_factor * dmd.reflectance
+
+
+def transmission_table(levels: np.ndarray, dmd: DMDSpec, sched: Schedule, nodes) -> np.ndarray:
+    """Effective exposure time (s) per level and radiance node, with throughput and leakage:
+    throughput * (W_j + (w_j - W_j) / contrast_ratio), W from `on_time_table`, w_j the node's
+    time weight. `nodes` as in `on_time_table`. Array (len(levels), K), float64."""
+    t_on = on_time_table(levels, sched, nodes)
+    dt = node_time_weights_s(sched.exposure_s, _nodes_rel(sched, nodes))[None, :]
+    return throughput_on(dmd) * (t_on + (dt - t_on) / dmd.contrast_ratio)
+
+
+def interval_transmission(levels: np.ndarray, dmd: DMDSpec, sched: Schedule, a: float, b: float) -> np.ndarray:
+    """Effective exposure time (s) of each level over an arbitrary interval [a, b] (exact)."""
+    edges = np.array([a, b], dtype=np.float64) - sched.exposure_start_s
+    on = _interval_moments(np.asarray(levels), sched, edges)[0][:, 0]
+    return throughput_on(dmd) * (on + ((b - a) - on) / dmd.contrast_ratio)
+
+
+def attenuation_floor(dmd: DMDSpec, sched: Schedule) -> dict:
+    """Lowest achievable exposure relative to an all-white mask, and what sets it."""
+    full = (1 << sched.bits) - 1
+    table = transmission_table(np.array([0, 1, full]), dmd, sched, 1)[:, 0]
+    zero, one, white = table
+    t_on_zero = on_time_table(np.array([0]), sched, 1)[0, 0]
+    return {"floor": float(zero / white), "floor_db": float(-20 * np.log10(max(zero / white, 1e-300))),
+            "smallest_step": float((one - zero) / white),
+            "white_fill_fraction": float(t_on_zero / sched.exposure_s),
+            "leakage_fraction": float(1 / dmd.contrast_ratio)}
+
+
+class DMD:
+    """Per-mirror effective exposure of a mask (DrJit gather from the exact level table)."""
+
+    #: Full per-level tables are used up to this many entries (levels x K), else only the
+    #: levels present in the mask are tabulated.
+    FULL_TABLE_MAX = 1 << 22
+
+    def __init__(self, dmd: DMDSpec):
+        self.spec = dmd
+        self.levels = (1 << dmd.bits) - 1
+        self._cache = {}
+
+    def _full_table(self, sched: Schedule, rel: np.ndarray):
+        """Float32 DrJit table of all levels x K, cached: it depends only on the schedule and the
+        nodes relative to the frame start, which are the same for every frame."""
+        from drjit.auto import Float
+
+        key = (round(sched.exposure_start_s - sched.window_start_s, 15), sched.exposure_s,
+               sched.window_s, sched.outside_on, sched.bits, sched.msb_first, sched.settle_s,
+               tuple(np.round(rel / sched.exposure_s, 12)))
+        if key not in self._cache:
+            table = transmission_table(np.arange(self.levels + 1), self.spec, sched, rel)
+            self._cache = {key: (Float(table.T.astype(np.float32).ravel()), table)}
+        return self._cache[key]
+
+    def _level_index(self, mask_levels: np.ndarray) -> np.ndarray:
+        """Mask levels as uint32 indices (flattened); out-of-range or non-finite is an error."""
+        m = np.asarray(mask_levels)
+        if m.size and (m.min() < 0 or m.max() > self.levels or not np.all(np.isfinite(m))):
+            raise ValueError(f"mask levels must lie in [0, {self.levels}], got "
+                             f"[{m.min()}, {m.max()}]")
+        return np.rint(m).astype(np.uint32).ravel()
+
+    def table_weights(self, mask_levels: np.ndarray, tables: list[np.ndarray]):
+        """Per-mirror weights from arbitrary per-level tables (each (levels + 1,), seconds):
+        list of DrJit Floats, one per table (emitter-group bases of flickering lamps)."""
+        import drjit as dr
+        from drjit.auto import Float, UInt32
+
+        idx = UInt32(self._level_index(mask_levels))
+        return [dr.gather(Float, Float(np.asarray(t, np.float32)), idx) for t in tables]
+
+    def exposure_weights(self, mask_levels: np.ndarray, sched: Schedule, nodes):
+        """Effective exposure (s) of each mirror for each radiance node (`on_time_table`): list of
+        K DrJit Float arrays (flattened mirror grid), plus the per-level table used (float64)."""
+        import drjit as dr
+        from drjit.auto import Float, UInt32
+
+        mi = self._level_index(mask_levels)
+        rel = _nodes_rel(sched, nodes)
+        k = rel.size
+        if (self.levels + 1) * k <= self.FULL_TABLE_MAX:
+            flat, table = self._full_table(sched, rel)
+            idx = UInt32(mi)
+            u = self.levels + 1
+            return [dr.gather(Float, flat, idx + j * u) for j in range(k)], table
+        uniq, inverse = np.unique(mi, return_inverse=True)
+        table = transmission_table(uniq, self.spec, sched, rel)        # (U, K)
+        idx = UInt32(inverse.astype(np.uint32))
+        flat = Float(table.T.astype(np.float32).ravel())               # K blocks of U
+        u = len(uniq)
+        return [dr.gather(Float, flat, idx + j * u) for j in range(k)], table

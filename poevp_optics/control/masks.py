@@ -1,0 +1,144 @@
+"""Mask laws by name: predicted frame -> grayscale DMD mask levels in [0, 2^B - 1].
+
+| law              | formula (x: predicted 8-bit value, 0-255)                      | reference |
+|------------------|----------------------------------------------------------------|-----------|
+| threshold_exp    | M = 255 if x < Vs, else 255 a^((x - b Vs) / (255 - x))          | paper Eq. 2, reading 1 |
+| threshold_ratio  | M = 255 if x < Vs, else 255 (a Vs / x + b)                      | paper Eq. 2, reading 2 |
+| target           | the largest level whose exposure brings the predicted signal to `target` x full well | ours |
+| white            | M = 255 everywhere (the LDR twin)                               | - |
+
+The paper's Eq. 2 is garbled in our copy (its second branch's symbols read, in order,
+"255 a x b Vs 255 x"). Two readings fit its settings (Vs = 200; (a, b) = (0.9, 0) in
+simulation, (0.7, 0.2) in hardware): the exponential one matches the symbol order and tends to
+0 as x -> 255; the ratio one is the plain physical law (dim by Vs/x) and has a + b = 0.9 in both
+settings. Both are shipped; at x = 255 the exponential law is taken at its limit (0 for a < 1).
+Outputs are finite and clipped to [0, 255] everywhere, then scaled to the DMD's 2^B - 1 levels.
+`min_level` (default 0) bars the lowest levels: level 0 passes only the off-state leakage, whose
+value depends on f-number, wavelength and angle (FACTS.md) and so is poorly calibrated for
+reconstruction; with min_level = 1 the deepest attenuation is the smallest PWM step, 1/(2^B - 1).
+
+A clipped predicted pixel (>= 254.5 on the 8-bit scale) says only "at least saturated". The
+`target` law then assumes it is `clipped_gain` times the saturation level (default 32, about the
+paper's strongest over-exposure E = 29-49); the paper's laws act on the clipped value as is.
+
+Masks are computed from a band-limited picture of the frame (DESIGN.md, FACTS.md): an exact
+per-pixel mask flattens the capture to a constant and destroys the characters' contrast. Before
+any law, the predicted frame is replaced by its smooth upper envelope: a grey dilation of radius
+R = ceil(3 smooth_px) (square window) followed by a Gaussian blur of sigma smooth_px truncated at the same R.
+Every tap of the blur kernel around a pixel then lies inside that pixel's dilated neighbourhood,
+so the envelope is >= the frame everywhere: the mask is smooth and never under-attenuates.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from poevp_optics.scene.spec import MaskSpec
+
+
+def smooth_envelope(frame: np.ndarray, smooth_px: float) -> np.ndarray:
+    """Smooth upper envelope (>= frame): dilation of radius ceil(3 sigma), then a Gaussian of
+    sigma = smooth_px truncated at that radius (see module docstring)."""
+    import cv2
+
+    if smooth_px <= 0:
+        return np.asarray(frame, dtype=np.float32)
+    f = np.asarray(frame, dtype=np.float32)        # float32: 2x faster in OpenCV, 1e-7 relative
+    r = int(np.ceil(3 * smooth_px))
+    size = 2 * r + 1
+    square = np.ones((size, size), np.uint8)        # covers the square blur window exactly
+    dil = cv2.dilate(f, square, borderType=cv2.BORDER_REPLICATE)
+    env = cv2.GaussianBlur(dil, (size, size), sigmaX=smooth_px, borderType=cv2.BORDER_REPLICATE)
+    # float32 kernel weights sum to 1 within a few ulp: lift by 1e-6 to keep env >= frame
+    return env * np.float32(1 + 1e-6)
+
+
+def _as_8bit(x) -> np.ndarray:
+    """Predicted values on the 8-bit scale, NaN taken as clipped (255: the safe side for a
+    highlight), clipped to [0, 255]."""
+    return np.clip(np.nan_to_num(np.asarray(x, dtype=np.float64), nan=255.0), 0.0, 255.0)
+
+
+def threshold_exp(x: np.ndarray, vs: float, a: float, b: float) -> np.ndarray:
+    """Paper Eq. 2, exponential reading: 255 a^((x - b Vs) / (255 - x)) above Vs."""
+    x = _as_8bit(x)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        expo = (x - b * vs) / np.maximum(255.0 - x, 0.0)
+        expo = np.where(255.0 - x > 0, expo, np.inf)
+        if a >= 1.0:
+            att = np.ones_like(x)
+        elif a <= 0.0:
+            att = np.where(expo > 0, 0.0, 1.0)
+        else:
+            att = np.exp(np.minimum(expo, 1e6) * np.log(a))   # a^inf -> 0, finite everywhere
+    m = np.where(x < vs, 255.0, 255.0 * np.clip(att, 0.0, 1.0))
+    return np.clip(m, 0.0, 255.0)
+
+
+def threshold_ratio(x: np.ndarray, vs: float, a: float, b: float) -> np.ndarray:
+    """Paper Eq. 2, ratio reading: 255 (a Vs / x + b) above Vs."""
+    x = _as_8bit(x)
+    m = np.where(x < vs, 255.0, 255.0 * (a * vs / np.maximum(x, 1e-12) + b))
+    return np.clip(m, 0.0, 255.0)
+
+
+def target_levels(pred_electrons: np.ndarray, full_well_e: float, target: float,
+                  level_exposure: np.ndarray, min_level: int = 0) -> np.ndarray:
+    """Largest-exposure level keeping predicted electrons <= target x full well.
+
+    pred_electrons: electrons the pixel would collect with the all-white mask.
+    level_exposure: effective exposure of each level (any unit; index = level), e.g. from
+    `dmd.transmission_table(...).sum(1)`. Works for non-monotone tables (partial window overlap).
+    Where even the darkest level is too bright, that darkest level is used. Levels below
+    `min_level` are never used. A prediction of 0 or below (-0.0 included) needs no dimming
+    (white); NaN is taken as infinitely bright (the darkest usable level).
+    """
+    e = np.asarray(pred_electrons, dtype=np.float32)
+    e = np.maximum(np.nan_to_num(e, nan=np.inf), np.float32(0.0)) + np.float32(0.0)   # -0.0 -> +0.0
+    white = float(level_exposure[-1])
+    rel = np.asarray(level_exposure, dtype=np.float64) / white   # exposure relative to white
+    order = min_level + np.argsort(rel[min_level:], kind="stable")
+    # compare in "electrons the pixel would get": e x rel <= target x FW, i.e. rel <= need
+    with np.errstate(divide="ignore"):
+        need = np.float32(target * full_well_e) / e               # inf where e == 0
+    # torch.bucketize(right=True) is numpy's searchsorted(side="right"), ~2x faster on 2 cores
+    import torch
+
+    pos = torch.bucketize(torch.from_numpy(np.ascontiguousarray(need)),
+                          torch.from_numpy(rel[order].astype(np.float32)), right=True).numpy() - 1
+    np.clip(pos, 0, len(order) - 1, out=pos)
+    return order[pos].astype(np.float64)
+
+
+def predicted_electrons(pred_8bit: np.ndarray, params, clipped_gain: float) -> np.ndarray:
+    """Photo-electrons implied by a predicted frame on the 8-bit scale (values above 255 allowed,
+    as in the demodulated loop): the sensor transfer inverted, e = (x max_dn / 255 - offset_dn)
+    / gain_dn_per_e, >= 0 (so the black level reads 0 e-); clipped values (254.5 ... 255.5) are
+    taken as clipped_gain x the saturation capacity. `params`: sensor.SensorParams."""
+    x = np.asarray(pred_8bit, dtype=np.float64)
+    dn = x * (params.max_dn / 255.0)
+    e = np.maximum(dn - params.offset_dn, 0.0) / params.gain_dn_per_e
+    clipped = (x >= 254.5) & (x <= 255.5)
+    return np.where(clipped, clipped_gain * params.saturation_capacity_e, e)
+
+
+def mask_levels(spec: MaskSpec, bits: int, *, pred_8bit: np.ndarray | None = None,
+                pred_electrons: np.ndarray | None = None, full_well_e: float | None = None,
+                level_exposure: np.ndarray | None = None) -> np.ndarray:
+    """Apply the scene's mask law; returns integer-valued float64 levels in [0, 2^bits - 1]."""
+    top = (1 << bits) - 1
+    if spec.law == "white":
+        shape = (pred_8bit if pred_8bit is not None else pred_electrons).shape
+        return np.full(shape, float(top))
+    if spec.law == "target":
+        if pred_electrons is None or level_exposure is None or full_well_e is None:
+            raise ValueError("mask law 'target' needs predicted electrons and the level table")
+        e = np.nan_to_num(np.asarray(pred_electrons, dtype=np.float64), nan=1e30, posinf=1e30)
+        env = smooth_envelope(e, spec.smooth_px)
+        return target_levels(env, full_well_e, spec.target, level_exposure, min(spec.min_level, top))
+    if pred_8bit is None:
+        raise ValueError(f"mask law {spec.law!r} needs a predicted 8-bit frame")
+    env = smooth_envelope(_as_8bit(pred_8bit), spec.smooth_px)
+    law = {"threshold_exp": threshold_exp, "threshold_ratio": threshold_ratio}[spec.law]
+    m255 = law(env, spec.vs, spec.a, spec.b)
+    return np.clip(np.rint(m255 * top / 255.0), min(spec.min_level, top), top)

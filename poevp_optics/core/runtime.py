@@ -1,0 +1,162 @@
+"""The one place that sets process-wide state: Mitsuba variant, DrJit and torch threads, the
+SIGTERM handler.
+
+STYLE.md 12: nothing else calls `mi.set_variant`, `dr.set_thread_count`,
+`torch.set_num_threads` or `signal.signal`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import re
+import warnings
+from pathlib import Path
+
+_LLVM_CANDIDATES = ("/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1", "/usr/lib/x86_64-linux-gnu/libLLVM-19.so",
+                    "/usr/lib/aarch64-linux-gnu/libLLVM.so.19.1")
+
+
+def _prefer_llvm19() -> None:
+    """Point DrJit at Debian's libLLVM 19 when present and nothing else was chosen: DrJit 1.5
+    emits llvm.minimum/maximum, which libLLVM 14/15 cannot select (FACTS.md)."""
+    if "DRJIT_LIBLLVM_PATH" in os.environ:
+        return
+    for cand in _LLVM_CANDIDATES:
+        if Path(cand).exists():
+            os.environ["DRJIT_LIBLLVM_PATH"] = cand
+            return
+
+
+_prefer_llvm19()
+
+
+class Terminated(BaseException):
+    """SIGTERM, raised in the main thread like KeyboardInterrupt (a BaseException, so no
+    `except Exception` on the way swallows it and every `finally` and staging cleanup runs)."""
+
+
+def _raise_terminated(signum, frame):
+    raise Terminated()
+
+
+@contextlib.contextmanager
+def sigterm_raises():
+    """Within the block, SIGTERM raises `Terminated` (handled like Ctrl-C: message, cleanup,
+    exit 143). Outside the main thread signals cannot be handled: the block runs as is."""
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = signal.signal(signal.SIGTERM, _raise_terminated)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, old)
+
+
+@contextlib.contextmanager
+def signals_deferred():
+    """Hold SIGTERM and SIGINT back for the block (an output folder being swapped into place)
+    and deliver them after it; only the main thread can do this, elsewhere the block just runs."""
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    held = {signal.SIGTERM, signal.SIGINT}
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, held)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+
+def set_threads(n: int | None) -> None:
+    """Thread count for DrJit's LLVM backend, torch and OpenCV (None: leave the defaults)."""
+    if n is None:
+        return
+    if isinstance(n, bool) or not isinstance(n, int) or n < 1:
+        raise ValueError(f"thread count must be an integer >= 1, got {n!r}")
+    import drjit as dr
+
+    dr.set_thread_count(int(n))
+    try:
+        import torch
+
+        torch.set_num_threads(int(n))
+    except ImportError:
+        pass
+    try:
+        import cv2
+
+        cv2.setNumThreads(int(n))
+    except ImportError:
+        pass
+
+
+def backend_available(name: str) -> bool:
+    """Whether DrJit's 'cuda' or 'llvm' backend initialises on this machine."""
+    import drjit as dr
+
+    backend = {"cuda": dr.JitBackend.CUDA, "llvm": dr.JitBackend.LLVM}[name]
+    try:
+        return bool(dr.has_backend(backend))
+    except Exception:  # noqa: BLE001 - a broken driver/LLVM just means "not available"
+        return False
+
+
+def choose_variant(mode: str, requested: str = "auto") -> tuple[str, str]:
+    """Pick a Mitsuba variant for `mode` ('spectral' or 'mono'): cuda > llvm > scalar.
+
+    Returns (variant, reason). `requested` other than 'auto' is used as given (checked).
+    """
+    import mitsuba as mi
+
+    if requested != "auto":
+        if requested not in mi.variants():
+            raise ValueError(f"render.variant: {requested!r} is not a Mitsuba variant here "
+                             f"(have {', '.join(mi.variants())})")
+        return requested, "requested in the scene file"
+    suffix = "spectral" if mode == "spectral" else "mono"
+    if backend_available("cuda") and f"cuda_ad_{suffix}" in mi.variants():
+        return f"cuda_ad_{suffix}", "CUDA GPU available"
+    if backend_available("llvm") and f"llvm_ad_{suffix}" in mi.variants():
+        return f"llvm_ad_{suffix}", "no CUDA GPU; LLVM backend available"
+    warnings.warn("poevp: neither CUDA nor LLVM backend works; falling back to scalar_spectral "
+                  "(about 10x slower). Install Debian's libllvm19.", RuntimeWarning, stacklevel=2)
+    return "scalar_spectral", "no CUDA or LLVM backend: scalar fallback"
+
+
+def set_variant(variant: str) -> None:
+    """Activate a Mitsuba variant (the only call site of mi.set_variant) and register our Python
+    plugins with it (materials/: retroreflective sheeting, photometric lamps)."""
+    import mitsuba as mi
+
+    from poevp_optics.render.materials import register_plugins
+
+    if mi.variant() != variant:
+        mi.set_variant(variant)
+        mi.set_log_level(mi.LogLevel.Error)  # Mitsuba's warnings are not ours to print
+    register_plugins()
+
+
+def register_asset_dir(path) -> None:
+    """Let Mitsuba XML name files relative to `assets/` (e.g. plates/plate_F9H28.png)."""
+    import mitsuba as mi
+
+    fr = mi.Thread.thread().file_resolver()
+    if str(path) not in [str(p) for p in fr]:
+        fr.append(str(path))
+
+
+def libllvm_in_use() -> str | None:
+    """Path of the libLLVM shared library DrJit loaded (read from /proc/self/maps), if any."""
+    try:
+        maps = Path("/proc/self/maps").read_text()
+    except OSError:
+        return os.environ.get("DRJIT_LIBLLVM_PATH")
+    hits = sorted(set(re.findall(r"(/\S*libLLVM[^\s/]*\.so[^\s/]*)", maps)))
+    return hits[0] if hits else None

@@ -1,0 +1,363 @@
+"""Mitsuba 3 rendering of a scene to absolute sensor-weighted photon radiance.
+
+One render gives, per pixel, the integral over wavelength of the sensor's photon response
+S(lambda) = QE(lambda) lambda / (h c) times the scene's spectral radiance: photo-electrons
+s-1 m-2 sr-1 (`units.PHOTON_RADIANCE_UNIT`). Two paths (the report says which ran and why):
+
+* spectral: `specfilm` with S(lambda) as its one channel; emitters and reflectances carry
+  their tabulated spectra; Mitsuba samples wavelengths (FACTS.md: unnormalised integral).
+* mono (pre-integrated): each emitter becomes the scalar integral of S times its SPD and each
+  reflectance its S-and-SPD-weighted mean. Exact, with no wavelength noise, when every
+  reflectance is spectrally flat, or when all emitters share one SPD shape and light bounces
+  once (max_depth <= 2): then the per-path integral factorises.
+
+The XML is loaded once; moving shapes and emitters are displaced per time sample through
+`mi.traverse` + `params.update()`. A pixel is the box-filtered area average of radiance.
+Monte Carlo error: the samples of each sub-frame are split into `mc_splits` renders with
+independent seeds; their spread gives the per-pixel standard error (the `moment` integrator
+fails with specfilm, FACTS.md).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from poevp_optics.core import runtime
+from poevp_optics.sources import spectra
+from poevp_optics.scene.spec import SceneError, SceneSpec
+from poevp_optics.camera.sensor import resolve_sensor
+
+_EMISSIVE_KINDS = ("intensity", "radiance", "irradiance")
+
+
+@dataclass(frozen=True)
+class SpectralPlan:
+    """How the scene's spectra enter Mitsuba: mode, why, and the XML parameter values."""
+
+    mode: str                        # "spectral" | "mono"
+    reason: str
+    xml_params: dict[str, str]
+    response_e_per_J: np.ndarray     # S(lambda) on spectra.WAVELENGTHS_NM
+    notes: tuple[str, ...] = ()      # e.g. emission tables that end inside the sensor's response
+
+
+@dataclass(frozen=True)
+class XmlFacts:
+    """What the planner needs to know from the Mitsuba XML."""
+
+    defaults: frozenset[str]
+    max_depth: int                   # -1: unbounded
+    emitter_params: frozenset[str]   # $params used inside <emitter> spectra
+    problems: tuple[str, ...]        # literal spectra on emitters, <rgb> elements
+
+
+def read_xml_facts(xml_path: Path) -> XmlFacts:
+    """Scan the Mitsuba XML for declared parameters, integrator depth and spectra usage."""
+    try:
+        root = ET.parse(xml_path).getroot()
+    except ET.ParseError as e:
+        raise SceneError(f"{xml_path}: malformed XML: {e}") from None
+    defaults = frozenset(d.get("name") for d in root.iter("default"))
+    max_depth = -1
+    for integ in root.iter("integrator"):
+        for node in integ.iter("integer"):
+            if node.get("name") == "max_depth":
+                max_depth = int(node.get("value"))
+    emitter_params, problems = set(), []
+    for em in root.iter("emitter"):
+        for sp in em.iter("spectrum"):
+            v = (sp.get("value") or "").strip()
+            if v.startswith("$"):
+                emitter_params.add(v[1:])
+            else:
+                problems.append(f"emitter {em.get('id') or em.get('type')!r} has a literal spectrum "
+                                f"{v[:30]!r}: bind it to a [spectra] parameter so it has absolute units")
+    for rgb in root.iter("rgb"):
+        problems.append(f"<rgb name={rgb.get('name')!r}> found: use a [spectra] parameter "
+                        "(RGB upsampling is not a measured spectrum)")
+    return XmlFacts(defaults, max_depth, frozenset(emitter_params), tuple(problems))
+
+
+def absolute_spectrum(spec_entry) -> np.ndarray:
+    """A [spectra] entry as absolute values on the grid (W sr-1 nm-1 etc., or reflectance)."""
+    if spec_entry.kind == "reflectance":
+        return spectra.load_spectrum(spec_entry.source, emissive=False) * spec_entry.scale
+    shape = spectra.load_spectrum(spec_entry.source, emissive=True)
+    value = {"intensity": spec_entry.intensity_cd, "radiance": spec_entry.luminance_cd_per_m2,
+             "irradiance": spec_entry.illuminance_lux}[spec_entry.kind]
+    return spectra.scale_to_photometric(shape, value)
+
+
+def plan_spectra(spec: SceneSpec, force_mode: str | None = None) -> SpectralPlan:
+    """Check the [spectra] bindings against the XML and choose the spectral or mono path.
+
+    force_mode: "spectral" overrides the scene's choice (used when no mono variant exists).
+    """
+    facts = read_xml_facts(spec.xml_path)
+    file = spec.toml_path
+    if facts.problems:
+        raise SceneError(f"{spec.xml_path}: {facts.problems[0]}")
+    for name, entry in spec.spectra.items():
+        if name not in facts.defaults:
+            raise SceneError(f"{file}: spectra.{name}: the XML {spec.xml_path.name} declares no "
+                             f"<default name=\"{name}\"> parameter to bind")
+        if name in facts.emitter_params and entry.kind not in _EMISSIVE_KINDS:
+            raise SceneError(f"{file}: spectra.{name}.kind: used by an emitter, must be one of "
+                             f"{_EMISSIVE_KINDS}")
+    for name in facts.emitter_params:
+        if name not in spec.spectra:
+            raise SceneError(f"{file}: spectra.{name}: emitter parameter ${name} of "
+                             f"{spec.xml_path.name} has no [spectra.{name}] entry (absolute units)")
+
+    sensor = resolve_sensor(spec.sensor)
+    response = spectra.sensor_response_e_per_J(spectra.load_spectrum(sensor.qe, emissive=True))
+    values = {n: absolute_spectrum(e) for n, e in spec.spectra.items()}
+    emissive = [n for n, e in spec.spectra.items() if e.kind in _EMISSIVE_KINDS]
+    reflect = [n for n, e in spec.spectra.items() if e.kind == "reflectance"]
+    # a lamp switched off (0 cd) adds no light: its SPD shape does not matter to the plan
+    shapes = [spectra.normalised_shape(values[n]) for n in emissive
+              if spectra.integrate(response * values[n]) > 0]
+    one_shape = all(np.allclose(s, shapes[0], rtol=1e-6, atol=1e-12) for s in shapes[1:]) if shapes else True
+    flat = all(spectra.is_neutral(values[n]) for n in reflect)
+    direct_only = facts.max_depth in (1, 2)
+
+    if flat:
+        eligible, why = True, "every reflectance is spectrally flat: the wavelength integral factorises"
+    elif one_shape and direct_only:
+        eligible, why = True, ("all emitters share one SPD shape and light bounces once "
+                               f"(max_depth={facts.max_depth}): the wavelength integral factorises")
+    else:
+        eligible = False
+        why = ("emitters have different SPD shapes" if not one_shape else
+               f"multiple bounces (max_depth={facts.max_depth}) over non-flat reflectances")
+    mode = force_mode or spec.render.spectral_mode
+    if mode == "mono" and not eligible:
+        raise SceneError(f"{file}: render.spectral_mode: 'mono' would not be exact here ({why})")
+    if mode == "auto":
+        mode = "mono" if eligible else "spectral"
+        reason = (f"auto: pre-integrated mono render is exact ({why})" if eligible
+                  else f"auto: spectral render needed ({why})")
+    elif force_mode:
+        reason = f"spectral: no mono Mitsuba variant on this machine ({why})"
+    else:
+        reason = f"requested in the scene file ({why})"
+
+    params = {}
+    if mode == "spectral":
+        for n, v in values.items():
+            params[n] = spectra.to_mitsuba(v)
+    else:
+        weight = shapes[0] if shapes else np.ones_like(response)
+        norm = spectra.integrate(response * weight)
+        for n in emissive:
+            params[n] = f"{spectra.integrate(response * values[n]):.9g}"
+        for n in reflect:
+            r = values[n]
+            eff = (float(np.mean(r)) if spectra.is_neutral(r) or not norm > 0
+                   else spectra.integrate(response * weight * r) / norm)
+            params[n] = f"{eff:.9g}"
+    from poevp_optics.render.materials.bindings import plugin_xml_params  # photometric lamps, retroreflective sheeting
+
+    params.update(plugin_xml_params(spec, facts.defaults))
+    if spec.plate.text:
+        if spec.plate.param not in facts.defaults:
+            raise SceneError(f"{file}: plate.param: the XML {spec.xml_path.name} declares no "
+                             f"<default name=\"{spec.plate.param}\"> for the plate texture")
+        from poevp_optics.sources.plates import cached_plate_path
+
+        params[spec.plate.param] = str(cached_plate_path(spec.plate.text, spec.plate.width_px,
+                                                         spec.plate.height_px))
+    notes = tuple(n for n in (spectra.coverage_note(name, spec.spectra[name].source, response)
+                              for name in emissive) if n)
+    return SpectralPlan(mode, reason, params, response, notes)
+
+
+@dataclass
+class RenderStats:
+    """Counters for the report: number of mi.render calls and their wall time (s)."""
+
+    calls: int = 0
+    seconds: float = 0.0
+    samples_per_pixel: int = 0
+    variant: str = ""
+    extra: dict = field(default_factory=dict)
+
+
+class Renderer:
+    """A loaded Mitsuba scene that can be posed at a time and rendered (stateful: the scene)."""
+
+    def __init__(self, spec: SceneSpec, zero_params: frozenset[str] = frozenset(), guard_px: int = 0):
+        """zero_params: emitter parameters set to zero in this instance (one emitter group's
+        image for flickering lamps, loop.render_exposures). guard_px: pixels rendered beyond
+        each edge of `render.resolution` at the same focal length (the camera's guard band for
+        its PSFs, camera.Camera.guard_px); images are (H + 2 guard, W + 2 guard)."""
+        import mitsuba as mi
+
+        self.spec = spec
+        self.guard_px = int(guard_px)
+        self.plan = plan_spectra(spec)
+        variant, why = runtime.choose_variant(self.plan.mode, spec.render.variant)
+        if self.plan.mode == "mono" and "mono" not in variant:
+            # no scalar mono variant: fall back to the spectral path, which is always exact
+            self.plan = plan_spectra(spec, force_mode="spectral")
+            variant, why = runtime.choose_variant("spectral", spec.render.variant)
+        if zero_params:
+            zero = "0" if self.plan.mode == "mono" else spectra.to_mitsuba(np.zeros_like(self.plan.response_e_per_J))
+            self.plan = SpectralPlan(self.plan.mode, self.plan.reason,
+                                     {**self.plan.xml_params, **{n: zero for n in zero_params}},
+                                     self.plan.response_e_per_J, self.plan.notes)
+        runtime.set_variant(variant)
+        runtime.register_asset_dir(spectra.ASSETS_DIR)
+        self.variant, self.variant_reason = variant, why
+        self.mi = mi
+        try:
+            self.scene = mi.load_file(str(spec.xml_path), **self.plan.xml_params)
+        except Exception as e:  # noqa: BLE001 - Mitsuba raises RuntimeError with a long trace
+            msg = str(e).strip().splitlines()[-1] if str(e).strip() else type(e).__name__
+            raise SceneError(f"{spec.xml_path}: Mitsuba could not load the scene: {msg}") from None
+        self.params = mi.traverse(self.scene)
+        # Moving objects: analytic shapes and emitters expose `to_world`; meshes bake their
+        # transform into `vertex_positions`, which we translate directly (motion is a translation).
+        self._base, self._base_vertices = {}, {}
+        for ident, motion in spec.motion.items():
+            for target in (ident, *motion.attached):
+                if f"{target}.to_world" in self.params:
+                    self._base[target] = mi.Transform4f(self.params[f"{target}.to_world"])
+                elif f"{target}.vertex_positions" in self.params:
+                    self._base_vertices[target] = np.array(self.params[f"{target}.vertex_positions"]).copy()
+                else:
+                    hint = ""
+                    if any(k.startswith("object_") for k in self.params.keys()):
+                        hint = (" (Mitsuba 3.7+ merges meshes whose BSDFs are identical into one "
+                                "anonymous shape: give a moving mesh a material of its own)")
+                    raise SceneError(f"{spec.toml_path}: motion.{ident}: no shape or emitter with "
+                                     f"id {target!r} in {spec.xml_path.name}{hint}")
+        self.sensor = self._make_sensor()
+        self._roi_shape = None
+        if spec.render.roi_shape:
+            found = [s for s in self.scene.shapes() if s.id() == spec.render.roi_shape]
+            if not found:
+                raise SceneError(f"{spec.toml_path}: render.roi_shape: no shape with id "
+                                 f"{spec.render.roi_shape!r} in {spec.xml_path.name}")
+            self._roi_shape = found[0]
+        self.stats = RenderStats(variant=variant)
+        self._time = None
+
+    def _make_sensor(self):
+        mi = self.mi
+        cams = self.scene.sensors()
+        if not cams:
+            raise SceneError(f"{self.spec.xml_path}: the XML has no <sensor> (camera pose and fov)")
+        cam_id = cams[0].id()
+        p = self.params
+
+        def get(name, default=None):
+            key = f"{cam_id}.{name}"
+            if key not in p:
+                return default
+            v = p[key]
+            return float(v[0]) if hasattr(v, "__len__") else float(v)
+
+        if get("x_fov") is None:
+            raise SceneError(f"{self.spec.xml_path}: sensor {cam_id!r} must be a perspective camera")
+        to_world = mi.ScalarTransform4f(np.array(p[f"{cam_id}.to_world"].matrix).reshape(4, 4))
+        h0, w0 = self.spec.render.resolution
+        g = self.guard_px
+        h, w = h0 + 2 * g, w0 + 2 * g
+        # same focal length over a wider film: tan(fov / 2) grows with the film width
+        fov_deg = math.degrees(2 * math.atan(math.tan(math.radians(get("x_fov")) / 2) * w / w0))
+        if self.plan.mode == "spectral":
+            film = {"type": "specfilm", "width": w, "height": h, "component_format": "float32",
+                    "rfilter": {"type": "box"},
+                    "S": {"type": "irregular",
+                          "wavelengths": ", ".join(f"{x:g}" for x in spectra.WAVELENGTHS_NM),
+                          "values": ", ".join(f"{x:.7g}" for x in self.plan.response_e_per_J)}}
+        else:
+            film = {"type": "hdrfilm", "width": w, "height": h, "pixel_format": "luminance",
+                    "component_format": "float32", "rfilter": {"type": "box"}}
+        return mi.load_dict({
+            "type": "perspective", "fov": fov_deg, "fov_axis": "x", "to_world": to_world,
+            "near_clip": get("near_clip", 0.01), "far_clip": get("far_clip", 1e4),
+            # offsets are in units of the film size: keep them fixed in pixels
+            "principal_point_offset_x": get("principal_point_offset_x", 0.0) * w0 / w,
+            "principal_point_offset_y": get("principal_point_offset_y", 0.0) * h0 / h,
+            "film": film, "sampler": {"type": "independent", "sample_count": 1}})
+
+    # ------------------------------------------------------------------ posing
+    def set_time(self, t_s: float) -> None:
+        """Displace every moving object to its pose at time `t_s` (s)."""
+        if not (self._base or self._base_vertices) or self._time == t_s:
+            return
+        mi = self.mi
+        for ident, motion in self.spec.motion.items():
+            off = motion.offset_m(t_s)
+            tr = mi.Transform4f().translate(mi.Vector3f(*map(float, off)))
+            for target in (ident, *motion.attached):
+                if target in self._base:
+                    self.params[f"{target}.to_world"] = tr @ self._base[target]
+                else:
+                    verts = self._base_vertices[target].reshape(-1, 3) + off[None, :]
+                    self.params[f"{target}.vertex_positions"] = mi.Float(verts.astype(np.float32).ravel())
+        self.params.update()
+        self._time = t_s
+
+    def roi_box(self) -> tuple[int, int, int, int] | None:
+        """Image box (y0, x0, y1, x1), end-exclusive, of the ROI shape at the current pose, in
+        the rendered grid (guard band included)."""
+        if self._roi_shape is None:
+            return None
+        mi, dr = self.mi, __import__("drjit")
+        bb = self._roi_shape.bbox()
+        lo, hi = np.array(bb.min).ravel(), np.array(bb.max).ravel()
+        corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+        it = dr.zeros(mi.Interaction3f, len(corners))
+        it.p = mi.Point3f(corners[:, 0], corners[:, 1], corners[:, 2])
+        ds, _ = self.sensor.sample_direction(it, mi.Point2f(0.5, 0.5))
+        uv = np.array(ds.uv).reshape(2, -1) if np.array(ds.uv).shape[0] == 2 else np.array(ds.uv).T
+        visible = np.array(ds.pdf).ravel() > 0
+        if not np.any(visible):
+            return None
+        h, w = (n + 2 * self.guard_px for n in self.spec.render.resolution)
+        u, v = uv[0][visible], uv[1][visible]
+        x0, x1 = int(np.clip(np.floor(u.min()), 0, w)), int(np.clip(np.ceil(u.max()), 0, w))
+        y0, y1 = int(np.clip(np.floor(v.min()), 0, h)), int(np.clip(np.ceil(v.max()), 0, h))
+        if x1 <= x0 or y1 <= y0:
+            return None
+        return y0, x0, y1, x1
+
+    # ------------------------------------------------------------------ rendering
+    def render_once(self, seed: int, spp: int) -> np.ndarray:
+        """One mi.render call: (H, W) float32 photon radiance."""
+        t0 = time.perf_counter()
+        img = self.mi.render(self.scene, sensor=self.sensor, seed=int(seed) & 0x7FFFFFFF, spp=int(spp))
+        arr = np.array(img, dtype=np.float32)
+        self.stats.seconds += time.perf_counter() - t0
+        self.stats.calls += 1
+        arr = arr[..., 0] if arr.ndim == 3 else arr
+        if not np.all(np.isfinite(arr)):
+            bad = int(np.count_nonzero(~np.isfinite(arr)))
+            raise FloatingPointError(f"{self.spec.xml_path}: render produced {bad} NaN/Inf pixels")
+        return arr
+
+    def render_with_error(self, seeds: list[int], spp: int) -> tuple[np.ndarray, np.ndarray]:
+        """Render `spp` samples split over len(seeds) independent renders.
+
+        Returns (mean radiance, variance of that mean) per pixel. With split sizes n_i and split
+        means m_i: sigma^2 = sum n_i (m_i - m)^2 / (n - 1) estimates the per-sample variance,
+        and var(m) = sigma^2 / N.
+        """
+        n = len(seeds)
+        if spp < n:
+            raise ValueError(f"spp={spp} must be >= mc_splits={n}")
+        sizes = [spp // n + (1 if i < spp % n else 0) for i in range(n)]
+        means = [self.render_once(s, k).astype(np.float64) for s, k in zip(seeds, sizes)]
+        w = np.asarray(sizes, dtype=np.float64) / spp
+        mean = sum(wi * m for wi, m in zip(w, means))
+        sigma2 = sum(k * (m - mean) ** 2 for k, m in zip(sizes, means)) / (n - 1)
+        return mean.astype(np.float32), sigma2 / spp
