@@ -19,11 +19,10 @@ from benchmarks.common import machine_line, markdown_table, save_figure, save_te
 
 def measure(shape, k, psf):
     from poevp_optics.camera.camera import Camera
-    from poevp_optics.scene.spec import load_scene
-
+    from poevp_optics.scene.load import load_scene
     spec = load_scene("scenes/highbeam_plate", [f"render.resolution=[{shape[0]},{shape[1]}]",
                                                 f"relay.psf='{psf}'", "relay.sigma_px=1.2"])
-    cam = Camera(spec)
+    cam = Camera.from_scene(spec)
     rng = np.random.default_rng(0)
     subs = [rng.uniform(1e14, 1e18, cam.mirror_shape).astype(np.float32) for _ in range(k)]
     mask = rng.integers(0, 256, cam.mirror_shape).astype(np.float64)

@@ -23,12 +23,11 @@ def main():
     import torch
 
     from poevp_optics.core import runtime
-    from poevp_optics.apps.render_run import predicted_mask
+    from poevp_optics.control.loop_step import predicted_mask
     from poevp_optics.camera.camera import Camera
     from poevp_optics.control.predictors import make_predictor
     from poevp_optics.control.predictors.dmvfn import DMVFN, FULL, LITE, count_macs, count_parameters
-    from poevp_optics.scene.spec import load_scene
-
+    from poevp_optics.scene.load import load_scene
     runtime.set_threads(2)
     rng = np.random.default_rng(0)
     base = rng.uniform(20, 60, (H, W)).astype(np.float32)
@@ -38,7 +37,7 @@ def main():
         f[150:190, 200 + 8 * t:340 + 8 * t] = 255.0
         frames.append(f)
     spec = load_scene("scenes/highbeam_plate", [f"render.resolution=[{H},{W}]"])
-    cam = Camera(spec)
+    cam = Camera.from_scene(spec)
     rows = []
     for name in ("hold", "flow", "dmvfn_lite", "dmvfn"):
         if name == "dmvfn":
@@ -54,7 +53,7 @@ def main():
             t0 = time.perf_counter()
             p = pred(frames[:2])
             t1 = time.perf_counter()
-            predicted_mask(spec, cam, p, 0)
+            predicted_mask(cam, spec.mask, p, 0)
             t2 = time.perf_counter()
             ts.append(t1 - t0)
             tm.append(t2 - t1)

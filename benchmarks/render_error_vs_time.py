@@ -22,8 +22,7 @@ SPPS = [1, 2, 4, 8, 16, 32, 64, 128, 256]
 
 def measure(scene: str, mode: str, ref_spp: int, repeats: int = 3):
     from poevp_optics.render.renderer import Renderer
-    from poevp_optics.scene.spec import load_scene
-
+    from poevp_optics.scene.load import load_scene
     spec = load_scene(scene, ["render.resolution=[368,640]", f"render.spectral_mode='{mode}'"])
     r = Renderer(spec)
     t_mid = float(spec.subframe_times_s(0)[0])

@@ -34,8 +34,7 @@ def render_overhead(shape, spp=16):
 
     from poevp_optics.apps.render_run import _seeds
     from poevp_optics.render.renderer import Renderer
-    from poevp_optics.scene.spec import load_scene
-
+    from poevp_optics.scene.load import load_scene
     spec = load_scene("scenes/highbeam_plate", [f"render.resolution=[{shape[0]},{shape[1]}]"])
     ours = Renderer(spec)
     raw_scene = mi.load_file(str(spec.xml_path), **ours.plan.xml_params)
@@ -48,10 +47,9 @@ def render_overhead(shape, spp=16):
 
 def chain_vs_copy(shape):
     from poevp_optics.camera.camera import Camera
-    from poevp_optics.scene.spec import load_scene
-
+    from poevp_optics.scene.load import load_scene
     spec = load_scene("scenes/highbeam_plate", [f"render.resolution=[{shape[0]},{shape[1]}]"])
-    cam = Camera(spec)
+    cam = Camera.from_scene(spec)
     rng = np.random.default_rng(0)
     sub = rng.uniform(1e14, 1e18, cam.mirror_shape).astype(np.float32)
     mask = rng.integers(0, 256, cam.mirror_shape).astype(np.float64)
@@ -71,13 +69,16 @@ def chain_vs_copy(shape):
 
 
 def closed_loop_fps(names=("hold", "flow", "dmvfn_lite"), frames=12):
-    from poevp_optics.camera.camera import Camera
-    from poevp_optics.apps.render_run import _resize, predicted_mask, predictor_input
-    from poevp_optics.control.predictors import make_predictor
-    from poevp_optics.scene.spec import load_scene
+    """Frames per second of the closed loop without render: capture -> reconstruct -> the loop
+    step (predictor input, prediction, mask law; control/loop_step.py), demodulated mode."""
+    import dataclasses
 
-    spec = load_scene("scenes/highbeam_plate", ["predictor.name='flow'", "loop.mode='demodulated'"])
-    cam = Camera(spec)
+    from poevp_optics.camera.camera import Camera
+    from poevp_optics.control.loop_step import LoopStep
+    from poevp_optics.scene.load import load_scene
+
+    spec = load_scene("scenes/highbeam_plate", ["loop.mode='demodulated'", "loop.init_frames=0"])
+    cam = Camera.from_scene(spec)
     h, w = cam.shape
     rng = np.random.default_rng(0)
     base = rng.uniform(1e13, 1e15, (h, w)).astype(np.float32)
@@ -88,16 +89,15 @@ def closed_loop_fps(names=("hold", "flow", "dmvfn_lite"), frames=12):
         radiance.append(f)
     out = {}
     for name in names:
-        pred = make_predictor(name)
-        hist, mask = [], np.full((h, w), 255.0)
+        step = LoopStep(cam, spec.mask, spec.loop, dataclasses.replace(spec.predictor, name=name,
+                                                                       resolution=(h, w)))
         per = []
         for i, rad in enumerate(radiance):
             t0 = time.perf_counter()
+            mask = step.next_mask(i).levels
             cap = cam.capture([rad], mask, i, i)
             est, flags, _ = cam.reconstruct(cap, i)
-            hist.append(_resize(predictor_input("demodulated", cam, cap, cap, est, flags, i), (h, w)))
-            if len(hist) >= 2:
-                mask = predicted_mask(spec, cam, _resize(pred(hist[-2:]), (h, w)), i)
+            step.observe(i, cap, cap, est, flags)
             per.append(time.perf_counter() - t0)
         out[name] = float(np.median(per[2:]))
     return out
@@ -113,7 +113,7 @@ def sample():
     while not stop[0]:
         peak[0] = max(peak[0], rss()); time.sleep(0.0005)
 stage, h, w = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
-from poevp_optics.scene.spec import load_scene
+from poevp_optics.scene.load import load_scene
 from poevp_optics.camera.camera import Camera
 spec = load_scene("scenes/highbeam_plate", [f"render.resolution=[{h},{w}]"])
 rng = np.random.default_rng(0)
@@ -123,9 +123,9 @@ if stage == "render":
     from poevp_optics.render.renderer import Renderer
     r = Renderer(spec)
 elif stage == "camera":
-    cam = Camera(spec)                 # first capture measured: DrJit's pool grows once
+    cam = Camera.from_scene(spec)                 # first capture measured: DrJit's pool grows once
 elif stage == "reconstruct":
-    cam = Camera(spec); cam.capture([rad], mask, 0, 0)
+    cam = Camera.from_scene(spec); cam.capture([rad], mask, 0, 0)
 elif stage == "predict":
     from poevp_optics.control.predictors import make_predictor
     p = make_predictor("flow"); f = (rad / rad.max() * 255).astype(np.float32); p([f, f])

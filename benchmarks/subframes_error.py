@@ -17,7 +17,7 @@ plate closing at 6 m/s; `fast_pass` frame 1, a plate sweeping the frame within o
 184x320, 256 radiance samples rendered with ONE seed (common random numbers: differences between
 rules are nearly free of Monte Carlo noise), L(t) at any time by linear interpolation between
 them; the reference is the uniform rule on those 256 samples (one bit-plane LSB step apart).
-Errors: relative RMS over the plate box. Part C: the run's own estimate (errors.temporal_error:
+Errors: relative RMS over the plate box. Part C: the run's own estimate (apps.temporal_check.temporal_error:
 independent seeds at the scene's spp, the frame's oracle mask) against the true error.
 
     python -m benchmarks.subframes_error
@@ -84,8 +84,8 @@ class Rules:
 def part_a():
     """Smooth synthetic highlight: order of each rule per level (noise-free)."""
     from poevp_optics.camera.dmd import Schedule
-    from poevp_optics.scene.spec import DMDSpec, TimingSpec
-
+    from poevp_optics.camera.dmd import DMDSpec
+    from poevp_optics.core.timing import TimingSpec
     h, w = 24, 96
     y, x = np.mgrid[0:h, 0:w].astype(np.float64)
 
@@ -109,14 +109,13 @@ def _dense(name, frame, res, spp):
     from poevp_optics.camera.camera import Camera
     from poevp_optics.camera.dmd import node_times_s
     from poevp_optics.render.renderer import Renderer
-    from poevp_optics.scene.spec import load_scene
-
+    from poevp_optics.scene.load import load_scene
     spec = load_scene(f"scenes/{name}", [f"render.resolution={list(res)}", f"timing.frames={frame + 1}"])
     path = CACHE / f"dense_{name}_{frame}_{res[0]}x{res[1]}_{spp}.npz"
     if path.is_file():
         z = np.load(path)
         return spec, z["imgs"].astype(np.float64), z["times"], tuple(int(v) for v in z["box"])
-    cam = Camera(spec)
+    cam = Camera.from_scene(spec)
     r = Renderer(spec, guard_px=cam.guard_px)
     t0, t1 = spec.exposure_window_s(frame)
     times = node_times_s(t0, t1, N_DENSE)
@@ -143,7 +142,7 @@ def part_b(name, frame, res, spp):
         a = (t - rel[j]) / (rel[j + 1] - rel[j])
         return (1 - a) * imgs[j] + a * imgs[j + 1]
 
-    cam = Camera(spec)
+    cam = Camera.from_scene(spec)
     rules = Rules(cam.schedule(frame), LEVELS)
     ref = rules.plane(lambda t: L(t), rel)
     rows, curves = [], {}
@@ -187,13 +186,13 @@ def part_c(spec, frame, dense, spps=(128, 512)):
 
     from poevp_optics.camera.camera import Camera
     from poevp_optics.camera.dmd import node_times_s, on_time_table
-    from poevp_optics.analysis.error_budget import temporal_error
+    from poevp_optics.apps.temporal_check import temporal_error
     from poevp_optics.apps.render_run import render_exposures
     from poevp_optics.render.renderer import Renderer
 
     _, _, box, mask = dense
     spec = dataclasses.replace(spec, render=dataclasses.replace(spec.render, temporal_spp=64))
-    cam = Camera(spec)
+    cam = Camera.from_scene(spec)
     r = Renderer(spec, guard_px=cam.guard_px)
     ex = list(render_exposures(spec, r, progress=False))[frame]
     est = temporal_error(spec, r, cam, ex, mask)
@@ -262,7 +261,7 @@ def main():
              + markdown_table(["scene", "K uniform", "nodes with PWM", "plate mask levels", "uniform",
                                "uniform + PWM"], encs)
              + "\n\n## C. The run's temporal-error estimate vs the true error (oracle mask, scene K, PWM nodes)\n\n"
-             + "Estimate: errors.temporal_error at render.temporal_spp = 64. True: the same nodes against "
+             + "Estimate: apps.temporal_check.temporal_error at render.temporal_spp = 64. True: the same nodes against "
                "samples one LSB bit-plane apart over the window in which the plate's levels are lit, "
                "common random numbers at two spp, the CRN noise (~1/spp) extrapolated out.\n\n"
              + markdown_table(["scene", "nodes", "spp", "estimate", "resolved", "true",

@@ -28,7 +28,7 @@ GRID = ["timing.exposure_s=0.005,0.01,0.02,0.03", "mask.target=0.3,0.4,0.5,0.6"]
 def bare(points):
     from poevp_optics.core import runtime
     from poevp_optics.apps.render_run import run_render
-    from poevp_optics.scene.spec import load_scene
+    from poevp_optics.scene.load import load_scene
     from poevp_optics.apps.sweep import point_overrides
 
     runtime.set_threads(2)

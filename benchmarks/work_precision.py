@@ -43,11 +43,11 @@ def psf_support():
 def float_precision():
     from poevp_optics.camera.camera import Camera
     from poevp_optics.camera.dmd import transmission_table
-    from poevp_optics.scene.spec import load_scene
+    from poevp_optics.scene.load import load_scene
     from poevp_optics.camera.sensor import NoiseSwitches
 
     spec = load_scene("scenes/highbeam_plate", ["render.subframes=8"])
-    cam = Camera(spec, NoiseSwitches.off())
+    cam = Camera.from_scene(spec, NoiseSwitches.off())
     rng = np.random.default_rng(0)
     subs = [rng.uniform(1e12, 1e18, cam.mirror_shape).astype(np.float32) for _ in range(8)]
     mask = rng.integers(0, 256, cam.mirror_shape).astype(np.float64)

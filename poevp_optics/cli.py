@@ -82,8 +82,8 @@ def _add_job_options(p: argparse.ArgumentParser, out_help: str) -> None:
 
 
 def _overrides(args) -> list[str]:
-    from poevp_optics.scene.spec import SceneError, accuracy_overrides, parse_override
-
+    from poevp_optics.core.exceptions import SceneError
+    from poevp_optics.scene.load import accuracy_overrides, parse_override
     out = list(args.overrides)
     preset = getattr(args, "accuracy", "default")
     if preset != "default":
@@ -98,28 +98,11 @@ def _overrides(args) -> list[str]:
     return out
 
 
-def _reads(spec) -> tuple:
-    """Paths a run reads and must never be given as (or inside) its output folder."""
-    return (spec.toml_path, spec.toml_path.resolve().parent, spec.xml_path)
-
-
-def _out_dir(args, spec, suffix: str = "") -> Path:
-    return Path(args.out) if args.out else Path("out") / f"{spec.name}{suffix}"
-
-
 def cmd_render(args) -> int:
-    from poevp_optics.core.io import check_output, staged_dir
-    from poevp_optics.apps.render_run import run_render
-    from poevp_optics.apps.preflight import check_run
-    from poevp_optics.scene.spec import load_scene
+    from poevp_optics.apps.runner import run_job
 
-    spec = load_scene(args.scene, _overrides(args))
-    out = _out_dir(args, spec)
-    check_output(out, "render", protect=_reads(spec))
-    check_run(spec, "render")
-    runtime.set_threads(args.threads)
-    with staged_dir(out, kind="render", protect=_reads(spec)) as stage:
-        report = run_render(spec, stage, progress=not args.quiet)
+    spec, out, report = run_job("render", args.scene, _overrides(args), out=args.out, threads=args.threads,
+                                progress=not args.quiet)
     r = report["stages"]["render"]
     frame, roi = r["rel_error"], r["rel_error_roi"]
     print(f"poevp: rendered {report['frames']} frames of {spec.name} at "
@@ -133,8 +116,7 @@ def cmd_render(args) -> int:
 def cmd_validate(args) -> int:
     from poevp_optics.apps.memory import fits_note
     from poevp_optics.apps.preflight import check_run
-    from poevp_optics.scene.spec import load_scene
-
+    from poevp_optics.scene.load import load_scene
     spec = load_scene(args.scene, _overrides(args))
     job = args.job or ("chart" if spec.chart.patches else "render")
     pf = check_run(spec, job, load=args.load)
@@ -147,30 +129,24 @@ def cmd_validate(args) -> int:
 
 
 def cmd_compare(args) -> int:
-    from poevp_optics.apps.compare import compare
-    from poevp_optics.core.io import check_output, staged_dir
+    from poevp_optics.apps.runner import run_job
+    from poevp_optics.control.loop_step import LOOP_MODES
     from poevp_optics.control.predictors import PREDICTORS
-    from poevp_optics.apps.preflight import check_run
-    from poevp_optics.scene.spec import SceneError, load_scene
+    from poevp_optics.core.exceptions import SceneError
 
-    overrides = _overrides(args)
-    spec = load_scene(args.scene, overrides)
     preds = [p.strip() for p in args.predictors.split(",") if p.strip()]
     modes = [m.strip() for m in args.modes.split(",") if m.strip()]
     for m in modes:
-        if m not in ("open", "raw", "demodulated"):
-            raise SceneError(f"--modes {args.modes}: unknown loop mode {m!r} (open, raw, demodulated)")
+        if m not in LOOP_MODES:
+            raise SceneError(f"--modes {args.modes}: unknown loop mode {m!r} ({', '.join(LOOP_MODES)})")
     for p in preds:
         if p not in PREDICTORS:
             raise SceneError(f"--predictors {args.predictors}: unknown predictor {p!r} ({', '.join(PREDICTORS)})")
     if not preds or not modes:
         raise SceneError("--predictors/--modes: give at least one of each")
-    out = _out_dir(args, spec, "-compare")
-    check_output(out, "compare", protect=_reads(spec))
-    check_run(spec, "compare", predictors=tuple(preds))
-    runtime.set_threads(args.threads)
-    with staged_dir(out, kind="compare", protect=_reads(spec)) as stage:
-        rows = compare(args.scene, preds, modes, stage, overrides, progress=not args.quiet)
+    _, out, rows = run_job("compare", args.scene, _overrides(args), out=args.out, threads=args.threads,
+                           progress=not args.quiet, check={"predictors": tuple(preds)},
+                           predictors=preds, modes=modes)
     for r in rows:
         print(f"{r['predictor']:>11s} {r['mode']:>12s}  mask IoU {_f(r['mask_iou'])}  plate saturated "
               f"{_f(r['sat_loop_after_init'])} (LDR {_f(r['sat_ldr'])})  entropy {_f(r['entropy_loop_after_init'])}")
@@ -183,18 +159,10 @@ def _f(v):
 
 
 def cmd_chart(args) -> int:
-    from poevp_optics.apps.chart import run_chart
-    from poevp_optics.core.io import check_output, staged_dir
-    from poevp_optics.apps.preflight import check_run
-    from poevp_optics.scene.spec import load_scene
+    from poevp_optics.apps.runner import run_job
 
-    spec = load_scene(args.scene, _overrides(args))
-    out = _out_dir(args, spec, "-chart")
-    check_output(out, "chart", protect=_reads(spec))
-    check_run(spec, "chart")
-    runtime.set_threads(args.threads)
-    with staged_dir(out, kind="chart", protect=_reads(spec)) as stage:
-        r = run_chart(spec, stage, progress=not args.quiet)
+    spec, out, r = run_job("chart", args.scene, _overrides(args), out=args.out, threads=args.threads,
+                           progress=not args.quiet)
     dr = r["dynamic_range_db"]
     line = "  ".join(f"{mode} {dr[mode]['iso15739']:.1f} dB" for mode in dr if dr[mode].get("iso15739") is not None)
     print(f"poevp: {spec.name} ISO 15739 DR: {line} (EMVA sensor {dr['ldr']['emva']:.1f} dB)")
@@ -211,13 +179,14 @@ def cmd_chart(args) -> int:
 
 
 def cmd_sweep(args) -> int:
+    from poevp_optics.apps.runner import reads
     from poevp_optics.core.io import check_output
-    from poevp_optics.scene.spec import load_scene
+    from poevp_optics.scene.load import load_scene
     from poevp_optics.apps.sweep import sweep
 
     spec = load_scene(args.scene, _overrides(args), cross_checks=False)
-    out = _out_dir(args, spec, "-sweep")
-    check_output(out, "sweep", protect=_reads(spec))
+    out = Path(args.out) if args.out else Path("out") / f"{spec.name}-sweep"
+    check_output(out, "sweep", protect=reads(spec))
     df = sweep(args.scene, args.grid, out=out, seeds=args.seeds, workers=args.workers,
                scheduler=args.scheduler, job=args.job, base_overrides=_overrides(args),
                metric=args.plot, progress=not args.quiet, retry_failed=args.retry_failed,
@@ -238,13 +207,11 @@ def cmd_sweep(args) -> int:
 
 def cmd_evaluate(args) -> int:
     from poevp_optics.apps.evaluate import E_LEVELS, evaluate
-    from poevp_optics.core.io import check_output, staged_dir
+    from poevp_optics.apps.runner import run_in_folder
 
     out = Path(args.out) if args.out else Path("out") / ("evaluate-quick" if args.quick else "evaluate")
-    check_output(out, "evaluate")
-    runtime.set_threads(args.threads)
-    with staged_dir(out, kind="evaluate") as stage:
-        summary = evaluate(stage, quick=args.quick, progress=not args.quiet)
+    summary = run_in_folder("evaluate", out, args.threads,
+                            lambda stage: evaluate(stage, quick=args.quick, progress=not args.quiet))
     e = str(max(E_LEVELS))
     for m, s in ((k, v) for k, v in summary.items() if k != "test_set"):
         print(f"{m:>15s}  accuracy E={e}: {s[e]['accuracy_pct']:5.1f} %  all: {s['all']['accuracy_pct']:5.1f} %"
@@ -306,6 +273,8 @@ def cmd_info(args) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from poevp_optics.apps.runner import JOBS, sweep_jobs
+
     parser = _OneLineParser(prog="poevp", description="POE-VP DMD camera simulator")
     parser.add_argument("--version", action="version", version=f"poevp_optics {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -317,7 +286,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("validate", help="every check a run makes, short of rendering")
     _add_run_options(p)
-    p.add_argument("--job", choices=("render", "chart", "compare"),
+    p.add_argument("--job", choices=JOBS.names(),
                    help="check the scene for this command (default: chart for a [chart] scene, else render)")
     p.add_argument("--load", action="store_true", help="also load the XML in Mitsuba")
     p.set_defaults(func=cmd_validate)
@@ -342,7 +311,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", help="default out/<scene>-sweep; rerunning the same sweep resumes")
     p.add_argument("--workers", type=_positive_int, help="local Dask worker processes (default: cores)")
     p.add_argument("--scheduler", help="tcp://HOST:PORT of an existing Dask scheduler")
-    p.add_argument("--job", default="render", choices=("render", "chart"))
+    p.add_argument("--job", default="render", choices=sweep_jobs())
     p.add_argument("--plot", metavar="METRIC", help="column to plot, e.g. metrics.saturated_fraction_roi.encoded")
     p.add_argument("--retry-failed", action="store_true", help="rerun points recorded as failed")
     p.add_argument("--allow-failed", action="store_true",

@@ -29,7 +29,52 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from poevp_optics.core.params import param
+from poevp_optics.core.registry import Registry
+
 CLIPPED_SAMPLE_FRACTION = 1e-3
+
+#: DR methods by name (module table): the chart ones carry their incremental-SNR threshold.
+DR_METHODS = Registry("dynamic-range method")
+DR_METHODS.register("iso15739", 1.0, source="ISO 15739:2017 (via CIE e-ILV 17-612; Imatest DR at SNR 1)")
+DR_METHODS.register("snr10", 10.0, source="Imatest dynamic-range documentation: SNR_inc >= 10")
+DR_METHODS.register("emva", None, source="EMVA 1288 Release 4.0 (linear), Sec. 4.4: per pixel, sensor alone")
+
+
+def chart_methods() -> dict[str, float]:
+    """The DR methods measured on the chart's patches: name -> SNR_inc threshold."""
+    return {n: DR_METHODS[n] for n in DR_METHODS if DR_METHODS[n] is not None}
+
+
+@dataclass(frozen=True)
+class ChartSpec:
+    """[chart]: back-lit transmissive dynamic-range chart; absent (patches = 0): not a chart.
+
+    Patch i has density D_i (equal steps from d_min to d_max, or the explicit `densities`) and
+    is bound to the XML parameter `$<param_prefix>NN`: its radiance is the light box's
+    (`source`, `luminance_cd_per_m2`) times 10^-D_i (a neutral film over a Lambertian box).
+    """
+
+    patches: int = param(0, min=0, max=1000)
+    d_min: float = param(0.0, min=0, max=20)
+    d_max: float = param(8.0, min=0, max=20)
+    densities: tuple[float, ...] = param((), min=0, max=20)
+    source: str = param("cie:LED-B5")
+    luminance_cd_per_m2: float = param(1.0e5, gt=0)
+    param_prefix: str = param("patch_")
+    repeats: int = param(16, min=2, max=4096)            # captures for the temporal noise
+    roi_inset_px: int = param(4, min=1, max=1000)        # patch border left out (edges, PSF)
+    mask_source: str = param("loop", choices=("loop", "oracle"))
+    max_iterations: int = param(12, min=1, max=1000)     # loop frames allowed to settle the mask
+    reference_camera: str = param("")                    # scene whose camera sections are also run
+
+    def density_list(self) -> tuple[float, ...]:
+        if self.densities:
+            return self.densities
+        return tuple(float(d) for d in np.linspace(self.d_min, self.d_max, self.patches))
+
+    def param(self, i: int) -> str:
+        return f"{self.param_prefix}{i:02d}"
 
 
 @dataclass
@@ -191,28 +236,6 @@ def emva_dr(p, exposure_s: float) -> dict:
     mu_sat = p.saturation_capacity_e
     return {"db": float(20 * math.log10(mu_sat / mu_min)), "mu_sat_e": float(mu_sat),
             "mu_min_e": float(mu_min), "sigma_d_e": float(sd)}
-
-
-def transmission_parts(dmd_spec, sched, min_level: int) -> dict:
-    """The darkest usable mask level's exposure relative to white, split into its causes:
-    white fill (DMD white outside its window), off-state leakage (1/contrast) and the PWM
-    step of `min_level` (the mask bit depth). Exact from the DMD's level table."""
-    import dataclasses
-
-    from poevp_optics.camera.dmd import on_time_table, transmission_table
-
-    top = (1 << sched.bits) - 1
-    lv = np.array([min_level, top])
-    tbl = transmission_table(lv, dmd_spec, sched, 1)[:, 0]
-    floor = float(tbl[0] / tbl[1])
-    ideal = dataclasses.replace(dmd_spec, contrast_ratio=1e300)
-    tbl_ideal = transmission_table(lv, ideal, sched, 1)[:, 0]
-    no_leak = float(tbl_ideal[0] / tbl_ideal[1])
-    fill = float(on_time_table(np.array([0]), sched, 1)[0, 0] / on_time_table(np.array([top]), sched, 1)[0, 0])
-    parts = {"white_fill": fill, "dmd_contrast": max(floor - no_leak, 0.0),
-             "mask_bit_depth": max(no_leak - fill, 0.0)}
-    return {"floor": floor, "gain_db": float(-20 * math.log10(floor)) if floor > 0 else math.inf,
-            "parts": parts, "binding": max(parts, key=parts.get)}
 
 
 LIMIT_WORDS = {"white_fill": "the DMD's white fill outside its display window",

@@ -15,18 +15,6 @@ import time
 
 import numpy as np
 
-_ENGINE = None
-
-
-def engine():
-    global _ENGINE
-    if _ENGINE is None:
-        from rapidocr_onnxruntime import RapidOCR
-
-        _ENGINE = RapidOCR()
-    return _ENGINE
-
-
 def normalise(text: str) -> str:
     return re.sub(r"[^A-Z0-9]", "", text.upper())
 
@@ -44,7 +32,9 @@ def read_plate(img_8bit: np.ndarray, box, margin_px: int = 2) -> tuple[str, floa
     crop = cv2.resize(crop, None, fx=2, fy=2, interpolation=cv2.INTER_CUBIC)
     bgr = cv2.cvtColor(crop, cv2.COLOR_GRAY2BGR) if crop.ndim == 2 else crop
     t0 = time.perf_counter()
-    res, _ = engine()(bgr, use_det=False, use_cls=False, use_rec=True)
+    from poevp_optics.core.runtime import ocr_engine
+
+    res, _ = ocr_engine()(bgr, use_det=False, use_cls=False, use_rec=True)
     dt = time.perf_counter() - t0
     if not res:
         return "", 0.0, dt

@@ -17,6 +17,8 @@ import warnings
 
 import numpy as np
 
+from poevp_optics.core.registry import Registry
+
 
 def _rgb(x):
     return np.repeat(x[..., None], 3, axis=-1)
@@ -45,14 +47,16 @@ def _linear(x):
     return np.clip(x / top, 0, 1) if top > 0 else np.zeros_like(x)
 
 
-TONEMAP_METHODS = {"reinhard2004": _reinhard2004, "filmic": _filmic,
-                   "logarithmic": _logarithmic, "linear": _linear}
+TONEMAPPERS = Registry("tone mapper")
+TONEMAPPERS.register("reinhard2004", _reinhard2004, source="Reinhard & Devlin (2005), IEEE TVCG 11(1), colour-hdri")
+TONEMAPPERS.register("filmic", _filmic, source="Hable (2010), Uncharted 2 filmic curve, colour-hdri")
+TONEMAPPERS.register("logarithmic", _logarithmic, source="Drago et al. (2003) family, colour-hdri")
+TONEMAPPERS.register("linear", _linear, source="clip(L / L_99.9 %), no compression")
 
 
 def tonemap(radiance: np.ndarray, method: str = "reinhard2004") -> np.ndarray:
     """Tone-map a linear (H, W) image to sRGB-encoded uint8 with the named operator."""
-    if method not in TONEMAP_METHODS:
-        raise ValueError(f"unknown tone mapper {method!r}; known: {', '.join(TONEMAP_METHODS)}")
+    operator = TONEMAPPERS[method]
     x = np.nan_to_num(np.asarray(radiance, dtype=np.float64), nan=0.0, posinf=0.0)
     x = np.maximum(x, 0.0)
     peak = float(x.max())
@@ -62,6 +66,6 @@ def tonemap(radiance: np.ndarray, method: str = "reinhard2004") -> np.ndarray:
     x = np.maximum(x, 1e-12)                       # log-average needs positive values
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        y = np.clip(np.nan_to_num(TONEMAP_METHODS[method](x)), 0.0, 1.0)
+        y = np.clip(np.nan_to_num(operator(x)), 0.0, 1.0)
     srgb = np.where(y <= 0.0031308, 12.92 * y, 1.055 * np.power(y, 1 / 2.4) - 0.055)  # IEC 61966-2-1
     return np.round(srgb * 255).astype(np.uint8)

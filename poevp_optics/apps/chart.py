@@ -19,18 +19,23 @@ import numpy as np
 from poevp_optics.analysis import charts
 from poevp_optics.sources import spectra
 from poevp_optics.camera.camera import Camera
+from poevp_optics.camera.dmd import attenuation_parts
 from poevp_optics.core.io import write_exr, write_png
-from poevp_optics.apps.render_run import _contact_sheet, _frame_seed, _mask_png, _resize, _seeds, oracle_mask, predicted_mask, predictor_input
+from poevp_optics.apps.outputs import contact_sheet, mask_png
+from poevp_optics.control.loop_step import LoopStep, oracle_mask
+from poevp_optics.core.seeds import CHART_LOOP_STREAM, capture_seed, render_seeds
 from poevp_optics.analysis.metrics import to_8bit
 from poevp_optics.camera.reconstruct import dn_to_electrons, is_saturated
 from poevp_optics.render.renderer import Renderer, absolute_spectrum
 from poevp_optics.core.report import write_report
-from poevp_optics.scene.spec import SceneError, SceneSpec, load_scene
+from poevp_optics.core.exceptions import SceneError
+from poevp_optics.scene.spec import SceneSpec
+from poevp_optics.scene.load import load_scene
 from poevp_optics.analysis.tonemap import tonemap
 
 #: The paper's measurements with its prototype (poevp-paper.txt Sec. 7, 36-patch chart).
 PAPER_DB = {"ldr": 70.35, "encoded": 120.74}
-METHODS = {"iso15739": 1.0, "snr10": 10.0}
+METHODS = charts.chart_methods()      # DR methods on the patches: name -> SNR_inc threshold
 
 
 def _stable_changed(old: np.ndarray, new: np.ndarray, level_exposure: np.ndarray) -> float:
@@ -41,45 +46,32 @@ def _stable_changed(old: np.ndarray, new: np.ndarray, level_exposure: np.ndarray
 
 
 def settle_mask(spec: SceneSpec, cam: Camera, truth: np.ndarray, white_capture) -> tuple[np.ndarray, dict]:
-    """Run the loop on the static chart until the mask is stable; return it and the history.
-
-    Stable: no saturated pixel whose mirror could still go darker, and under 1 % of mirrors
-    changing their exposure by more than 25 % from one frame to the next."""
-    top = cam.top_level
-    white = cam.white_mask()
+    """Run the loop (control/loop_step.py) on the static chart until the mask is stable; return
+    it and the history. Stable: no saturated pixel whose mirror could still go darker, and under
+    1 % of mirrors changing their exposure by more than 25 % from one frame to the next."""
     lev = cam.level_exposure_s(0)
     if spec.chart.mask_source == "oracle":
-        return oracle_mask(spec, cam, truth, 0), {"source": "oracle", "frames": 0, "converged": True,
-                                                  "history": []}
-    from poevp_optics.control.predictors import checked_prediction, make_predictor
-
-    pred = make_predictor(spec.predictor.name, spec.predictor.weights, spec.predictor.resolution)
-    mask, hist, frames = white, [], []
-    p = cam.params
-    min_level = min(spec.mask.min_level, top)
+        return oracle_mask(cam, spec.mask, truth, 0), {"source": "oracle", "frames": 0, "converged": True,
+                                                       "history": []}
+    step = LoopStep(cam, spec.mask, spec.loop, spec.predictor)
+    source = f"loop ({step.model.name}, {spec.loop.mode})"
+    mask, frames = cam.white_mask(), []
+    min_level = min(spec.mask.min_level, cam.top_level)
     for it in range(spec.chart.max_iterations):
-        n_bad = 0                        # prediction pixels that fell back to the last frame
-        cap = cam.capture([truth], mask, it, _frame_seed(spec, it, 3))
+        cap = cam.capture([truth], mask, it, capture_seed(spec.sensor.seed, spec.render.seed, it, CHART_LOOP_STREAM))
         est, flags, _ = cam.reconstruct(cap, it)
-        hist.append(_resize(predictor_input(spec.loop.mode, cam, white_capture, cap, est, flags, it),
-                            spec.predictor.resolution))
-        if it + 1 < spec.loop.init_frames or len(hist) < pred.needs_frames:
-            new = white
-        else:
-            guess, n_bad = checked_prediction(pred, hist[-2:])
-            new = predicted_mask(spec, cam, _resize(guess, cam.shape), it)
+        step.observe(it, white_capture, cap, est, flags)
+        decision = step.next_mask(it + 1)
         sat = (flags.astype(np.int64) & 1) > 0
         movable = int(np.count_nonzero(sat & (cam.to_sensor(mask) > min_level)))
-        changed = _stable_changed(mask, new, lev)
+        changed = _stable_changed(mask, decision.levels, lev)
         frames.append({"frame": it, "saturated_fraction": float(np.mean(sat)),
                        "saturated_movable": movable, "changed_fraction": changed,
-                       **({"prediction_fallback_pixels": n_bad} if n_bad else {})})
+                       **({"prediction_fallback_pixels": decision.fallback_px} if decision.fallback_px else {})})
         if it + 1 >= spec.loop.init_frames and movable == 0 and changed < 1e-2:
-            return mask, {"source": f"loop ({pred.name}, {spec.loop.mode})", "frames": it + 1,
-                          "converged": True, "history": frames}
-        mask = new
-    return mask, {"source": f"loop ({pred.name}, {spec.loop.mode})", "frames": spec.chart.max_iterations,
-                  "converged": False, "history": frames}
+            return mask, {"source": source, "frames": it + 1, "converged": True, "history": frames}
+        mask = decision.levels
+    return mask, {"source": source, "frames": spec.chart.max_iterations, "converged": False, "history": frames}
 
 
 def _center_crop(img: np.ndarray, shape) -> np.ndarray:
@@ -97,7 +89,7 @@ def _measure(cam: Camera, spec: SceneSpec, truth, regions, masks_levels, stream:
     est, sat, elec = [], [], []
     first = scale = None
     for i in range(n):
-        cap = cam.capture([truth], masks_levels, i, _frame_seed(spec, i, stream))
+        cap = cam.capture([truth], masks_levels, i, capture_seed(spec.sensor.seed, spec.render.seed, i, stream))
         if first is None:                    # the mask is fixed: one exposure map for all
             first = cap
             scale = cap.exposure_s.astype(np.float64) * cam.etendue_m2_sr * cam.throughput
@@ -126,7 +118,7 @@ def measure_camera(spec: SceneSpec, truth_field, regions, lum, dens, true_sig) -
     """LDR (scene bits and 8-bit readout), settled mask, encoded: tables, DR, limits.
     truth_field: the chart rendered with a guard band at least this camera's."""
     t0 = time.perf_counter()
-    cam = Camera(spec)
+    cam = Camera.from_scene(spec)
     truth = _center_crop(truth_field, cam.mirror_shape)
     top = cam.top_level
     white = cam.white_mask()
@@ -137,7 +129,7 @@ def measure_camera(spec: SceneSpec, truth_field, regions, lum, dens, true_sig) -
     emva = charts.emva_dr(cam.params, spec.timing.exposure_s)
     if cam.params.bits != 8:
         spec8 = dataclasses.replace(spec, sensor=dataclasses.replace(spec.sensor, bits=8))
-        cam8 = Camera(spec8)
+        cam8 = Camera.from_scene(spec8)
         res["tables"]["ldr_8bit"], _, _ = _measure(cam8, spec8, _center_crop(truth_field, cam8.mirror_shape),
                                                    regions, cam8.white_mask(), 1, lum, dens, true_sig)
         res["emva_8bit"] = charts.emva_dr(cam8.params, spec.timing.exposure_s)
@@ -146,11 +138,11 @@ def measure_camera(spec: SceneSpec, truth_field, regions, lum, dens, true_sig) -
         enc_t, enc_cap, enc_est = _measure(cam, spec, truth, regions, mask, 2, lum, dens, true_sig)
         res["tables"]["encoded"] = enc_t
         res["settle"] = settle
-        res["images"].update(mask=_mask_png(mask, top), encoded=to_8bit(enc_cap.dn, cam.params.max_dn),
+        res["images"].update(mask=mask_png(mask, top), encoded=to_8bit(enc_cap.dn, cam.params.max_dn),
                              reconstruction=enc_est.astype(np.float32))
         res["mask"] = mask
         min_level = min(spec.mask.min_level, top)
-        res["parts"] = charts.transmission_parts(spec.dmd, cam.schedule(0), min_level)
+        res["parts"] = attenuation_parts(spec.dmd, cam.schedule(0), min_level)
     for mode, table in res["tables"].items():
         res["details"][mode] = {m: charts.dynamic_range(table, thr) for m, thr in METHODS.items()}
         res["dr"][mode] = {m: res["details"][mode][m]["db"] for m in METHODS}
@@ -186,10 +178,9 @@ def _eight_bit_note(res) -> str | None:
 
 
 def _plot(path: Path, res: dict, title: str):
-    import matplotlib
+    from poevp_optics.core.runtime import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.6))
     styles = {"ldr": ("C0", "LDR (DMD white)"), "ldr_8bit": ("C2", "LDR, 8-bit readout"),
@@ -261,47 +252,10 @@ def _summary(res: dict) -> dict:
     return out
 
 
-def run_chart(spec: SceneSpec, out_dir: Path, progress: bool = True) -> dict:
-    """Render the chart once, measure the scene's camera (and the reference camera), write files."""
-    t_run = time.perf_counter()
-    file = spec.toml_path
-    if not spec.chart.patches:
-        raise SceneError(f"{file}: chart.patches: not a chart scene (no [chart] section with patches)")
-    if not spec.is_static:
-        raise SceneError(f"{file}: motion: a dynamic-range chart must be static")
-    out_dir = Path(out_dir)
-    ref = load_scene(spec.toml_path.parent / spec.chart.reference_camera) if spec.chart.reference_camera else None
-    cam = Camera(spec)
-    guard = max(cam.guard_px, Camera(_with_camera(spec, ref)).guard_px if ref else 0)
-    renderer = Renderer(spec, guard_px=guard)
-    plan = renderer.plan
-    names = [spec.chart.param(i) for i in range(spec.chart.patches)]
-    expected = np.array([spectra.integrate(plan.response_e_per_J * absolute_spectrum(spec.spectra[n]))
-                         for n in names])
-    dens = np.array(spec.chart.density_list())
-    lum = np.array([spec.spectra[n].luminance_cd_per_m2 for n in names])
-    t0 = time.perf_counter()
-    truth_field, var_field = renderer.render_with_error(_seeds(spec.render.seed, 0, 0, spec.render.mc_splits),
-                                                        spec.render.spp)
-    render_s = time.perf_counter() - t0
-    truth = cam.to_sensor(_center_crop(truth_field, cam.mirror_shape)).astype(np.float32)
-    var = cam.to_sensor(_center_crop(var_field, cam.mirror_shape))
-    regions = charts.patch_regions(truth, expected, spec.chart.roi_inset_px, np.sqrt(var))
-    for i, reg in enumerate(regions):
-        if reg.sum() < 16:
-            raise SceneError(f"{file}: chart.roi_inset_px: patch {names[i]} keeps {int(reg.sum())} "
-                             f"pixels after the {spec.chart.roi_inset_px}-pixel inset (need >= 16): "
-                             "raise render.resolution or lower the inset")
-    check = max(abs(float(truth[r].mean()) / e - 1) for r, e in zip(regions, expected))
-
-    blocks = {"scene": measure_camera(spec, truth_field, regions, lum, dens, expected)}
-    ref_name = None
-    if ref is not None:
-        ref_name = ref.name
-        blocks[ref_name] = measure_camera(_with_camera(spec, ref), truth_field, regions, lum, dens, expected)
-
-    main = blocks["scene"]
+def _write_files(out_dir: Path, spec: SceneSpec, truth, var, blocks: dict, ref_name: str | None) -> float:
+    """The chart's EXRs, images, curves and patch table; returns the seconds it took."""
     tw = time.perf_counter()
+    main = blocks["scene"]
     attrs = {"poevp_scene": spec.name, "poevp_unit": "e- s-1 m-2 sr-1"}
     write_exr(out_dir / "radiance.exr", {"Y": truth, "mc_stderr": np.sqrt(var)},
               {**attrs, "poevp_quantity": "sensor-weighted photon radiance of the chart"})
@@ -316,14 +270,21 @@ def run_chart(spec: SceneSpec, out_dir: Path, progress: bool = True) -> dict:
                     tonemap(main["images"]["reconstruction"], spec.outputs.tonemap)]
         labels += ["mask", "encoded capture", "reconstruction"]
     write_png(out_dir / "ldr.png", main["images"]["ldr"].astype(np.uint8))
-    write_png(out_dir / "chart_images.png", _contact_sheet(rows, labels))
+    write_png(out_dir / "chart_images.png", contact_sheet(rows, labels))
     _plot(out_dir / "chart_curves.png", main, f"{spec.name}: dynamic range ({main['psf']} PSF)")
     if ref_name:
         _plot(out_dir / f"chart_curves_{ref_name}.png", blocks[ref_name],
               f"{spec.name} seen by {ref_name}'s camera (paper: {PAPER_DB['ldr']} / {PAPER_DB['encoded']} dB)")
     _csv(out_dir / "patches.csv", blocks)
-    write_s = time.perf_counter() - tw
+    return time.perf_counter() - tw
 
+
+def _chart_report(spec: SceneSpec, renderer, blocks: dict, ref_name, dens, regions, check: float,
+                  render_s: float) -> dict:
+    """The chart's report.json (without stage timings)."""
+    from poevp_optics.analysis.error_budget import POISSON_BOUND, budget
+
+    main, plan = blocks["scene"], renderer.plan
     report = {"scene": spec.name, "scene_file": str(spec.toml_path), "kind": "chart",
               "chart": {"patches": spec.chart.patches, "densities": dens.tolist(),
                         "light_box_cd_m2": spec.chart.luminance_cd_per_m2, "source": spec.chart.source,
@@ -334,8 +295,6 @@ def run_chart(spec: SceneSpec, out_dir: Path, progress: bool = True) -> dict:
                          "patch_radiance_max_rel_error": check},
               **_summary(main)}
     report["dynamic_range_db"] = main["dr"]
-    from poevp_optics.analysis.error_budget import POISSON_BOUND, budget
-
     report["errors"] = budget({
         "render_mc": {"rel": check, "where": "patch interiors (closed form vs render)", "seconds": render_s},
         "temporal": {"rel": 0.0, "method": "static chart: one radiance sample is exact", "seconds": 0.0},
@@ -347,8 +306,7 @@ def run_chart(spec: SceneSpec, out_dir: Path, progress: bool = True) -> dict:
     if ref_name:
         r = blocks[ref_name]
         report["reference_camera"] = {
-            "scene": ref_name, **_summary(r),
-            "paper_db": PAPER_DB,
+            "scene": ref_name, **_summary(r), "paper_db": PAPER_DB,
             "comparison": {"ldr": {"simulated": r["dr"]["ldr"]["iso15739"], "paper": PAPER_DB["ldr"]},
                            "encoded": {"simulated": r["dr"].get("encoded", {}).get("iso15739"),
                                        "paper": PAPER_DB["encoded"]}},
@@ -359,6 +317,52 @@ def run_chart(spec: SceneSpec, out_dir: Path, progress: bool = True) -> dict:
         "subframes": "static: one radiance sample per exposure (K = 1 is exact)"}
     if main["psf"] == "delta":
         report["skipped_stages"]["relay"] = "psf = 'delta': no convolution"
+    return report
+
+
+def _patch_regions(spec: SceneSpec, truth, var, expected, names):
+    """Each patch's inner pixels (at least 16, else a one-line error naming the inset key)."""
+    regions = charts.patch_regions(truth, expected, spec.chart.roi_inset_px, np.sqrt(var))
+    for i, reg in enumerate(regions):
+        if reg.sum() < 16:
+            raise SceneError(f"{spec.toml_path}: chart.roi_inset_px: patch {names[i]} keeps {int(reg.sum())} "
+                             f"pixels after the {spec.chart.roi_inset_px}-pixel inset (need >= 16): "
+                             "raise render.resolution or lower the inset")
+    return regions
+
+
+def run_chart(spec: SceneSpec, out_dir: Path, progress: bool = True) -> dict:
+    """Render the chart once, measure the scene's camera (and the reference camera), write files."""
+    t_run = time.perf_counter()
+    file = spec.toml_path
+    if not spec.chart.patches:
+        raise SceneError(f"{file}: chart.patches: not a chart scene (no [chart] section with patches)")
+    if not spec.is_static:
+        raise SceneError(f"{file}: motion: a dynamic-range chart must be static")
+    out_dir = Path(out_dir)
+    ref = load_scene(spec.toml_path.parent / spec.chart.reference_camera) if spec.chart.reference_camera else None
+    cam = Camera.from_scene(spec)
+    guard = max(cam.guard_px, Camera.from_scene(_with_camera(spec, ref)).guard_px if ref else 0)
+    renderer = Renderer(spec, guard_px=guard)
+    names = [spec.chart.param(i) for i in range(spec.chart.patches)]
+    expected = np.array([spectra.integrate(renderer.plan.response_e_per_J * absolute_spectrum(spec.spectra[n]))
+                         for n in names])
+    dens = np.array(spec.chart.density_list())
+    lum = np.array([spec.spectra[n].luminance_cd_per_m2 for n in names])
+    t0 = time.perf_counter()
+    truth_field, var_field = renderer.render_with_error(render_seeds(spec.render.seed, 0, 0, spec.render.mc_splits),
+                                                        spec.render.spp)
+    render_s = time.perf_counter() - t0
+    truth = cam.to_sensor(_center_crop(truth_field, cam.mirror_shape)).astype(np.float32)
+    var = cam.to_sensor(_center_crop(var_field, cam.mirror_shape))
+    regions = _patch_regions(spec, truth, var, expected, names)
+    check = max(abs(float(truth[r].mean()) / e - 1) for r, e in zip(regions, expected))
+    blocks = {"scene": measure_camera(spec, truth_field, regions, lum, dens, expected)}
+    ref_name = ref.name if ref is not None else None
+    if ref is not None:
+        blocks[ref_name] = measure_camera(_with_camera(spec, ref), truth_field, regions, lum, dens, expected)
+    write_s = _write_files(out_dir, spec, truth, var, blocks, ref_name)
+    report = _chart_report(spec, renderer, blocks, ref_name, dens, regions, check, render_s)
     report["stages"] = {"render": {"seconds": render_s}, "cameras": {k: v["seconds"] for k, v in blocks.items()},
                         "write": {"seconds": write_s}}
     report["total_seconds"] = time.perf_counter() - t_run

@@ -15,17 +15,17 @@ from pathlib import Path
 
 import numpy as np
 
+import dataclasses
+
+from poevp_optics.analysis.metrics import crop, local_entropy
+from poevp_optics.apps.render_run import run_frames
 from poevp_optics.camera.camera import Camera
 from poevp_optics.core.io import atomic_path, write_png
-from poevp_optics.apps.render_run import render_exposures, run_render
-from poevp_optics.analysis.metrics import crop, local_entropy
+from poevp_optics.render.exposures import render_exposures
 from poevp_optics.render.renderer import Renderer
-from poevp_optics.scene.spec import load_scene
-
-
-def compare(scene, predictors, modes, out: Path, overrides=(), progress=True, frames_shown=4) -> list[dict]:
-    base = load_scene(scene, list(overrides))
-    renderer = Renderer(base, guard_px=Camera(base).guard_px)
+def compare(base, predictors, modes, out: Path, progress=True, frames_shown=4) -> list[dict]:
+    """Every predictor x loop mode on one render of the scene `base` (a SceneSpec)."""
+    renderer = Renderer(base, guard_px=Camera.from_scene(base).guard_px)
     exposures = list(render_exposures(base, renderer, progress))
     n = base.timing.frames
     shown = tuple(sorted({min(n - 1, max(base.loop.init_frames, round(x))) for x in
@@ -33,11 +33,11 @@ def compare(scene, predictors, modes, out: Path, overrides=(), progress=True, fr
     rows, kept = [], {}
     for pred in predictors:
         for mode in (modes if pred != "oracle" else [modes[0]]):
-            spec = load_scene(scene, [*overrides, f"predictor.name='{pred}'", f"loop.mode='{mode}'"])
+            spec = dataclasses.replace(base, predictor=dataclasses.replace(base.predictor, name=pred),
+                                       loop=dataclasses.replace(base.loop, mode=mode))
             tag = f"{pred}_{mode}" if pred != "oracle" else "oracle"
-            rep = run_render(spec, out / tag, progress=False, renderer=renderer, exposures=exposures,
-                             write_images=False, keep_frames=shown)
-            kept[tag] = rep.pop("_kept")
+            rep, kept[tag] = run_frames(spec, out / tag, progress=False, renderer=renderer, exposures=exposures,
+                                        write_images=False, keep_frames=shown)
             m = rep["metrics"]
             sat, ent = m["saturated_fraction_roi"], m["entropy_roi"]
             st = rep["stages"].get("predict", {})
@@ -94,9 +94,9 @@ def _write_tables(out: Path, scene: str, rows: list[dict]) -> None:
 
 
 def _figure(out: Path, kept: dict, shown, exposures) -> None:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from poevp_optics.core.runtime import pyplot
+
+    plt = pyplot()
 
     from poevp_optics.analysis.tonemap import tonemap
 

@@ -26,7 +26,6 @@ import csv
 import hashlib
 import io as _io
 import json
-import os
 import time
 from pathlib import Path
 
@@ -36,11 +35,16 @@ from poevp_optics import __version__
 from poevp_optics.camera.camera import Camera
 from poevp_optics.core.frame import Frame, Quantity
 from poevp_optics.core.io import atomic_path, write_json, write_png
-from poevp_optics.apps.render_run import RenderedExposure, _frame_seed, render_exposures, run_render
+import dataclasses
+
+from poevp_optics.apps.render_run import run_frames
+from poevp_optics.core.runtime import cache_dir
+from poevp_optics.core.seeds import FUSION_STREAM, capture_seed
+from poevp_optics.render.exposures import RenderedExposure, render_exposures
 from poevp_optics.analysis.metrics import crop, entropy_8bit, local_entropy, to_8bit
 from poevp_optics.analysis.recognition import correct, read_plate
 from poevp_optics.render.renderer import Renderer
-from poevp_optics.scene.spec import load_scene
+from poevp_optics.scene.load import load_scene
 from poevp_optics.core.units import PHOTON_RADIANCE_UNIT
 from poevp_optics.core.paths import SCENES_DIR
 
@@ -56,11 +60,6 @@ PAPER = {"fusion_classic": (65.07, 135.0), "fusion_deghost": (88.56, 425.0),
          "deep_optics": (21.64, 1161.0), "poevp": (94.86, 16.9)}
 
 
-def _cache_dir() -> Path:
-    root = Path(os.environ.get("POEVP_CACHE_DIR", Path.home() / ".cache" / "poevp_optics"))
-    return root / "eval"
-
-
 def sequence_overrides(text: str, motion, frames: int) -> list[str]:
     dur = frames / 30.0
     start = [-motion[0] * dur / 2, 0.0, -motion[2] * dur / 2]
@@ -73,14 +72,14 @@ def sequence_overrides(text: str, motion, frames: int) -> list[str]:
 def load_or_render(overrides: list[str], renderer: Renderer, progress: bool) -> list[RenderedExposure]:
     """The sequence's radiance (sub-frames, ROI per frame), rendered once by `renderer` (the
     loaded scene of these overrides) and cached."""
-    key = hashlib.sha1(json.dumps([overrides, __version__, BASE.name]).encode()).hexdigest()[:16]
-    path = _cache_dir() / f"{key}.npz"
+    key = hashlib.sha1(json.dumps([overrides, __version__, BASE.name, "radiance-mean-v2"]).encode()).hexdigest()[:16]
+    path = cache_dir("eval") / f"{key}.npz"
     if path.is_file():
         z = np.load(path)
         out = []
         for i in range(len(z["roi"])):
             subs = tuple(z["subs"][i])
-            mean = np.mean(np.stack(subs).astype(np.float64), axis=0).astype(np.float32)
+            mean = z["mean"][i]
             t0, dt = float(z["t"][i, 0]), float(z["t"][i, 1])
             out.append(RenderedExposure(i, t0, dt, z["times"][i], subs,
                                         Frame(mean, Quantity.RADIANCE, PHOTON_RADIANCE_UNIT, t0, dt, i),
@@ -91,6 +90,7 @@ def load_or_render(overrides: list[str], renderer: Renderer, progress: bool) -> 
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as f:
             np.savez(f, subs=np.stack([np.stack(e.subframes) for e in exps]).astype(np.float32),
+                     mean=np.stack([e.radiance.data for e in exps]).astype(np.float32),
                      var=np.stack([e.variance for e in exps]).astype(np.float32),
                      roi=np.array([e.roi for e in exps]), times=np.stack([e.subframe_times_s for e in exps]),
                      t=np.array([[e.t_start_s, e.exposure_s] for e in exps]))
@@ -115,14 +115,15 @@ def overexposure(cam: Camera, exps) -> float:
     return max(float(np.max(crop(cam.to_sensor(e.radiance.data), cam.box_to_sensor(e.roi)))) * k for e in exps)
 
 
-def _fusion(cam, exps, t, deghost: bool):
+def _fusion(cam, exps, t, deghost: bool, seeds: tuple[int, int]):
+    """Mertens fusion of captures t-2, t-1, t at 1/8, 1/5, 1 (seeds: sensor and render seed)."""
     import cv2
 
     imgs = []
     for j, f in zip((t - 2, t - 1, t), FUSION_EXPOSURES):
         e = exps[j]
-        cap = cam.capture([x * np.float32(f) for x in e.subframes], cam.white_mask(),
-                          j, _frame_seed(cam.spec, j, 7), times_s=e.subframe_times_s)
+        cap = cam.capture([x * np.float32(f) for x in e.subframes], cam.white_mask(), j,
+                          capture_seed(seeds[0], seeds[1], j, FUSION_STREAM), times_s=e.subframe_times_s)
         imgs.append(cv2.cvtColor(to_8bit(cap.dn, cam.params.max_dn).astype(np.uint8), cv2.COLOR_GRAY2BGR))
     t0 = time.perf_counter()
     if deghost:
@@ -141,7 +142,7 @@ def evaluate(out: Path, quick: bool = False, progress: bool = True, log=print) -
     for si, (text, motion) in enumerate((t, m) for t in texts for m in motions):
         ov = sequence_overrides(text, motion, frames)
         base_spec = load_scene(BASE, ov)
-        cam = Camera(base_spec)
+        cam = Camera.from_scene(base_spec)
         renderer = Renderer(base_spec, guard_px=cam.guard_px)
         exps = load_or_render(ov, renderer, progress)
         r0 = overexposure(cam, exps)
@@ -151,11 +152,12 @@ def evaluate(out: Path, quick: bool = False, progress: bool = True, log=print) -
             images = {m: {} for m in METHODS}
             secs = {m: [] for m in METHODS}
             for pred in POEVP:
-                spec = load_scene(BASE, ov + [f"predictor.name={json.dumps(pred)}", "loop.mode='open'"])
-                rep = run_render(spec, out / "runs" / f"s{si}_E{e_level}_{pred}", progress=False,
-                                 renderer=renderer, exposures=ex, write_images=False,
-                                 keep_frames=tuple(range(frames)))
-                for i, k in rep["_kept"].items():
+                spec = dataclasses.replace(base_spec, predictor=dataclasses.replace(base_spec.predictor, name=pred),
+                                           loop=dataclasses.replace(base_spec.loop, mode="open"))
+                rep, kept = run_frames(spec, out / "runs" / f"s{si}_E{e_level}_{pred}", progress=False,
+                                       renderer=renderer, exposures=ex, write_images=False,
+                                       keep_frames=tuple(range(frames)))
+                for i, k in kept.items():
                     images[pred][i] = k["capture"]
                     if pred == "oracle":
                         images["ldr"][i] = k["ldr"]
@@ -165,7 +167,7 @@ def evaluate(out: Path, quick: bool = False, progress: bool = True, log=print) -
             secs["ldr"] = [0.0]
             for t in range(2, frames):
                 for deghost, name in ((False, "fusion_classic"), (True, "fusion_deghost")):
-                    images[name][t], dt = _fusion(cam, ex, t, deghost)
+                    images[name][t], dt = _fusion(cam, ex, t, deghost, (base_spec.sensor.seed, base_spec.render.seed))
                     secs[name].append(dt)
             for m in METHODS:
                 for t in range(2, frames):
@@ -277,10 +279,9 @@ def _explain(summary) -> str:
 
 
 def _figure(path: Path, examples):
-    import matplotlib
+    from poevp_optics.core.runtime import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     n = len(examples)
     fig, axes = plt.subplots(2, n, figsize=(2.6 * n, 3.2))

@@ -139,8 +139,8 @@ def _subframes(spec) -> int:
 def _kernel_px(spec) -> int:
     """Width of the relay kernel (1 when the stage is skipped)."""
     from poevp_optics.sources import spectra
-    from poevp_optics.camera.relay import kernel_size_px
-    from poevp_optics.scene.spec import resolve_layout
+    from poevp_optics.camera.relay import PSFContext, kernel_size_px, max_support_px
+    from poevp_optics.camera.layout import layout_of
     from poevp_optics.camera.sensor import resolve_sensor
 
     relay = spec.relay
@@ -150,9 +150,13 @@ def _kernel_px(spec) -> int:
     band = None
     if relay.psf == "airy":
         band = spectra.sensor_response_e_per_J(spectra.load_spectrum(p.qe, emissive=True))
-    return kernel_size_px(relay, spec.render.resolution, pixel_pitch_m=p.pixel_pitch_m,
-                          f_number=resolve_layout(spec).sensor_f_number, band_nm=spectra.WAVELENGTHS_NM,
-                          band_weights=band, base_dir=spec.toml_path.parent)
+    acc = spec.accuracy
+    ctx = PSFContext(pixel_pitch_m=p.pixel_pitch_m,
+                     f_number=layout_of(spec.sensor, spec.dmd, spec.relay, spec.objective).sensor_f_number,
+                     band_nm=spectra.WAVELENGTHS_NM, band_weights=band, base_dir=spec.toml_path.parent,
+                     cap_px=max_support_px(spec.render.resolution), support_px=acc.psf_support_px,
+                     support_energy=acc.psf_support_energy)
+    return kernel_size_px(relay, ctx)
 
 
 def _render_shape(spec) -> tuple[int, int]:
@@ -167,7 +171,7 @@ def _render_shape(spec) -> tuple[int, int]:
 
 
 def _psf_part(spec) -> Part | None:
-    from poevp_optics.camera.relay import DIRECT_MAX_PX, _STRIP_SAMPLES, fft_bytes
+    from poevp_optics.camera.relay import DIRECT_MAX_PX, STRIP_SAMPLES, fft_bytes
 
     relay = spec.relay
     if relay.psf == "delta" and relay.glare_fraction <= 0:
@@ -175,7 +179,7 @@ def _psf_part(spec) -> Part | None:
     shape = _render_shape(spec)
     n = _kernel_px(spec)
     px = shape[0] * shape[1]
-    nbytes = 2 * n * n * 8 + min(n * n * 49, _STRIP_SAMPLES) * 8 * 4
+    nbytes = 2 * n * n * 8 + min(n * n * 49, STRIP_SAMPLES) * 8 * 4
     nbytes += fft_bytes(shape, n) if n > DIRECT_MAX_PX else 2 * px * 8
     key = ("relay.glare_sigma_px" if relay.glare_fraction > 0 and relay.psf in ("delta", "gaussian")
            and relay.glare_sigma_px > relay.sigma_px else

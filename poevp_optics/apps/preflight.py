@@ -28,8 +28,8 @@ from pathlib import Path
 import numpy as np
 
 from poevp_optics.apps.memory import MemoryEstimate, check_memory
-from poevp_optics.scene.spec import SceneError, SceneSpec
-
+from poevp_optics.core.exceptions import SceneError
+from poevp_optics.scene.spec import SceneSpec
 #: Largest sensor-weighted photon quantity an emitter may have (e- s-1 sr-1, e- s-1 m-2 sr-1 or
 #: e- s-1 m-2, per unit of its photometric key). The sun's disk is ~1e25 e- s-1 m-2 sr-1 here;
 #: float32 ends at 3.4e38, and the film adds up spp samples and 1/d^2 factors on top.
@@ -169,7 +169,7 @@ def check_relay(spec: SceneSpec) -> None:
     if spec.relay.psf != "measured":
         return
     try:
-        read_psf_image(measured_psf_path(spec.relay, spec.toml_path.parent))
+        read_psf_image(measured_psf_path(spec.relay.measured_file, spec.toml_path.parent))
     except PSFFileError as e:
         raise _fail(spec, "relay.measured_file", str(e)) from None
 
@@ -248,16 +248,16 @@ def input_files(spec: SceneSpec) -> list[Path]:
         p = Path(value)
         files += [c for c in ([p] if p.is_absolute() else [spec.xml_path.parent / p, ASSETS_DIR / p])
                   if value and c.is_file()][:1]
-    from poevp_optics.camera.sensor import PRESETS
+    from poevp_optics.camera.sensor import SENSOR_PRESETS
 
-    qe = spec.sensor.qe or PRESETS[spec.sensor.preset].qe
+    qe = spec.sensor.qe or SENSOR_PRESETS[spec.sensor.preset].qe
     sources = [s.source for s in spec.spectra.values()] + [qe, spec.chart.source]
     for src in sources:
         if isinstance(src, str) and src.startswith("file:"):
             p = Path(src[5:])
             files.append(p if p.is_absolute() else ASSETS_DIR / p)
     if spec.relay.psf == "measured":
-        files.append(measured_psf_path(spec.relay, spec.toml_path.parent))
+        files.append(measured_psf_path(spec.relay.measured_file, spec.toml_path.parent))
     if spec.dmd.enabled and spec.predictor.name in ("dmvfn", "dmvfn_lite"):
         w = Path(spec.predictor.weights) if spec.predictor.weights else default_weights(spec.predictor.name)
         if not w.exists() and spec.predictor.name == "dmvfn" and not spec.predictor.weights:

@@ -42,10 +42,11 @@ from pathlib import Path
 
 import numpy as np
 
+from poevp_optics.apps.runner import JOBS, sweep_jobs
 from poevp_optics.core.io import atomic_path, locked_dir, staged_dir, write_json
 from poevp_optics.core.runtime import Terminated, sigterm_raises
-from poevp_optics.scene.spec import SceneError, apply_overrides, load_scene, parse_override, resolve_scene_path
-
+from poevp_optics.core.exceptions import SceneError
+from poevp_optics.scene.load import apply_overrides, load_scene, parse_override, resolve_scene_path
 SEED_KEYS = ("render.seed", "sensor.seed")
 GRID_HELP = "KEY=v1,v2,... | KEY=start:stop:num | KEY=log:start:stop:num"
 
@@ -176,15 +177,7 @@ def run_point(scene: str, overrides: list[str], out_dir: str, job: str, threads:
         spec = load_scene(scene, overrides)
         check_run(spec, job, memory=False)
         with staged_dir(out_dir, kind=job) as stage:
-            if job == "chart":
-                from poevp_optics.apps.chart import run_chart
-
-                report = run_chart(spec, stage, progress=False)
-            else:
-                from poevp_optics.apps.render_run import run_render
-
-                report = run_render(spec, stage, progress=False)
-                report.pop("_kept", None)
+            report = JOBS[job].run(spec, stage, False)
         return {"status": "ok", "error": "", **flatten_report(report),
                 "point_seconds": time.perf_counter() - t0}
     except Exception as e:  # noqa: BLE001 - a failed point is data, not a crash
@@ -215,10 +208,9 @@ def read_table(out: Path):
 
 def plot_metric(df, keys: list[str], metric: str, path: Path) -> Path | None:
     """Line plot (one key) or heat maps (two keys; one panel per value of any further keys)."""
-    import matplotlib
+    from poevp_optics.core.runtime import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     ok = df[df["status"] == "ok"]
     if metric not in ok.columns or ok.empty:
@@ -294,8 +286,8 @@ def sweep(scene: str, grid_args: list[str], *, out: Path, seeds: int = 1, worker
     """Run the grid; returns the results DataFrame. See the module docstring."""
     from tqdm import tqdm
 
-    if job not in ("render", "chart"):
-        raise SceneError(f"--job {job}: must be 'render' or 'chart'")
+    if job not in sweep_jobs():
+        raise SceneError(f"--job {job}: must be one of {', '.join(sweep_jobs())}")
     if seeds < 1:
         raise SceneError(f"--seeds {seeds}: must be >= 1")
     grid = sorted((parse_grid(g) for g in grid_args), key=lambda kv: kv[0])

@@ -99,8 +99,8 @@ def train(name: str = "dmvfn_lite", *, minutes: float = 10.0, sequences: int = 4
           checkpoint_every: int = 50, resolution=(368, 640), progress: bool = True) -> dict:
     """Train and save weights; returns the training record (also written as JSON)."""
     cfg = LITE if name == "dmvfn_lite" else FULL
-    torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
+    routing_rng = torch.Generator().manual_seed(seed)
     out = Path(out) / name
     out.mkdir(parents=True, exist_ok=True)
     t_data = time.perf_counter()
@@ -108,7 +108,9 @@ def train(name: str = "dmvfn_lite", *, minutes: float = 10.0, sequences: int = 4
     val = build_dataset(val_sequences, frames, seed=9000 + seed, resolution=resolution, progress=progress)
     data_s = time.perf_counter() - t_data
     device = torch.device("cuda" if torch.cuda.is_available() else "cpu")   # a lent GPU if any
-    model = DMVFN(cfg)
+    with torch.random.fork_rng(devices=[]):      # seeded weight init, global RNG left untouched
+        torch.manual_seed(seed)
+        model = DMVFN(cfg)
     opt = torch.optim.AdamW(model.parameters(), lr=lr, weight_decay=1e-4)
     state = _load_checkpoint(out, model, opt) or {"step": 0, "seconds": 0.0, "losses": []}
     model.to(device)
@@ -131,7 +133,7 @@ def train(name: str = "dmvfn_lite", *, minutes: float = 10.0, sequences: int = 4
             g["lr"] = lr * (0.1 + 0.9 * 0.5 * (1 + np.cos(np.pi * frac)))
         sel = idx[rng.integers(0, len(idx), batch)]
         prev, cur, nxt = (t.to(device) for t in _batch(data, sel, c))
-        pred, _, _ = model(prev, cur, train_routing=cfg.routing)
+        pred, _, _ = model(prev, cur, train_routing=cfg.routing, generator=routing_rng)
         loss = multiscale_l1(pred, nxt)
         opt.zero_grad()
         loss.backward()

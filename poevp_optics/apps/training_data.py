@@ -46,10 +46,9 @@ def render_ldr_sequence(overrides: list[str], frames: int, seed: int) -> np.ndar
     from poevp_optics.camera.camera import Camera
     from poevp_optics.analysis.metrics import to_8bit
     from poevp_optics.render.renderer import Renderer
-    from poevp_optics.scene.spec import load_scene
-
+    from poevp_optics.scene.load import load_scene
     spec = load_scene(SCENE, [*overrides, f"timing.frames={frames}", f"render.seed={seed}"])
-    cam = Camera(spec)
+    cam = Camera.from_scene(spec)
     r = Renderer(spec, guard_px=cam.guard_px)
     out = []
     white = cam.white_mask()
@@ -62,7 +61,9 @@ def render_ldr_sequence(overrides: list[str], frames: int, seed: int) -> np.ndar
 
 
 def cache_dir() -> Path:
-    return Path(os.environ.get("POEVP_CACHE_DIR", Path.home() / ".cache" / "poevp_optics")) / "predictor_data"
+    from poevp_optics.core import runtime
+
+    return runtime.cache_dir("predictor_data")
 
 
 def build_dataset(n_sequences: int, frames: int, seed: int, resolution=(368, 640),

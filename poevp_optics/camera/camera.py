@@ -14,12 +14,17 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from poevp_optics.camera.dmd import (DMD, DMDSpec, Schedule, interval_transmission, node_time_weights_s,
+                                     throughput_on, transmission_table)
+from poevp_optics.camera.layout import layout_of
+from poevp_optics.camera.objective import ObjectiveSpec
+from poevp_optics.camera.registration import (apply_taps, apply_taps_numpy, box_to_sensor, forward_taps,
+                                              is_identity, to_mirror)
+from poevp_optics.camera.relay import PSFContext, RelaySpec, build_psf, convolve, max_support_px
+from poevp_optics.camera.sensor import NoiseSwitches, Sensor, SensorSpec, pixel_etendue_m2_sr, resolve_sensor
+from poevp_optics.core.accuracy import Accuracy
+from poevp_optics.core.timing import TimingSpec
 from poevp_optics.sources import spectra
-from poevp_optics.camera.dmd import DMD, Schedule, interval_transmission, node_time_weights_s, throughput_on, transmission_table
-from poevp_optics.camera.registration import apply_taps, apply_taps_numpy, box_to_sensor, forward_taps, is_identity, to_mirror
-from poevp_optics.camera.relay import build_psf, convolve
-from poevp_optics.scene.spec import SceneSpec
-from poevp_optics.camera.sensor import NoiseSwitches, Sensor, pixel_etendue_m2_sr, resolve_sensor
 
 
 _IDENTITY = type("IdentityRegistration", (), {"scale": 1.0, "rotation_deg": 0.0, "offset_px": (0.0, 0.0)})()
@@ -54,25 +59,43 @@ class Camera:
     is cropped before the sensor and never enters metrics.
     """
 
-    def __init__(self, spec: SceneSpec, switches: NoiseSwitches | None = None):
-        from poevp_optics.scene.spec import resolve_layout
-
-        self.spec = spec
-        self.shape = tuple(spec.render.resolution)
-        self.layout = resolve_layout(spec)
-        self.params = dataclasses.replace(resolve_sensor(spec.sensor), f_number=self.layout.sensor_f_number)
+    def __init__(self, sensor: SensorSpec, dmd: DMDSpec, relay: RelaySpec, objective: ObjectiveSpec,
+                 timing: TimingSpec, shape: tuple[int, int], accuracy: Accuracy = Accuracy(), *,
+                 base_dir=None, flicker=None, switches: NoiseSwitches | None = None):
+        """A camera from its stages' params (no scene file needed: `Camera.from_scene` reads
+        them from a SceneSpec). shape: the sensor's (H, W); base_dir: where relative files (a
+        measured PSF) are read; flicker: PWM-lamp drives by emitter name (basis_tables)."""
+        self.timing, self.dmd_spec, self.relay_spec = timing, dmd, relay
+        self.accuracy = accuracy
+        self.flicker = dict(flicker or {})
+        self.shape = tuple(shape)
+        self.layout = layout_of(sensor, dmd, relay, objective)
+        self.params = dataclasses.replace(resolve_sensor(sensor), f_number=self.layout.sensor_f_number,
+                                          poisson_sampler=accuracy.poisson_sampler)
         self.sensor = Sensor(self.params, self.shape, switches)
-        self.dmd = DMD(spec.dmd) if spec.dmd.enabled else None
+        self.dmd = DMD(dmd, accuracy.dmd_full_table_max) if dmd.enabled else None
         qe = spectra.load_spectrum(self.params.qe, emissive=True)
-        band_w = spectra.sensor_response_e_per_J(qe)
-        self.psf = build_psf(spec.relay, pixel_pitch_m=self.params.pixel_pitch_m,
-                             f_number=self.layout.sensor_f_number, band_nm=spectra.WAVELENGTHS_NM,
-                             band_weights=band_w, base_dir=spec.toml_path.parent,
-                             image_shape=self.shape)
-        reg = spec.dmd.registration if self.dmd else _IDENTITY
+        self.psf = build_psf(relay, PSFContext(
+            pixel_pitch_m=self.params.pixel_pitch_m, f_number=self.layout.sensor_f_number,
+            band_nm=spectra.WAVELENGTHS_NM, band_weights=spectra.sensor_response_e_per_J(qe),
+            base_dir=base_dir, cap_px=max_support_px(self.shape), support_px=accuracy.psf_support_px,
+            support_energy=accuracy.psf_support_energy))
+        self._init_grids(dmd.registration if self.dmd else _IDENTITY)
+        self.etendue_m2_sr = pixel_etendue_m2_sr(self.params)
+        # lens transmission (objective) x relay transmission; DMD throughput is in the exposure
+        self.throughput = self.params.optical_throughput * (relay.transmission if self.dmd else 1.0)
+
+    @classmethod
+    def from_scene(cls, spec, switches: NoiseSwitches | None = None) -> "Camera":
+        """The camera a scene describes (its [sensor], [dmd], [relay], [objective], [timing])."""
+        return cls(spec.sensor, spec.dmd, spec.relay, spec.objective, spec.timing, spec.render.resolution,
+                   spec.accuracy, base_dir=spec.toml_path.parent, flicker=spec.flicker, switches=switches)
+
+    def _init_grids(self, reg) -> None:
+        """Sensor grid, guard band, mirror grid and the registration taps between them."""
         self.registration = reg
         radius = self.psf.kernel.shape[0] // 2 if self.psf is not None else 0
-        self.sensor_guard_px = min(radius, spec.relay.guard_max_px)
+        self.sensor_guard_px = min(radius, self.accuracy.guard_max_px)
         h, w = self.shape
         self.extended_shape = (h + 2 * self.sensor_guard_px, w + 2 * self.sensor_guard_px)
         if is_identity(reg):
@@ -80,11 +103,9 @@ class Camera:
         else:   # mirrors needed to cover the guard ring through the affine map (+1 for sampling)
             self.guard_px = int(math.ceil(self.sensor_guard_px / reg.scale)) + (1 if self.sensor_guard_px else 0)
         self.mirror_shape = (h + 2 * self.guard_px, w + 2 * self.guard_px)
-        self.taps = forward_taps(reg, self.mirror_shape, self.extended_shape)
+        o = self.accuracy.registration_oversample
+        self.taps = forward_taps(reg, self.mirror_shape, self.extended_shape, o)
         self._sensor_taps = None
-        self.etendue_m2_sr = pixel_etendue_m2_sr(self.params)
-        # lens transmission (objective) x relay transmission; DMD throughput is in the exposure
-        self.throughput = self.params.optical_throughput * (spec.relay.transmission if self.dmd else 1.0)
 
     # ------------------------------------------------------------------ grids
     def _crop(self, img: np.ndarray) -> np.ndarray:
@@ -101,7 +122,8 @@ class Camera:
             h, w = self.shape
             return img[g:g + h, g:g + w]
         if self._sensor_taps is None:
-            self._sensor_taps = forward_taps(self.registration, self.mirror_shape, self.shape)
+            self._sensor_taps = forward_taps(self.registration, self.mirror_shape, self.shape,
+                                             self.accuracy.registration_oversample)
         return apply_taps_numpy(img, self._sensor_taps, self.shape)
 
     def to_mirror(self, sensor_image: np.ndarray) -> np.ndarray:
@@ -121,16 +143,16 @@ class Camera:
         return self.dmd.levels if self.dmd else 255
 
     def schedule(self, frame_index: int) -> Schedule:
-        return Schedule.for_frame(self.spec.dmd, self.spec.timing, self.spec.frame_start_s(frame_index))
+        return Schedule.for_frame(self.dmd_spec, self.timing, self.timing.frame_start_s(frame_index))
 
     def level_exposure_s(self, frame_index: int) -> np.ndarray:
         """Effective exposure (s) of every mask level over the whole exposure (float64)."""
         levels = np.arange(self.top_level + 1)
-        return transmission_table(levels, self.spec.dmd, self.schedule(frame_index), 1)[:, 0]
+        return transmission_table(levels, self.dmd_spec, self.schedule(frame_index), 1)[:, 0]
 
     def white_exposure_s(self, frame_index: int) -> float:
         if not self.dmd:
-            return self.spec.timing.exposure_s
+            return self.timing.exposure_s
         return float(self.level_exposure_s(frame_index)[-1])
 
     def electrons_per_radiance(self) -> float:
@@ -147,9 +169,9 @@ class Camera:
         t0, t1 = sched.exposure_start_s, sched.exposure_start_s + sched.exposure_s
         if lit:
             levels = np.arange(self.top_level + 1)
-            span = lambda a, b: interval_transmission(levels, self.spec.dmd, sched, a, b)  # noqa: E731
+            span = lambda a, b: interval_transmission(levels, self.dmd_spec, sched, a, b)  # noqa: E731
         else:
-            thr = throughput_on(self.spec.dmd) if self.dmd is not None else 1.0
+            thr = throughput_on(self.dmd_spec) if self.dmd is not None else 1.0
             span = lambda a, b: np.array([(b - a) * thr])  # noqa: E731
         full = span(t0, t1)
         out = []
@@ -157,7 +179,7 @@ class Camera:
             if name == "rest":
                 out.append(full)
                 continue
-            fl = self.spec.flicker[name]
+            fl = self.flicker[name]
             on = sum((span(a, b) for a, b in on_intervals(t0, t1, fl)), np.zeros_like(full))
             out.append(on + fl.off_fraction * (full - on))
         return out
@@ -183,7 +205,7 @@ class Camera:
         """Radiance node times relative to the frame's exposure start (s), or K (uniform)."""
         if times_s is None:
             return k
-        rel = np.asarray(times_s, dtype=np.float64) - self.spec.exposure_window_s(frame_index)[0]
+        rel = np.asarray(times_s, dtype=np.float64) - self.timing.exposure_window_s(frame_index)[0]
         if rel.size != k:
             raise ValueError(f"frame {frame_index}: {k} radiance samples but {rel.size} sample times")
         return rel
@@ -217,8 +239,8 @@ class Camera:
             weights, _ = self.dmd.exposure_weights(mask_levels, self.schedule(frame_index),
                                                    self.nodes_rel(frame_index, k, times_s))
         else:
-            thr = throughput_on(self.spec.dmd) if self.dmd is not None else 1.0
-            dt = node_time_weights_s(self.spec.timing.exposure_s, self.nodes_rel(frame_index, k, times_s))
+            thr = throughput_on(self.dmd_spec) if self.dmd is not None else 1.0
+            dt = node_time_weights_s(self.timing.exposure_s, self.nodes_rel(frame_index, k, times_s))
             weights = [dr.full(Float, float(d * thr), n_mirrors) for d in dt]
         plane = weights[0] * subs[0]
         for j in range(1, k):
@@ -246,7 +268,7 @@ class Camera:
         secs["relay"] = time.perf_counter() - t1
         t2 = time.perf_counter()
         signal = plane * float(self.electrons_per_radiance())
-        dn, _ = self.sensor.capture(signal, self.spec.timing.exposure_s, seed)
+        dn, _ = self.sensor.capture(signal, self.timing.exposure_s, seed)
         _sync(dn)
         secs["sensor"] = time.perf_counter() - t2
         return Capture(np.array(dn).reshape(h, w), np.ascontiguousarray(self._crop(expo_np)),
@@ -257,15 +279,15 @@ class Camera:
         from poevp_optics.camera.reconstruct import reconstruct
 
         return reconstruct(cap.dn, cap.exposure_s, self.params, self.etendue_m2_sr, self.throughput,
-                           self.spec.timing.exposure_s, self.sensor.switches.dark_current,
+                           self.timing.exposure_s, self.sensor.switches.dark_current,
                            white_exposure_s=self.white_exposure_s(frame_index),
                            exposure_blurred_s=cap.exposure_blurred_s,
-                           crosstalk_tolerance=self.spec.relay.crosstalk_tolerance)
+                           crosstalk_tolerance=self.relay_spec.crosstalk_tolerance)
 
     def noise_free_dn(self, electrons: np.ndarray) -> np.ndarray:
         """Sensor transfer without noise: offset + gain min(e + dark, full well), clipped; dark
         current only when the sensor's switch has it on (as `Sensor.capture`)."""
         p = self.params
-        dark = p.dark_current_e_per_s * self.spec.timing.exposure_s if self.sensor.switches.dark_current else 0.0
+        dark = p.dark_current_e_per_s * self.timing.exposure_s if self.sensor.switches.dark_current else 0.0
         e = np.minimum(electrons + dark, p.full_well_e)
         return np.clip(np.rint(p.offset_dn + p.gain_dn_per_e * e), 0, p.max_dn)

@@ -37,7 +37,25 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from poevp_optics.scene.spec import DMDSpec, TimingSpec
+from poevp_optics.camera.registration import RegistrationSpec
+from poevp_optics.core.params import param
+from poevp_optics.core.timing import TimingSpec
+
+
+@dataclass(frozen=True)
+class DMDSpec:
+    """[dmd]: micromirror array and its PWM (TI DLP6500 + DLPC900 defaults, FACTS.md)."""
+
+    enabled: bool = param(True)
+    bits: int = param(8, min=1, max=16)
+    bit_order: str = param("lsb_first", choices=("lsb_first", "msb_first"))
+    contrast_ratio: float = param(1000.0, gt=1.0, why="at 1:1 an off mirror passes as much light as an on "
+                                  "mirror, so no mask could dim anything")
+    fill_factor: float = param(0.92, gt=0, max=1.0)
+    reflectance: float = param(0.88, gt=0, max=1.0)
+    settle_s: float = param(0.0, min=0, max=1.0)
+    pitch_m: float = param(7.56e-6, gt=0, max=1e-3)
+    registration: RegistrationSpec = param(RegistrationSpec())
 
 
 @dataclass(frozen=True)
@@ -269,6 +287,27 @@ def attenuation_floor(dmd: DMDSpec, sched: Schedule) -> dict:
             "leakage_fraction": float(1 / dmd.contrast_ratio)}
 
 
+def attenuation_parts(dmd_spec, sched, min_level: int) -> dict:
+    """The darkest usable mask level's exposure relative to white, split into its causes:
+    white fill (DMD white outside its window), off-state leakage (1/contrast) and the PWM
+    step of `min_level` (the mask bit depth). Exact from the DMD's level table."""
+    import dataclasses
+    import math
+
+    top = (1 << sched.bits) - 1
+    lv = np.array([min_level, top])
+    tbl = transmission_table(lv, dmd_spec, sched, 1)[:, 0]
+    floor = float(tbl[0] / tbl[1])
+    ideal = dataclasses.replace(dmd_spec, contrast_ratio=1e300)
+    tbl_ideal = transmission_table(lv, ideal, sched, 1)[:, 0]
+    no_leak = float(tbl_ideal[0] / tbl_ideal[1])
+    fill = float(on_time_table(np.array([0]), sched, 1)[0, 0] / on_time_table(np.array([top]), sched, 1)[0, 0])
+    parts = {"white_fill": fill, "dmd_contrast": max(floor - no_leak, 0.0),
+             "mask_bit_depth": max(no_leak - fill, 0.0)}
+    return {"floor": floor, "gain_db": float(-20 * math.log10(floor)) if floor > 0 else math.inf,
+            "parts": parts, "binding": max(parts, key=parts.get)}
+
+
 class DMD:
     """Per-mirror effective exposure of a mask (DrJit gather from the exact level table)."""
 
@@ -276,8 +315,10 @@ class DMD:
     #: levels present in the mask are tabulated.
     FULL_TABLE_MAX = 1 << 22
 
-    def __init__(self, dmd: DMDSpec):
+    def __init__(self, dmd: DMDSpec, full_table_max: int = FULL_TABLE_MAX):
+        """full_table_max: levels x nodes up to which every level is tabulated (Accuracy)."""
         self.spec = dmd
+        self.full_table_max = full_table_max
         self.levels = (1 << dmd.bits) - 1
         self._cache = {}
 
@@ -320,7 +361,7 @@ class DMD:
         mi = self._level_index(mask_levels)
         rel = _nodes_rel(sched, nodes)
         k = rel.size
-        if (self.levels + 1) * k <= self.FULL_TABLE_MAX:
+        if (self.levels + 1) * k <= self.full_table_max:
             flat, table = self._full_table(sched, rel)
             idx = UInt32(mi)
             u = self.levels + 1

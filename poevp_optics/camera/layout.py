@@ -95,3 +95,17 @@ def optical_layout(*, objective_f_number: float, sensor_f_number: float, preset_
                           "objective.f_number instead, or drop one of the two")
     limited = "relay" if math.isfinite(n_rel) and _agree(n_rel, n_s) else "objective"
     return OpticalLayout(n_s / m_geom, m_geom, n_rel, n_s, limited)
+
+
+def layout_of(sensor, dmd, relay, objective) -> OpticalLayout:
+    """The layout of the [sensor], [dmd], [relay] and [objective] sections (their Spec classes):
+    the preset's f-number and pitch fill unset keys."""
+    from poevp_optics.camera.sensor import SENSOR_PRESETS
+
+    preset = SENSOR_PRESETS[sensor.preset]
+    pitch = sensor.pixel_pitch_m if not math.isnan(sensor.pixel_pitch_m) else preset.pixel_pitch_m
+    return optical_layout(objective_f_number=objective.f_number, sensor_f_number=sensor.f_number,
+                          preset_f_number=preset.f_number, relay_f_number=relay.f_number,
+                          relay_magnification=relay.magnification, dmd_enabled=dmd.enabled,
+                          registration_scale=dmd.registration.scale, sensor_pitch_m=pitch,
+                          mirror_pitch_m=dmd.pitch_m)

@@ -19,8 +19,21 @@ computed from sensor-grid predictions lands on the mirrors that image the highli
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
+
+from poevp_optics.core.params import param
+
+
+@dataclass(frozen=True)
+class RegistrationSpec:
+    """[dmd.registration]: affine map mirror grid -> sensor grid (module docstring)."""
+
+    scale: float = param(1.0, gt=0, max=100.0)
+    rotation_deg: float = param(0.0, min=-180.0, max=180.0)
+    offset_px: tuple[float, float] = param((0.0, 0.0), length=2)
+
 
 
 def is_identity(reg) -> bool:

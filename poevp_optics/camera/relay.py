@@ -33,14 +33,17 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
-from poevp_optics.scene.spec import RelaySpec
+from poevp_optics.core.params import param
+from poevp_optics.core.paths import ASSETS_DIR
+from poevp_optics.core.registry import Registry
 
 DIRECT_MAX_PX = 15
 #: Fine samples evaluated at once while building a kernel (bounds its temporary memory).
-_STRIP_SAMPLES = 1 << 22
+STRIP_SAMPLES = 1 << 22
 
 
 @dataclass(frozen=True)
@@ -73,11 +76,11 @@ def _cap_note(wanted_r: int, r: int) -> str:
 
 def _pixel_integrated(profile, radius_px: int, oversample: int = 7) -> np.ndarray:
     """Sample a radial profile f(r_px) on `oversample`^2 points per pixel and bin it; built in
-    row strips of at most `_STRIP_SAMPLES` fine samples (memory does not grow with n^2 o^2)."""
+    row strips of at most `STRIP_SAMPLES` fine samples (memory does not grow with n^2 o^2)."""
     n = 2 * radius_px + 1
     c = (np.arange(n * oversample) + 0.5) / oversample - (n / 2)
     out = np.empty((n, n))
-    rows = max(1, _STRIP_SAMPLES // (n * oversample * oversample))
+    rows = max(1, STRIP_SAMPLES // (n * oversample * oversample))
     for i0 in range(0, n, rows):
         i1 = min(n, i0 + rows)
         x, y = np.meshgrid(c, c[i0 * oversample:i1 * oversample])
@@ -198,50 +201,96 @@ def measured_psf(path: Path, support_px: int = 0, cap_px: int | None = None) -> 
     return PSF("measured", img / img.sum(), float(trunc), note)
 
 
-def measured_psf_path(spec: RelaySpec, base_dir: Path | None) -> Path:
+def measured_psf_path(measured_file: str, base_dir: Path | None) -> Path:
     """Where `relay.measured_file` is read from: as given if absolute, else the scene's folder,
     then assets/ (the first that exists)."""
-    from poevp_optics.sources.spectra import ASSETS_DIR
-
-    p = Path(spec.measured_file)
+    p = Path(measured_file)
     cands = [p] if p.is_absolute() else [(base_dir or Path.cwd()) / p, ASSETS_DIR / p]
     return next((c for c in cands if c.is_file()), cands[-1])
 
 
-def kernel_size_px(spec: RelaySpec, image_shape, *, pixel_pitch_m: float, f_number: float, band_nm=None,
-                   band_weights=None, base_dir: Path | None = None) -> int:
-    """Width (px) of the kernel `build_psf` would build for an image of `image_shape`, without
-    building it (1 when the stage is skipped): for the memory estimate."""
-    cap = max_support_px(image_shape)
-    radii = []
-    if spec.psf == "gaussian":
-        radii.append(gaussian_radius_px(spec.sigma_px, spec.support_px, spec.support_energy))
-    elif spec.psf == "airy":
-        radii.append(airy_radius_px(f_number, pixel_pitch_m, band_nm, band_weights,
-                                    spec.support_px, spec.support_energy))
-    elif spec.psf == "measured":
-        radii.append(read_psf_image(measured_psf_path(spec, base_dir)).shape[0] // 2)
-        if spec.support_px:
-            radii[-1] = min(radii[-1], spec.support_px // 2)
+@dataclass(frozen=True)
+class PSFContext:
+    """What a PSF model needs besides its own [relay] keys: the sensor sampling, the cone at the
+    sensor (layout.py), the sensor-weighted band, where files are read, and the accuracy."""
+
+    pixel_pitch_m: float
+    f_number: float = math.nan
+    band_nm: np.ndarray | None = None
+    band_weights: np.ndarray | None = None
+    base_dir: Path | None = None
+    cap_px: int | None = None           # `max_support_px` of the image it will blur
+    support_px: int = 0                 # Accuracy.psf_support_px (0: from the energy)
+    support_energy: float = 0.999       # Accuracy.psf_support_energy
+
+
+@dataclass(frozen=True)
+class PSFModel:
+    """A registry entry: build the kernel, or tell its radius (px, before any cap) without
+    building it (for the memory estimate and the guard band)."""
+
+    build: Callable[[RelaySpec, PSFContext], "PSF | None"]
+    radius_px: Callable[[RelaySpec, PSFContext], int]
+
+
+PSFS = Registry("relay PSF")
+PSFS.register("delta", PSFModel(lambda s, c: None, lambda s, c: 0),
+              source="an ideal relay: the stage is skipped and listed in skipped_stages")
+PSFS.register("gaussian", PSFModel(
+    lambda s, c: gaussian_psf(s.sigma_px, c.support_px, c.support_energy, c.cap_px),
+    lambda s, c: gaussian_radius_px(s.sigma_px, c.support_px, c.support_energy)),
+    source="pixel-integrated Gaussian of sigma_px (a defocus/aberration stand-in)")
+PSFS.register("airy", PSFModel(
+    lambda s, c: airy_psf(c.f_number, c.pixel_pitch_m, c.band_nm, c.band_weights, c.support_px,
+                          c.support_energy, c.cap_px),
+    lambda s, c: airy_radius_px(c.f_number, c.pixel_pitch_m, c.band_nm, c.band_weights, c.support_px,
+                                c.support_energy)),
+    source="Born & Wolf, Principles of Optics, 8.5.2: [2 J1(x)/x]^2, polychromatic, pixel-integrated")
+PSFS.register("measured", PSFModel(
+    lambda s, c: measured_psf(measured_psf_path(s.measured_file, c.base_dir), c.support_px, c.cap_px),
+    lambda s, c: min(read_psf_image(measured_psf_path(s.measured_file, c.base_dir)).shape[0] // 2,
+                     c.support_px // 2 if c.support_px else 1 << 30)),
+    source="an image file (PNG/EXR) sampled at the sensor pixel: the measured relay")
+
+
+@dataclass(frozen=True)
+class RelaySpec:
+    """[relay]: relay lens between DMD and sensor (module docstring)."""
+
+    psf: str = param("delta", choices=PSFS)
+    f_number: float = param(math.nan, gt=0, max=1000.0)  # relay aperture stop (image side); NaN: none
+    magnification: float = param(math.nan, gt=0, max=1000.0)  # NaN: from the registration (layout.py)
+    sigma_px: float = param(1.0, gt=0, max=1000.0)
+    support_px: int = param(0, min=0, max=4097)         # accuracy: 0 = chosen from the PSF's energy
+    support_energy: float = param(0.999, gt=0.5, lt=1.0)  # accuracy: energy held by the automatic support
+    measured_file: str = param("")
+    transmission: float = param(0.9, gt=0, max=1.0)
+    glare_fraction: float = param(0.0, min=0, max=0.5)   # veiling glare: energy in a wide halo
+    glare_sigma_px: float = param(40.0, gt=0, max=4096.0)
+    crosstalk_tolerance: float = param(0.05, gt=0, max=10.0)  # flag 8: |blurred / own exposure - 1| above
+    guard_max_px: int = param(256, min=0, max=4096)      # accuracy: widest guard band rendered (px)
+
+
+def kernel_size_px(spec: RelaySpec, ctx: PSFContext) -> int:
+    """Width (px) of the kernel `build_psf` would build (cap included), without building it
+    (1 when the stage is skipped): for the memory estimate and the guard band."""
+    radii = [PSFS[spec.psf].radius_px(spec, ctx)]
     if spec.glare_fraction > 0:
-        radii.append(gaussian_radius_px(spec.glare_sigma_px, spec.support_px, spec.support_energy))
-    if not radii:
+        radii.append(gaussian_radius_px(spec.glare_sigma_px, ctx.support_px, ctx.support_energy))
+    r = max(radii)
+    if r == 0:
         return 1
-    return 2 * _capped_radius(max(radii), cap) + 1
+    return 2 * _capped_radius(r, ctx.cap_px) + 1
 
 
-def build_psf(spec: RelaySpec, *, pixel_pitch_m: float, f_number: float, band_nm=None,
-              band_weights=None, base_dir: Path | None = None, image_shape=None) -> PSF | None:
-    """The scene's PSF, or None for `delta` without glare (the stage is skipped). `f_number`:
-    the working f-number of the cone at the sensor (layout.OpticalLayout.sensor_f_number).
-
-    image_shape: (H, W) of the image it will blur; kernels are capped at `max_support_px`."""
-    cap = max_support_px(image_shape) if image_shape is not None else None
-    core = _core_psf(spec, pixel_pitch_m, f_number, band_nm, band_weights, base_dir, cap)
+def build_psf(spec: RelaySpec, ctx: PSFContext) -> PSF | None:
+    """The relay's PSF from its registry entry, or None for `delta` without glare (the stage is
+    skipped). Glare (`glare_fraction` g > 0): (1 - g) core + g Gaussian halo, unit sum."""
+    core = PSFS[spec.psf].build(spec, ctx)
     g = spec.glare_fraction
     if g <= 0:
         return core
-    halo = gaussian_psf(spec.glare_sigma_px, spec.support_px, spec.support_energy, cap)
+    halo = gaussian_psf(spec.glare_sigma_px, ctx.support_px, ctx.support_energy, ctx.cap_px)
     ck = core.kernel if core else np.ones((1, 1))
     n = max(ck.shape[0], halo.kernel.shape[0])
     k = (1 - g) * _pad_to(ck, n) + g * _pad_to(halo.kernel, n)
@@ -253,17 +302,6 @@ def build_psf(spec: RelaySpec, *, pixel_pitch_m: float, f_number: float, band_nm
 def _pad_to(k: np.ndarray, n: int) -> np.ndarray:
     p = (n - k.shape[0]) // 2
     return np.pad(k, p) if p else k
-
-
-def _core_psf(spec: RelaySpec, pixel_pitch_m, f_number, band_nm, band_weights, base_dir, cap) -> PSF | None:
-    if spec.psf == "delta":
-        return None
-    if spec.psf == "gaussian":
-        return gaussian_psf(spec.sigma_px, spec.support_px, spec.support_energy, cap)
-    if spec.psf == "airy":
-        return airy_psf(f_number, pixel_pitch_m, band_nm, band_weights, spec.support_px,
-                        spec.support_energy, cap)
-    return measured_psf(measured_psf_path(spec, base_dir), spec.support_px, cap)
 
 
 def fft_shape(image_shape, kernel_px: int) -> tuple[int, int]:

@@ -19,6 +19,9 @@ Parameter table (`[sensor]`):
 | f_number             | float | -        | 2.8           | yes |
 | optical_throughput   | float | fraction | 0.9           | yes |
 | qe                   | str   | e-/photon| IMX253 table  | no  |
+| poisson_sampler      | str   | -        | exact         | accuracy (POISSON_SAMPLERS) |
+
+Registries: `SENSOR_PRESETS` (sensors by name, each citing its data), `POISSON_SAMPLERS`.
 """
 
 from __future__ import annotations
@@ -29,7 +32,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from poevp_optics.scene.spec import SensorSpec
+from poevp_optics.core.params import param
+from poevp_optics.core.registry import Registry
 
 
 @dataclass(frozen=True)
@@ -51,6 +55,7 @@ class SensorParams:
     qe: str
     noise: bool = True
     seed: int = 0
+    poisson_sampler: str = "exact"
 
     @property
     def max_dn(self) -> int:
@@ -81,12 +86,41 @@ GENERIC = SensorParams(
     offset_dn=math.nan, dark_current_e_per_s=10.0, prnu=0.01, dsnu_e=2.0, pixel_pitch_m=5.86e-6,
     f_number=2.8, optical_throughput=0.9, qe="file:spectra/imx253_mono_qe.csv")
 
-PRESETS = {"IMX253": IMX253, "generic": GENERIC}
+SENSOR_PRESETS = Registry("sensor preset")
+SENSOR_PRESETS.register("IMX253", IMX253, source="EMVA 1288 reports of the Sony Pregius IMX250/252/253 "
+                        "(Matrix Vision mvBlueCOUGAR manuals); the paper's FLIR GS3-U3-123S6M-C")
+SENSOR_PRESETS.register("generic", GENERIC, source="typical IMX174-class EMVA 1288 data (5.86 um, 32 ke-)")
+
+
+#: Shot-noise samplers by name; entries registered below their functions.
+POISSON_SAMPLERS = Registry("Poisson sampler")
+
+
+@dataclass(frozen=True)
+class SensorSpec:
+    """[sensor]: preset plus overrides; NaN / -1 / "" mean "from the preset"."""
+
+    preset: str = param("IMX253", choices=SENSOR_PRESETS)
+    bits: int = param(-1, min=1, max=24, unset=-1)      # DN are float32: exact integers up to 2^24
+    full_well_e: float = param(math.nan, gt=0)
+    read_noise_e: float = param(math.nan, min=0)
+    gain_dn_per_e: float = param(math.nan, gt=0)
+    offset_dn: float = param(math.nan, min=0)
+    dark_current_e_per_s: float = param(math.nan, min=0)
+    prnu: float = param(math.nan, min=0, max=1)
+    dsnu_e: float = param(math.nan, min=0)
+    pixel_pitch_m: float = param(math.nan, gt=0, max=1e-3)
+    f_number: float = param(math.nan, gt=0, max=1000.0)
+    optical_throughput: float = param(math.nan, gt=0, max=1.0)
+    qe: str = param("")
+    noise: bool = param(True)
+    seed: int = param(0, min=0, max=2**31 - 1)
+    poisson_sampler: str = param("exact", choices=POISSON_SAMPLERS)   # accuracy
 
 
 def resolve_sensor(spec: SensorSpec) -> SensorParams:
     """Preset values with the scene's overrides (NaN, -1 and "" mean "keep the preset")."""
-    base = PRESETS[spec.preset]
+    base = SENSOR_PRESETS[spec.preset]
     changes = {}
     for f in dataclasses.fields(SensorSpec):
         if f.name == "preset":
@@ -206,6 +240,24 @@ def normal(rng, n):
     return dr.sqrt(-2.0 * dr.log(dr.maximum(1.0 - u1, 1e-30))) * dr.cos(2.0 * dr.pi * u2), rng
 
 
+def gaussian_counts(lam, rng):
+    """Normal approximation of Poisson counts: round(lambda + sqrt(lambda) z), clipped at 0 (the
+    central-limit form ISETCam uses above 25 e-; FACTS.md). Biased at low counts: for studies of
+    what the exact sampler costs, not for the default."""
+    import drjit as dr
+    from drjit.auto import Float
+
+    lam = dr.maximum(Float(lam), 0.0)
+    z, rng = normal(rng, dr.width(lam))
+    return dr.maximum(dr.round(lam + dr.sqrt(lam) * z), 0.0), rng
+
+
+POISSON_SAMPLERS.register("exact", poisson, source="Knuth 1969 (TAOCP 2, 3.4.1) below 10 e-, PTRS "
+                          "transformed rejection (Hormann 1993) above: exact")
+POISSON_SAMPLERS.register("gaussian", gaussian_counts, source="normal approximation N(lambda, lambda), "
+                          "rounded (ISETCam sensorCompute above 25 e-)")
+
+
 class Sensor:
     """A sensor instance: parameters plus its fixed-pattern noise (drawn once from its seed).
 
@@ -262,7 +314,7 @@ class Sensor:
             self.random_draws += n
         e = mean
         if sw.shot:
-            e, rng = poisson(mean, rng)
+            e, rng = POISSON_SAMPLERS[p.poisson_sampler](mean, rng)
         e = dr.minimum(e, p.full_well_e)
         e_read = e + self.dsnu_e
         if sw.read and p.read_noise_e > 0:

@@ -31,9 +31,12 @@ so the envelope is >= the frame everywhere: the mask is smooth and never under-a
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
-from poevp_optics.scene.spec import MaskSpec
+from poevp_optics.core.params import param
+from poevp_optics.core.registry import Registry
 
 
 def smooth_envelope(frame: np.ndarray, smooth_px: float) -> np.ndarray:
@@ -122,23 +125,70 @@ def predicted_electrons(pred_8bit: np.ndarray, params, clipped_gain: float) -> n
     return np.where(clipped, clipped_gain * params.saturation_capacity_e, e)
 
 
+@dataclass(frozen=True)
+class MaskInput:
+    """What a law may look at: the predicted frame on the 8-bit scale (mirror grid), the electrons
+    it implies with the all-white mask, the full well, and the exposure of every DMD level."""
+
+    pred_8bit: np.ndarray | None = None
+    pred_electrons: np.ndarray | None = None
+    full_well_e: float | None = None
+    level_exposure: np.ndarray | None = None
+
+    @property
+    def shape(self):
+        return (self.pred_8bit if self.pred_8bit is not None else self.pred_electrons).shape
+
+
+def _white_law(spec, top: int, x: MaskInput) -> np.ndarray:
+    return np.full(x.shape, float(top))
+
+
+def _target_law(spec, top: int, x: MaskInput) -> np.ndarray:
+    if x.pred_electrons is None or x.level_exposure is None or x.full_well_e is None:
+        raise ValueError("mask law 'target' needs predicted electrons and the level table")
+    e = np.nan_to_num(np.asarray(x.pred_electrons, dtype=np.float64), nan=1e30, posinf=1e30)
+    env = smooth_envelope(e, spec.smooth_px)
+    return target_levels(env, x.full_well_e, spec.target, x.level_exposure, min(spec.min_level, top))
+
+
+def _paper_law(formula):
+    def law(spec, top: int, x: MaskInput) -> np.ndarray:
+        if x.pred_8bit is None:
+            raise ValueError(f"mask law {spec.law!r} needs a predicted 8-bit frame")
+        env = smooth_envelope(_as_8bit(x.pred_8bit), spec.smooth_px)
+        m255 = formula(env, spec.vs, spec.a, spec.b)
+        return np.clip(np.rint(m255 * top / 255.0), min(spec.min_level, top), top)
+    return law
+
+
+MASK_LAWS = Registry("mask law")
+MASK_LAWS.register("threshold_exp", _paper_law(threshold_exp),
+                   source="paper Eq. 2, exponential reading (module docstring)")
+MASK_LAWS.register("threshold_ratio", _paper_law(threshold_ratio),
+                   source="paper Eq. 2, ratio reading (module docstring)")
+MASK_LAWS.register("target", _target_law, source="ours: the largest level bringing the predicted "
+                   "signal to `target` x full well")
+MASK_LAWS.register("white", _white_law, source="all mirrors on: the LDR twin")
+
+
+@dataclass(frozen=True)
+class MaskSpec:
+    """[mask]: mask law and its coefficients (paper Eq. 2: vs, a, b)."""
+
+    law: str = param("target", choices=MASK_LAWS)
+    vs: float = param(200.0, gt=0, lt=255)
+    a: float = param(0.9, min=0, max=1)
+    b: float = param(0.0, min=0, max=1)
+    target: float = param(0.5, gt=0, max=1)
+    smooth_px: float = param(4.0, min=0, max=1000)
+    clipped_gain: float = param(32.0, min=1, max=1e9)   # target law: assumed x saturation where clipped
+    min_level: int = param(0, min=0, max=65535)         # lowest DMD level a law may use
+
+
 def mask_levels(spec: MaskSpec, bits: int, *, pred_8bit: np.ndarray | None = None,
                 pred_electrons: np.ndarray | None = None, full_well_e: float | None = None,
                 level_exposure: np.ndarray | None = None) -> np.ndarray:
-    """Apply the scene's mask law; returns integer-valued float64 levels in [0, 2^bits - 1]."""
-    top = (1 << bits) - 1
-    if spec.law == "white":
-        shape = (pred_8bit if pred_8bit is not None else pred_electrons).shape
-        return np.full(shape, float(top))
-    if spec.law == "target":
-        if pred_electrons is None or level_exposure is None or full_well_e is None:
-            raise ValueError("mask law 'target' needs predicted electrons and the level table")
-        e = np.nan_to_num(np.asarray(pred_electrons, dtype=np.float64), nan=1e30, posinf=1e30)
-        env = smooth_envelope(e, spec.smooth_px)
-        return target_levels(env, full_well_e, spec.target, level_exposure, min(spec.min_level, top))
-    if pred_8bit is None:
-        raise ValueError(f"mask law {spec.law!r} needs a predicted 8-bit frame")
-    env = smooth_envelope(_as_8bit(pred_8bit), spec.smooth_px)
-    law = {"threshold_exp": threshold_exp, "threshold_ratio": threshold_ratio}[spec.law]
-    m255 = law(env, spec.vs, spec.a, spec.b)
-    return np.clip(np.rint(m255 * top / 255.0), min(spec.min_level, top), top)
+    """Apply the scene's mask law (MASK_LAWS); integer-valued float64 levels in [0, 2^bits - 1]."""
+    x = MaskInput(pred_8bit, pred_electrons, full_well_e, level_exposure)
+    return MASK_LAWS[spec.law](spec, (1 << bits) - 1, x)

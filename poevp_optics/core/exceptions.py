@@ -14,3 +14,11 @@ class UserError(ValueError):
     def __init__(self, message: str):
         # one line, whatever the cause's text held (Mitsuba and OS messages can be multi-line)
         super().__init__(" ".join(str(message).split()))
+
+
+class ParamError(UserError):
+    """A bad parameter value: the message names the dotted key (and the file it came from)."""
+
+
+class SceneError(ParamError):
+    """Invalid scene file or override; the message names the file and the key."""

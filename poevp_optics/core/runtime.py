@@ -160,3 +160,34 @@ def libllvm_in_use() -> str | None:
         return os.environ.get("DRJIT_LIBLLVM_PATH")
     hits = sorted(set(re.findall(r"(/\S*libLLVM[^\s/]*\.so[^\s/]*)", maps)))
     return hits[0] if hits else None
+
+
+def pyplot():
+    """matplotlib.pyplot with the non-interactive Agg backend (the one place that sets it)."""
+    import matplotlib
+
+    if matplotlib.get_backend().lower() != "agg":
+        matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def cache_dir(*parts: str) -> Path:
+    """The package's cache folder ($POEVP_CACHE_DIR, else ~/.cache/poevp_optics), sub-folder `parts`."""
+    root = Path(os.environ.get("POEVP_CACHE_DIR", Path.home() / ".cache" / "poevp_optics"))
+    return root.joinpath(*parts)
+
+
+_OCR_ENGINE = None
+
+
+def ocr_engine():
+    """The process's one OCR engine (RapidOCR, PP-OCRv4 ONNX models inside its wheel), built on
+    first use: loading the models costs ~1 s."""
+    global _OCR_ENGINE
+    if _OCR_ENGINE is None:
+        from rapidocr_onnxruntime import RapidOCR
+
+        _OCR_ENGINE = RapidOCR()
+    return _OCR_ENGINE

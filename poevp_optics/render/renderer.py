@@ -28,12 +28,31 @@ from pathlib import Path
 
 import numpy as np
 
-from poevp_optics.core import runtime
-from poevp_optics.sources import spectra
-from poevp_optics.scene.spec import SceneError, SceneSpec
 from poevp_optics.camera.sensor import resolve_sensor
+from poevp_optics.core import runtime
+from poevp_optics.core.exceptions import SceneError
+from poevp_optics.core.params import param
+from poevp_optics.sources import spectra
 
 _EMISSIVE_KINDS = ("intensity", "radiance", "irradiance")
+
+
+@dataclass(frozen=True)
+class RenderSpec:
+    """[render]: the Mitsuba scene and its sampling; spp, subframes, pwm_nodes, temporal_spp and
+    mc_splits are accuracy settings (core/accuracy.py)."""
+
+    xml: str = param("scene.xml")
+    spp: int = param(16, min=1, max=1 << 20)
+    resolution: tuple[int, int] = param((368, 640), length=2, min=1, max=16384)
+    subframes: int = param(4, min=1, max=4096)          # uniform radiance nodes in time per exposure
+    pwm_nodes: bool = param(True)                       # also sample at the DMD's switching times
+    temporal_spp: int = param(0, min=0, max=1 << 20)    # spp of the temporal-error check; 0: render.spp
+    seed: int = param(0, min=0, max=2**31 - 1)
+    variant: str = param("auto")                        # "auto" or a Mitsuba variant name
+    spectral_mode: str = param("auto", choices=("auto", "spectral", "mono"))
+    mc_splits: int = param(2, min=2, max=64)            # independent-seed renders for MC error
+    roi_shape: str = param("")                          # shape id whose image box is the ROI
 
 
 @dataclass(frozen=True)
@@ -94,12 +113,8 @@ def absolute_spectrum(spec_entry) -> np.ndarray:
     return spectra.scale_to_photometric(shape, value)
 
 
-def plan_spectra(spec: SceneSpec, force_mode: str | None = None) -> SpectralPlan:
-    """Check the [spectra] bindings against the XML and choose the spectral or mono path.
-
-    force_mode: "spectral" overrides the scene's choice (used when no mono variant exists).
-    """
-    facts = read_xml_facts(spec.xml_path)
+def check_bindings(spec, facts: XmlFacts) -> None:
+    """Every [spectra] entry binds a declared XML parameter, every emitter spectrum is bound."""
     file = spec.toml_path
     if facts.problems:
         raise SceneError(f"{spec.xml_path}: {facts.problems[0]}")
@@ -115,6 +130,44 @@ def plan_spectra(spec: SceneSpec, force_mode: str | None = None) -> SpectralPlan
             raise SceneError(f"{file}: spectra.{name}: emitter parameter ${name} of "
                              f"{spec.xml_path.name} has no [spectra.{name}] entry (absolute units)")
 
+
+def _choose_path(spec, facts: XmlFacts, eligible: bool, why: str, force_mode: str | None) -> tuple[str, str]:
+    """The render path (spectral or mono) and why."""
+    mode = force_mode or spec.render.spectral_mode
+    if mode == "mono" and not eligible:
+        raise SceneError(f"{spec.toml_path}: render.spectral_mode: 'mono' would not be exact here ({why})")
+    if mode == "auto":
+        mode = "mono" if eligible else "spectral"
+        return mode, (f"auto: pre-integrated mono render is exact ({why})" if eligible
+                      else f"auto: spectral render needed ({why})")
+    if force_mode:
+        return mode, f"spectral: no mono Mitsuba variant on this machine ({why})"
+    return mode, f"requested in the scene file ({why})"
+
+
+def _mono_values(response, values, emissive, reflect, shapes) -> dict[str, str]:
+    """Pre-integrated XML values: emitters as integral(S x SPD), reflectances as their S- and
+    SPD-weighted mean."""
+    params = {}
+    weight = shapes[0] if shapes else np.ones_like(response)
+    norm = spectra.integrate(response * weight)
+    for n in emissive:
+        params[n] = f"{spectra.integrate(response * values[n]):.9g}"
+    for n in reflect:
+        r = values[n]
+        eff = (float(np.mean(r)) if spectra.is_neutral(r) or not norm > 0
+               else spectra.integrate(response * weight * r) / norm)
+        params[n] = f"{eff:.9g}"
+    return params
+
+
+def plan_spectra(spec, force_mode: str | None = None) -> SpectralPlan:
+    """Check the [spectra] bindings against the XML and choose the spectral or mono path.
+
+    force_mode: "spectral" overrides the scene's choice (used when no mono variant exists).
+    """
+    facts = read_xml_facts(spec.xml_path)
+    check_bindings(spec, facts)
     sensor = resolve_sensor(spec.sensor)
     response = spectra.sensor_response_e_per_J(spectra.load_spectrum(sensor.qe, emissive=True))
     values = {n: absolute_spectrum(e) for n, e in spec.spectra.items()}
@@ -125,49 +178,24 @@ def plan_spectra(spec: SceneSpec, force_mode: str | None = None) -> SpectralPlan
               if spectra.integrate(response * values[n]) > 0]
     one_shape = all(np.allclose(s, shapes[0], rtol=1e-6, atol=1e-12) for s in shapes[1:]) if shapes else True
     flat = all(spectra.is_neutral(values[n]) for n in reflect)
-    direct_only = facts.max_depth in (1, 2)
-
     if flat:
         eligible, why = True, "every reflectance is spectrally flat: the wavelength integral factorises"
-    elif one_shape and direct_only:
+    elif one_shape and facts.max_depth in (1, 2):
         eligible, why = True, ("all emitters share one SPD shape and light bounces once "
                                f"(max_depth={facts.max_depth}): the wavelength integral factorises")
     else:
         eligible = False
         why = ("emitters have different SPD shapes" if not one_shape else
                f"multiple bounces (max_depth={facts.max_depth}) over non-flat reflectances")
-    mode = force_mode or spec.render.spectral_mode
-    if mode == "mono" and not eligible:
-        raise SceneError(f"{file}: render.spectral_mode: 'mono' would not be exact here ({why})")
-    if mode == "auto":
-        mode = "mono" if eligible else "spectral"
-        reason = (f"auto: pre-integrated mono render is exact ({why})" if eligible
-                  else f"auto: spectral render needed ({why})")
-    elif force_mode:
-        reason = f"spectral: no mono Mitsuba variant on this machine ({why})"
-    else:
-        reason = f"requested in the scene file ({why})"
-
-    params = {}
-    if mode == "spectral":
-        for n, v in values.items():
-            params[n] = spectra.to_mitsuba(v)
-    else:
-        weight = shapes[0] if shapes else np.ones_like(response)
-        norm = spectra.integrate(response * weight)
-        for n in emissive:
-            params[n] = f"{spectra.integrate(response * values[n]):.9g}"
-        for n in reflect:
-            r = values[n]
-            eff = (float(np.mean(r)) if spectra.is_neutral(r) or not norm > 0
-                   else spectra.integrate(response * weight * r) / norm)
-            params[n] = f"{eff:.9g}"
+    mode, reason = _choose_path(spec, facts, eligible, why, force_mode)
+    params = ({n: spectra.to_mitsuba(v) for n, v in values.items()} if mode == "spectral"
+              else _mono_values(response, values, emissive, reflect, shapes))
     from poevp_optics.render.materials.bindings import plugin_xml_params  # photometric lamps, retroreflective sheeting
 
     params.update(plugin_xml_params(spec, facts.defaults))
     if spec.plate.text:
         if spec.plate.param not in facts.defaults:
-            raise SceneError(f"{file}: plate.param: the XML {spec.xml_path.name} declares no "
+            raise SceneError(f"{spec.toml_path}: plate.param: the XML {spec.xml_path.name} declares no "
                              f"<default name=\"{spec.plate.param}\"> for the plate texture")
         from poevp_optics.sources.plates import cached_plate_path
 
@@ -192,7 +220,7 @@ class RenderStats:
 class Renderer:
     """A loaded Mitsuba scene that can be posed at a time and rendered (stateful: the scene)."""
 
-    def __init__(self, spec: SceneSpec, zero_params: frozenset[str] = frozenset(), guard_px: int = 0):
+    def __init__(self, spec, zero_params: frozenset[str] = frozenset(), guard_px: int = 0):
         """zero_params: emitter parameters set to zero in this instance (one emitter group's
         image for flickering lamps, loop.render_exposures). guard_px: pixels rendered beyond
         each edge of `render.resolution` at the same focal length (the camera's guard band for

@@ -11,6 +11,18 @@ rest + mean drive over its sub-interval x the lamp's own image (render.py / loop
 from __future__ import annotations
 
 import numpy as np
+from dataclasses import dataclass
+from poevp_optics.core.params import param
+
+
+@dataclass(frozen=True)
+class FlickerSpec:
+    """[flicker.<param>]: the emitter spectrum `$<param>` is PWM-driven (module docstring)."""
+
+    frequency_hz: float = param(gt=0, max=1e7)
+    duty: float = param(0.5, gt=0, max=1.0)
+    phase_s: float = param(0.0, min=0)
+    off_fraction: float = param(0.0, min=0, max=1.0)
 
 
 def drive_integral(t: np.ndarray, frequency_hz: float, duty: float, phase_s: float,

@@ -20,6 +20,19 @@ import cv2
 import numpy as np
 
 from poevp_optics.core.io import write_png
+from dataclasses import dataclass
+from poevp_optics.core.params import param as _param
+
+
+@dataclass(frozen=True)
+class PlateSpec:
+    """[plate]: plate text; when set, a texture is generated and bound to `$<param>`."""
+
+    text: str = _param("")
+    param: str = _param("plate_texture")
+    width_px: int = _param(1040, min=64, max=8192)
+    height_px: int = _param(220, min=16, max=2048)
+
 
 PLATE_WIDTH_M = 0.520
 PLATE_HEIGHT_M = 0.110

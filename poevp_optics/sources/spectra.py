@@ -26,6 +26,27 @@ import numpy as np
 from poevp_optics.core.units import LUMINOUS_EFFICACY_MAX_LM_PER_W, photons_per_joule
 from poevp_optics.core.exceptions import UserError
 from poevp_optics.core.paths import ASSETS_DIR  # noqa: F401 (re-exported)
+from dataclasses import dataclass
+from poevp_optics.core.params import param
+
+
+@dataclass(frozen=True)
+class SpectrumSpec:
+    """[spectra.<param>]: a spectrum bound to the XML parameter `$<param>`.
+
+    kind: "intensity" (W sr-1 nm-1, scaled by intensity_cd), "radiance" (W m-2 sr-1 nm-1,
+    luminance_cd_per_m2), "irradiance" (W m-2 nm-1, illuminance_lux) or "reflectance"
+    (unitless, times `scale`, must stay <= 1); `distribution` (intensity only): a photometric
+    file (.ies/.ldt) shaping the lamp (render/materials/photometric_lamp.py).
+    """
+
+    kind: str = param(choices=("intensity", "radiance", "irradiance", "reflectance"))
+    source: str = param()
+    intensity_cd: float = param(math.nan, min=0)
+    luminance_cd_per_m2: float = param(math.nan, min=0)
+    illuminance_lux: float = param(math.nan, min=0)
+    scale: float = param(1.0, min=0)
+    distribution: str = param("")
 
 #: Rendering grid (nm): Mitsuba's spectral range is 360-830 nm.
 WAVELENGTH_MIN_NM = 360.0

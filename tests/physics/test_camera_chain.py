@@ -10,7 +10,7 @@ from poevp_optics.camera.camera import Camera
 from poevp_optics.camera.dmd import transmission_table
 from poevp_optics.camera.reconstruct import UNEXPOSED, reconstruct
 from poevp_optics.camera.relay import airy_psf, convolve, gaussian_psf, measured_psf
-from poevp_optics.scene.spec import load_scene
+from poevp_optics.scene.load import load_scene
 from poevp_optics.camera.sensor import NoiseSwitches
 from poevp_optics.sources import spectra
 from tests.conftest import ROOT, SCENES
@@ -24,7 +24,7 @@ def _camera(exposure_s, *extra, noise=False):
                                          f"timing.exposure_s={exposure_s}",
                                          f"timing.dmd_window_s={exposure_s}", *extra])
     sw = None if noise else NoiseSwitches(False, False, True, False, False, False)
-    return spec, Camera(spec, sw)
+    return spec, Camera.from_scene(spec, sw)
 
 
 @pytest.mark.parametrize("exposure_s", [1e-6, 1e-3, 0.0333, 10.0])
@@ -111,20 +111,18 @@ def test_airy_width_scales_with_f_number():
 
 def test_veiling_glare_kernel_splits_energy_and_conserves_flux():
     """(1 - g) core + g halo: unit sum, the halo's share outside the core's support is ~g."""
-    from poevp_optics.camera.relay import build_psf
-    from poevp_optics.scene.spec import RelaySpec
-
+    from poevp_optics.camera.relay import PSFContext, RelaySpec, build_psf
     g = 0.05
     psf = build_psf(RelaySpec(psf="gaussian", sigma_px=1.0, glare_fraction=g, glare_sigma_px=12.0),
-                    pixel_pitch_m=3.45e-6, f_number=4.0)
+                    PSFContext(3.45e-6, 4.0))
     assert psf.name == "gaussian+glare"
     assert psf.kernel.sum() == pytest.approx(1.0, abs=1e-12)
     c = psf.kernel.shape[0] // 2
     core = psf.kernel[c - 4:c + 5, c - 4:c + 5].sum()           # the core's 4-sigma box
     halo_in_box = g * 81 / (2 * np.pi * 144)                    # halo peak density x box area
     assert core == pytest.approx(1 - g + halo_in_box, abs=2e-3)
-    assert build_psf(RelaySpec(psf="delta"), pixel_pitch_m=3.45e-6, f_number=4.0) is None
-    glare_only = build_psf(RelaySpec(psf="delta", glare_fraction=g), pixel_pitch_m=3.45e-6, f_number=4.0)
+    assert build_psf(RelaySpec(psf="delta"), PSFContext(3.45e-6, 4.0)) is None
+    glare_only = build_psf(RelaySpec(psf="delta", glare_fraction=g), PSFContext(3.45e-6, 4.0))
     assert glare_only.kernel[glare_only.kernel.shape[0] // 2, glare_only.kernel.shape[0] // 2] > 1 - g
     img = _blob_image(96 + psf.kernel.shape[0])
     assert abs(convolve(img, psf).sum() / img.sum() - 1) < 1e-5
@@ -218,7 +216,7 @@ def test_one_optical_layout_gives_etendue_and_diffraction():
     """Etendue and the Airy PSF use the same working f-number at the sensor (layout.py):
     sensor.f_number = 2 with no relay stop gives f/2 for both (the Airy core is narrower than
     at f/4); the objective's f-number follows as 2 / magnification; contradictions are errors."""
-    from poevp_optics.scene.spec import SceneError
+    from poevp_optics.core.exceptions import SceneError
     from poevp_optics.camera.sensor import pixel_etendue_m2_sr
 
     spec2, cam2 = _camera(0.0333, "relay.psf=airy", "sensor.f_number=2.0")
@@ -260,7 +258,7 @@ def test_noise_free_dn_honours_the_dark_current_switch():
 
     spec, cam = _camera(10.0, "sensor.bits=12", "sensor.dark_current_e_per_s=100.0")
     on = cam.noise_free_dn(np.zeros((2, 2)))
-    cam_off = Camera(spec, NoiseSwitches(False, False, False, False, False, True))
+    cam_off = Camera.from_scene(spec, NoiseSwitches(False, False, False, False, False, True))
     off = cam_off.noise_free_dn(np.zeros((2, 2)))
     p = cam.params
     assert np.all(off == np.rint(p.offset_dn))

@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 
 from poevp_optics.apps.chart import PAPER_DB, run_chart
-from poevp_optics.scene.spec import SceneError, load_scene
-
+from poevp_optics.core.exceptions import SceneError
+from poevp_optics.scene.load import load_scene
 from ..conftest import SCENES
 
 SMALL = ["render.resolution=[160,160]", "chart.roi_inset_px=2", "chart.repeats=8",

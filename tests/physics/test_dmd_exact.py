@@ -6,9 +6,8 @@ import numpy as np
 import pytest
 
 from poevp_optics.camera.dmd import DMD, Schedule, on_time_table, transmission_table
-from poevp_optics.scene.spec import DMDSpec, TimingSpec
-
-
+from poevp_optics.camera.dmd import DMDSpec
+from poevp_optics.core.timing import TimingSpec
 def _closed_form(v, bits, t_s, t_i, t_d0, t_d, outside_on, msb_first):
     """On-time inside [t_s, t_s + t_I]: each set bit b contributes the overlap of its plane
     [start_b, start_b + t_D 2^b / (2^B - 1)] with the exposure; plus the white time outside the

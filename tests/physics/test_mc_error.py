@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from poevp_optics.apps.render_run import _rel_error, _seeds
+from poevp_optics.core.seeds import render_seeds as _seeds
+from poevp_optics.render.exposures import rel_error as _rel_error
 from poevp_optics.render.renderer import Renderer
-from poevp_optics.scene.spec import load_scene
+from poevp_optics.scene.load import load_scene
 from tests.conftest import SCENES
 
 

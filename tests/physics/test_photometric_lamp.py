@@ -19,7 +19,7 @@ import pytest
 
 from poevp_optics.sources import spectra
 from poevp_optics.render.renderer import Renderer, absolute_spectrum
-from poevp_optics.scene.spec import load_scene
+from poevp_optics.scene.load import load_scene
 from poevp_optics.camera.sensor import IMX253
 from poevp_optics.sources.spectra import ASSETS_DIR
 
@@ -177,8 +177,7 @@ def test_wall_illuminance_matches_file_candela(write_scene, lamp_file, points, m
 
 
 def test_bad_distribution_keys_are_one_line_errors(write_scene):
-    from poevp_optics.scene.spec import SceneError
-
+    from poevp_optics.core.exceptions import SceneError
     base = """
     [spectra.wall]
     kind = "reflectance"

@@ -16,7 +16,7 @@ import pytest
 
 from poevp_optics.sources import spectra
 from poevp_optics.render.renderer import Renderer, absolute_spectrum
-from poevp_optics.scene.spec import load_scene
+from poevp_optics.scene.load import load_scene
 from poevp_optics.camera.sensor import IMX253
 
 from tests.helpers import PLANE_XML

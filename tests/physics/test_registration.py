@@ -10,7 +10,8 @@ import pytest
 
 from poevp_optics.camera.camera import Camera
 from poevp_optics.camera.registration import _mirror_coords, apply_taps, apply_taps_numpy, forward_taps
-from poevp_optics.scene.spec import RegistrationSpec, load_scene
+from poevp_optics.camera.registration import RegistrationSpec
+from poevp_optics.scene.load import load_scene
 from tests.conftest import SCENES
 
 H, W = 48, 64
@@ -72,17 +73,17 @@ def test_predicted_mask_lands_on_the_highlight_after_a_registration_round_trip()
     """A highlight predicted on the sensor grid (clipped 8-bit) is dimmed by mirrors that the
     relay images onto that highlight: the exposure seen by the sensor there is low, and far
     away it is white. Without the inverse map the dark patch would sit 20 px off."""
-    from poevp_optics.apps.render_run import predicted_mask
+    from poevp_optics.control.loop_step import predicted_mask
 
     spec = load_scene(SCENES / "smoke", [f"render.resolution=[{H},{W}]", "mask.smooth_px=1.0",
                                          "dmd.registration.offset_px=[20.0, -6.0]",
                                          "dmd.registration.rotation_deg=12.0", "dmd.registration.scale=1.1"])
-    cam = Camera(spec)
+    cam = Camera.from_scene(spec)
     pred = np.full((H, W), 20.0)
     cy, cx = 30, 14
     yy, xx = np.mgrid[0:H, 0:W]
     pred[(yy - cy) ** 2 + (xx - cx) ** 2 <= 9] = 255.0               # clipped highlight, r = 3 px
-    mask = predicted_mask(spec, cam, pred, 0)
+    mask = predicted_mask(cam, spec.mask, pred, 0)
     assert mask.shape == cam.mirror_shape
     rel = cam.level_exposure_s(0)[mask.astype(int)] / cam.white_exposure_s(0)
     seen = cam.to_sensor(rel)

@@ -20,7 +20,7 @@ import pytest
 
 from poevp_optics.sources import spectra
 from poevp_optics.render.renderer import Renderer, absolute_spectrum
-from poevp_optics.scene.spec import load_scene
+from poevp_optics.scene.load import load_scene
 from poevp_optics.camera.sensor import IMX253
 
 D_M = 10.0
@@ -257,8 +257,7 @@ def test_table_errors_name_the_source(tmp_path):
 
 
 def test_scene_key_errors_are_one_line(write_scene):
-    from poevp_optics.scene.spec import SceneError
-
+    from poevp_optics.core.exceptions import SceneError
     cam, lamp = _geometry(0.2, 4.0)
     xml = SHEET_XML.format(cx=cam[0], cy=cam[1], cz=cam[2], lx=lamp[0], ly=lamp[1], lz=lamp[2])
     base = """

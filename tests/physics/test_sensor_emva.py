@@ -19,7 +19,7 @@ from emva1288.process import data as emva_data  # noqa: E402
 from emva1288.process import results as emva_results  # noqa: E402
 from emva1288.process import routines  # noqa: E402
 
-from poevp_optics.scene.spec import SensorSpec  # noqa: E402
+from poevp_optics.camera.sensor import SensorSpec  # noqa: E402
 from poevp_optics.camera.sensor import NoiseSwitches, Sensor, resolve_sensor  # noqa: E402
 
 QE_525NM = 0.69                      # electrons per photon (assets/spectra/imx253_mono_qe.csv)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from drjit.auto import Float
 
-from poevp_optics.scene.spec import SensorSpec
+from poevp_optics.camera.sensor import SensorSpec
 from poevp_optics.camera.sensor import NoiseSwitches, Sensor, resolve_sensor
 
 N = 200_000

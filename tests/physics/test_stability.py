@@ -19,11 +19,12 @@ from poevp_optics.camera.camera import Camera
 from poevp_optics.camera.dmd import _interval_moments, node_times_s, throughput_on
 from poevp_optics.sources.flicker import on_intervals
 from poevp_optics.core.io import read_exr
-from poevp_optics.apps.render_run import _flicker_bases, render_exposures, run_render
+from poevp_optics.apps.render_run import run_render
+from poevp_optics.render.exposures import flicker_bases, render_exposures
 from poevp_optics.control.masks import mask_levels
 from poevp_optics.camera.reconstruct import SATURATED, reconstruct
 from poevp_optics.render.renderer import Renderer
-from poevp_optics.scene.spec import load_scene
+from poevp_optics.scene.load import load_scene
 from poevp_optics.camera.sensor import NoiseSwitches
 
 from ..conftest import SCENES
@@ -64,14 +65,14 @@ def test_extreme_scene_outputs_are_finite_and_bounded(tmp_path, name):
 def test_reconstruction_never_exceeds_truth_beyond_its_noise(name):
     spec = _small(name)
     renderer = Renderer(spec)
-    cam = Camera(spec)
+    cam = Camera.from_scene(spec)
     p = cam.params
     worst = 0.0
     for ex in render_exposures(spec, renderer, progress=False):
         subs = list(ex.subframes) if not spec.is_static else [ex.radiance.data]
-        from poevp_optics.apps.render_run import oracle_mask
+        from poevp_optics.control.loop_step import oracle_mask
 
-        mask = oracle_mask(spec, cam, ex.radiance.data, ex.index)
+        mask = oracle_mask(cam, spec.mask, ex.radiance.data, ex.index)
         cap = cam.capture(subs, mask, ex.index, seed=1000 + ex.index, basis=ex.basis,
                           times_s=ex.subframe_times_s if len(subs) > 1 and not ex.basis else None)
         if ex.basis:                                      # lamp images: at most all lamps fully on
@@ -101,7 +102,7 @@ def test_float32_chain_matches_float64_on_the_noise_free_path(name):
     terms: ~K x 6e-8)."""
     spec = _small(name)
     renderer = Renderer(spec)
-    cam = Camera(spec, NoiseSwitches.off())
+    cam = Camera.from_scene(spec, NoiseSwitches.off())
     ex = next(iter(render_exposures(spec, renderer, progress=False)))
     subs = list(ex.subframes) if not spec.is_static else [ex.radiance.data]
     mask = np.tile(np.linspace(0, cam.top_level, ex.radiance.data.shape[1]).round(), (ex.radiance.data.shape[0], 1))
@@ -123,14 +124,14 @@ def test_float32_chain_matches_float64_on_the_noise_free_path(name):
 
 def test_led_flicker_capture_converges_to_the_exact_time_integral():
     spec = load_scene(SCENES / "led_flicker", ["render.resolution=[12,16]", "render.spp=2"])
-    bases, _ = _flicker_bases(spec, Renderer(spec))
+    bases, _ = flicker_bases(spec, Renderer(spec))
     rest, lamp = bases["rest"][0].astype(np.float64), bases["highbeam"][0].astype(np.float64)
     fl = spec.flicker["highbeam"]
     levels = np.array([255, 200, 128, 37, 5, 1])
     mask = np.tile(np.repeat(levels, [3, 3, 3, 3, 2, 2])[None, :], (12, 1)).astype(float)
     # exact: per level, integral of the DMD transmission over the exposure (rest) and over the
     # LED's on-intervals (lamp), from the closed-form cumulative on-time of the schedule
-    cam = Camera(spec, NoiseSwitches.off())
+    cam = Camera.from_scene(spec, NoiseSwitches.off())
     sched = cam.schedule(0)
     thr, cr = throughput_on(spec.dmd), spec.dmd.contrast_ratio
 
@@ -156,7 +157,7 @@ def test_led_flicker_capture_converges_to_the_exact_time_integral():
     for k in (4, 16, 64, 256, 1024):
         subs = [(rest + d * lamp).astype(np.float32) for d in drive(node_times_s(t0, t1, k))]
         spec_k = dataclasses.replace(spec, render=dataclasses.replace(spec.render, subframes=k))
-        cap = Camera(spec_k, NoiseSwitches.off()).capture(subs, mask, 0, seed=1)
+        cap = Camera.from_scene(spec_k, NoiseSwitches.off()).capture(subs, mask, 0, seed=1)
         errs.append(float(np.max(np.abs(cap.signal_e / exact - 1))))
     print("led_flicker max rel error vs K:", dict(zip((4, 16, 64, 256, 1024), errs)))
     # stiff: K radiance samples of a square-wave drive see each of its ~24 switches per

@@ -9,7 +9,9 @@ import pytest
 
 from poevp_optics.camera.dmd import (Schedule, interval_on_time_table, node_times_s, on_time_table,
                               switch_times_s)
-from poevp_optics.scene.spec import DMDSpec, TimingSpec, load_scene
+from poevp_optics.camera.dmd import DMDSpec
+from poevp_optics.core.timing import TimingSpec
+from poevp_optics.scene.load import load_scene
 from tests.conftest import SCENES
 
 H, W = 12, 96
@@ -80,22 +82,23 @@ def test_pwm_nodes_resolve_the_low_bit_planes():
 
 @pytest.mark.slow
 def test_temporal_error_estimate_tracks_the_true_error_of_the_encoded_plate():
-    """errors.temporal_error (the frame's nodes vs nodes + midpoints, independent seeds at the
+    """apps.temporal_check.temporal_error (the frame's nodes vs nodes + midpoints, independent seeds at the
     scene's spp, the frame's oracle mask) within a factor 1.5 of the true error of the encoded
     plate: the rule on the same nodes against 161 samples rendered with one seed (common random
     numbers, so the difference is the quadrature's, not noise) on fast_pass, where the plate
     sweeps ~50 px across this small frame within the exposure."""
     from poevp_optics.camera.camera import Camera
-    from poevp_optics.analysis.error_budget import temporal_error
-    from poevp_optics.apps.render_run import oracle_mask, render_exposures
+    from poevp_optics.apps.temporal_check import temporal_error
+    from poevp_optics.control.loop_step import oracle_mask
+    from poevp_optics.render.exposures import render_exposures
     from poevp_optics.render.renderer import Renderer
 
     spec = load_scene(SCENES / "fast_pass", ["render.resolution=[92,160]", "render.spp=32",
                                              "render.subframes=5", "timing.frames=2"])
-    cam = Camera(spec)
+    cam = Camera.from_scene(spec)
     r = Renderer(spec, guard_px=cam.guard_px)
     ex = list(render_exposures(spec, r, progress=False))[1]
-    mask = oracle_mask(spec, cam, ex.radiance.data, 1)
+    mask = oracle_mask(cam, spec.mask, ex.radiance.data, 1)
     est = temporal_error(spec, r, cam, ex, mask)
     t0, t1 = spec.exposure_window_s(1)
     dense = node_times_s(t0, t1, 161)

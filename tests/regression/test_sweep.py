@@ -14,7 +14,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from poevp_optics.scene.spec import SceneError, load_scene
+from poevp_optics.core.exceptions import SceneError
+from poevp_optics.scene.load import load_scene
 from poevp_optics.apps.sweep import SEED_KEYS, flatten_report, parse_grid, point_overrides, sweep
 
 from ..conftest import ROOT, SCENES

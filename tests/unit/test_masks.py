@@ -6,8 +6,7 @@ import numpy as np
 import pytest
 
 from poevp_optics.control.masks import mask_levels, smooth_envelope, target_levels, threshold_exp, threshold_ratio
-from poevp_optics.scene.spec import MaskSpec
-
+from poevp_optics.control.masks import MaskSpec
 X = np.arange(256, dtype=np.float64)
 
 
@@ -91,7 +90,7 @@ def test_predicted_electrons_remove_the_black_level():
     halfway to the top code (clipped_gain aside) the matching electrons. The old conversion
     read 3 DN of black as 123 e-."""
     from poevp_optics.control.masks import predicted_electrons
-    from poevp_optics.scene.spec import SensorSpec
+    from poevp_optics.camera.sensor import SensorSpec
     from poevp_optics.camera.sensor import resolve_sensor
 
     p = resolve_sensor(SensorSpec())

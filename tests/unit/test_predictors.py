@@ -132,23 +132,22 @@ def test_predictor_input_per_mode():
     from types import SimpleNamespace
 
     from poevp_optics.camera.camera import Camera
-    from poevp_optics.apps.render_run import predictor_input
-    from poevp_optics.scene.spec import load_scene
-
+    from poevp_optics.control.loop_step import predictor_input
+    from poevp_optics.scene.load import load_scene
     spec = load_scene(SCENES / "smoke", ["render.resolution=[8,8]"])
-    cam = Camera(spec)
+    cam = Camera.from_scene(spec)
     ldr = SimpleNamespace(dn=np.full((8, 8), float(cam.params.max_dn)))
     enc = SimpleNamespace(dn=np.full((8, 8), 100.0))
-    assert np.all(predictor_input("open", cam, ldr, enc, None, None, 0) == 255)
-    assert np.allclose(predictor_input("raw", cam, ldr, enc, None, None, 0), 100.0 * 255 / cam.params.max_dn)
+    assert np.all(predictor_input("open", cam, ldr, enc, None, None, 0, spec.mask.clipped_gain) == 255)
+    assert np.allclose(predictor_input("raw", cam, ldr, enc, None, None, 0, spec.mask.clipped_gain), 100.0 * 255 / cam.params.max_dn)
     # demodulated: a radiance giving 2x saturation with the white mask reads 510 (unclipped)
     est = np.full((8, 8), 2 * cam.params.saturation_capacity_e /
                   (cam.electrons_per_radiance() * cam.white_exposure_s(0)), np.float32)
     flags = np.zeros((8, 8), np.float32)
-    x = predictor_input("demodulated", cam, ldr, enc, est, flags, 0)
+    x = predictor_input("demodulated", cam, ldr, enc, est, flags, 0, spec.mask.clipped_gain)
     assert np.allclose(x, 510.0, rtol=1e-5)
     flags[0, 0] = 1              # saturated behind a dimmed mirror: lower bound x clipped_gain
-    x = predictor_input("demodulated", cam, ldr, enc, est, flags, 0)
+    x = predictor_input("demodulated", cam, ldr, enc, est, flags, 0, spec.mask.clipped_gain)
     assert np.isclose(x[0, 0], 510.0 * spec.mask.clipped_gain, rtol=1e-5)
     est[0, 0] *= 0.5             # saturated behind a white mirror (lower bound 255): clipped marker
-    assert predictor_input("demodulated", cam, ldr, enc, est, flags, 0)[0, 0] == 255.0
+    assert predictor_input("demodulated", cam, ldr, enc, est, flags, 0, spec.mask.clipped_gain)[0, 0] == 255.0

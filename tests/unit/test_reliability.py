@@ -80,8 +80,7 @@ def test_sigma_1000_psf_is_capped_at_the_image_and_runs_by_fft(tmp_path):
 def test_memory_estimate_bounds_the_measured_peak(tmp_path):
     """The estimate is an upper bound of peak RSS, and not a wild one (under 2x)."""
     from poevp_optics.apps.memory import estimate_run
-    from poevp_optics.scene.spec import load_scene
-
+    from poevp_optics.scene.load import load_scene
     args = ["--frames", "1", "--resolution", "512x512", "--spp", "2"]
     spec = load_scene(SCENES / "smoke", ["timing.frames=1", "render.resolution=[512,512]", "render.spp=2"])
     est = estimate_run(spec).total_bytes
@@ -155,17 +154,19 @@ class _NaNPredictor:
         return {"name": self.name}
 
 
-def test_non_finite_prediction_falls_back_and_is_reported(tmp_path, monkeypatch):
-    from poevp_optics.control import predictors as predict
-    from poevp_optics.control.predictors import checked_prediction
+def test_non_finite_prediction_falls_back_and_is_reported(tmp_path):
+    from poevp_optics.control.predictors import PREDICTORS, PredictorEntry, checked_prediction
 
     hist = [np.full((4, 6), 7.0, np.float32), np.full((4, 6), 9.0, np.float32)]
     pred, n_bad = checked_prediction(_NaNPredictor(), hist)
     assert n_bad == 12 and np.all(np.isfinite(pred)) and np.all(pred == 9.0)
-    monkeypatch.setattr(predict, "make_predictor", lambda *a, **k: _NaNPredictor())
+    PREDICTORS.register("nan_test", PredictorEntry(lambda w, r: _NaNPredictor()), source="a broken predictor (test)")
     out = tmp_path / "nan"
-    assert main(["render", str(SCENES / "smoke"), "--out", str(out), "--quiet", "--frames", "4",
-                 "--resolution", "24x32", "--set", "predictor.name='hold'"]) == 0
+    try:
+        assert main(["render", str(SCENES / "smoke"), "--out", str(out), "--quiet", "--frames", "4",
+                     "--resolution", "24x32", "--set", "predictor.name='nan_test'"]) == 0
+    finally:
+        PREDICTORS.unregister("nan_test")
     r = json.loads((out / "report.json").read_text())
     flagged = [f["index"] for f in r["per_frame"] if f.get("prediction_fallback_pixels")]
     assert flagged == [2, 3]                          # every predicted frame, none of the 2 init frames

@@ -10,7 +10,9 @@ import pytest
 from poevp_optics.sources import spectra
 from poevp_optics.core.io import MARKER, _umask, read_exr, read_png, staged_dir, write_exr, write_png
 from poevp_optics.sources.plates import plate_texture
-from poevp_optics.scene.spec import MotionSpec, SceneError, apply_overrides, parse_override
+from poevp_optics.sources.motion import MotionSpec
+from poevp_optics.core.exceptions import SceneError
+from poevp_optics.scene.load import apply_overrides, parse_override
 from poevp_optics.core.units import PLANCK_J_S, SPEED_OF_LIGHT_M_PER_S, photons_per_joule
 
 

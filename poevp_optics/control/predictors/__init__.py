@@ -1,23 +1,87 @@
 """Video predictors by name: past frames (8-bit scale, float32, predictor resolution) -> the
-predicted next frame on the same scale.
+predicted next frame on the same scale. The registry `PREDICTORS` is the [predictor] name's
+choices; adding a predictor is one `PREDICTORS.register(...)` with a factory.
 
 | name        | what                                                                 | reference |
 |-------------|----------------------------------------------------------------------|-----------|
-| oracle      | the true next frame (upper bound; handled by the loop, needs truth)  | - |
+| oracle      | the true next frame (upper bound; needs the ground truth)            | - |
 | hold        | the last frame                                                        | non-predictive spatially varying exposure |
 | flow        | DIS optical flow (ultrafast) + forward splat of bright moving pixels | Kroeger et al., ECCV 2016 (DIS) |
 | dmvfn       | dynamic multi-scale voxel flow network, 9 blocks, routing            | Hu et al., CVPR 2023 |
 | dmvfn_lite  | same block design, grey, quarter resolution, 3 blocks, no routing    | ours, after Hu et al. |
 
-Every predictor takes `history` (oldest first, at least 2 frames) and returns one frame.
+Every predictor takes `history` (oldest first, at least `needs_frames` frames) and returns one frame.
 """
 
 from __future__ import annotations
 
-from poevp_optics.control.predictors.base import Predictor, checked_prediction, make_predictor
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
 
-__all__ = ["Predictor", "make_predictor", "checked_prediction", "PREDICTORS", "TAKES_WEIGHTS"]
+from poevp_optics.control.predictors.base import Hold, Predictor, checked_prediction
+from poevp_optics.core.params import param
+from poevp_optics.core.registry import Registry
 
-PREDICTORS = ("oracle", "hold", "flow", "dmvfn", "dmvfn_lite")
-#: Predictors that load trained weights (`[predictor] weights`); the others take none.
-TAKES_WEIGHTS = ("dmvfn", "dmvfn_lite")
+__all__ = ["Predictor", "PREDICTORS", "PredictorEntry", "PredictorSpec", "make_predictor",
+           "checked_prediction", "takes_weights"]
+
+
+@dataclass(frozen=True)
+class PredictorEntry:
+    """A registered predictor: `factory(weights_path_or_None, resolution) -> Predictor`; the
+    oracle has none (it reads the ground truth, control/loop_step.py)."""
+
+    factory: Callable[[Path | None, tuple[int, int]], Predictor] | None
+    takes_weights: bool = False
+
+    @property
+    def needs_truth(self) -> bool:
+        return self.factory is None
+
+
+def _flow(weights, resolution):
+    from poevp_optics.control.predictors.flow import FlowExtrapolation
+
+    return FlowExtrapolation()
+
+
+def _dmvfn(name):
+    def factory(weights, resolution):
+        from poevp_optics.control.predictors.dmvfn import load_predictor
+
+        return load_predictor(name, weights)
+    return factory
+
+
+PREDICTORS = Registry("predictor")
+PREDICTORS.register("oracle", PredictorEntry(None), source="the rendered next frame (upper bound)")
+PREDICTORS.register("hold", PredictorEntry(lambda w, r: Hold()),
+                    source="the last frame: a non-predictive spatially varying exposure camera")
+PREDICTORS.register("flow", PredictorEntry(_flow), source="Kroeger et al., ECCV 2016 (DIS) + forward splat")
+PREDICTORS.register("dmvfn", PredictorEntry(_dmvfn("dmvfn"), takes_weights=True),
+                    source="Hu et al., CVPR 2023 (DMVFN), deterministic routing")
+PREDICTORS.register("dmvfn_lite", PredictorEntry(_dmvfn("dmvfn_lite"), takes_weights=True),
+                    source="ours, after Hu et al.: grey, quarter resolution, 3 blocks")
+
+
+def takes_weights() -> tuple[str, ...]:
+    """Names of the predictors that load trained weights (`[predictor] weights`)."""
+    return tuple(n for n in PREDICTORS if PREDICTORS[n].takes_weights)
+
+
+def make_predictor(name: str, weights: str = "", resolution=(368, 640)) -> Predictor:
+    """Build a causal predictor by name (the oracle needs the ground truth: not built here)."""
+    entry = PREDICTORS[name]
+    if entry.needs_truth:
+        raise ValueError(f"predictor {name!r} reads the ground truth; it is run by the loop step")
+    return entry.factory(Path(weights) if weights else None, tuple(resolution))
+
+
+@dataclass(frozen=True)
+class PredictorSpec:
+    """[predictor]: video predictor by name."""
+
+    name: str = param("oracle", choices=PREDICTORS)
+    weights: str = param("")                            # relative paths: from the scene's folder
+    resolution: tuple[int, int] = param((368, 640), length=2, min=8, max=8192)

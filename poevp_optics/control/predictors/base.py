@@ -1,8 +1,6 @@
-"""Predictor interface and the registry factory."""
+"""The predictor interface, `hold`, and the per-frame check of a prediction."""
 
 from __future__ import annotations
-
-from pathlib import Path
 
 import numpy as np
 
@@ -43,18 +41,3 @@ def checked_prediction(predictor: Predictor, history: list[np.ndarray]) -> tuple
         last = np.nan_to_num(np.asarray(history[-1], dtype=np.float32), nan=255.0, posinf=255.0, neginf=0.0)
         pred = np.where(bad, last, pred)
     return pred, n_bad
-
-
-def make_predictor(name: str, weights: str = "", resolution=(368, 640)) -> Predictor:
-    """Build a predictor by name (oracle is the loop's business: it needs the ground truth)."""
-    if name == "hold":
-        return Hold()
-    if name == "flow":
-        from poevp_optics.control.predictors.flow import FlowExtrapolation
-
-        return FlowExtrapolation()
-    if name in ("dmvfn", "dmvfn_lite"):
-        from poevp_optics.control.predictors.dmvfn import load_predictor
-
-        return load_predictor(name, Path(weights) if weights else None)
-    raise ValueError(f"unknown predictor {name!r}")

@@ -124,9 +124,10 @@ class DMVFN(nn.Module):
         self.routing = Routing(2 * c, len(cfg.widths)) if cfg.routing else None
 
     def forward(self, prev: torch.Tensor, cur: torch.Tensor, *, train_routing: bool = False,
-                with_prediction: bool = True):
+                with_prediction: bool = True, generator: torch.Generator | None = None):
         """prev, cur: (N, C, H, W) in [0, 1]-ish. Returns (prediction, flow, mask logits);
-        with_prediction=False skips the final full-resolution warps (prediction None)."""
+        with_prediction=False skips the final full-resolution warps (prediction None);
+        generator: the seeded stream of the training routing's draws (never the global RNG)."""
         ds = self.cfg.input_downsample
         p_s, c_s = prev, cur
         if ds != 1:
@@ -139,7 +140,7 @@ class DMVFN(nn.Module):
         if self.routing is not None:
             prob = self.routing(torch.cat((p_s, c_s), 1))
             if train_routing and self.training:
-                hard = torch.bernoulli(prob)
+                hard = torch.bernoulli(prob, generator=generator)
                 use = hard + prob - prob.detach()          # straight-through estimator
             else:
                 use = (prob > 0.5).to(cur.dtype)           # deterministic inference

@@ -12,8 +12,9 @@ from __future__ import annotations
 
 import xml.etree.ElementTree as ET
 
-from poevp_optics.scene.spec import SceneError, SceneSpec, sheeting_string
+from poevp_optics.core.exceptions import SceneError
 from poevp_optics.render.materials.photometric_lamp import resolve_distribution
+from poevp_optics.render.materials.retroreflective import sheeting_string
 
 
 def _param(node, tag, name):
@@ -24,7 +25,7 @@ def _param(node, tag, name):
     return None
 
 
-def plugin_xml_params(spec: SceneSpec, defaults: frozenset[str]) -> dict[str, str]:
+def plugin_xml_params(spec, defaults: frozenset[str]) -> dict[str, str]:
     """XML parameter values for photometric lamps and retroreflective sheeting."""
     file, xml = spec.toml_path, spec.xml_path
     root = ET.parse(xml).getroot()

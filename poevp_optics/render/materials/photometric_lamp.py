@@ -209,170 +209,178 @@ class _AxisLookup:
         return dr.select((x >= nxt) & (i + 1 < self.n - 1), i + 1, i)
 
 
+#: Mitsuba and DrJit, bound by `_make_emitter_class` (a plugin class needs a variant to exist).
+mi = dr = None
+
+
+class _PhotometricEmitterMethods:
+    """Mitsuba emitter `photometric` (see the module docstring)."""
+
+    def __init__(self, props):
+        mi.Emitter.__init__(self, props)
+        if "distribution" not in props.keys():
+            raise LampFileError("photometric emitter: the 'distribution' property (file path) is required")
+        self.dist = load_distribution(str(Path(str(props["distribution"])).resolve()))
+        if "intensity" not in props.keys():
+            raise LampFileError("photometric emitter: the 'intensity' spectrum (the beam's peak) is required")
+        self.intensity = props.get_emissive_texture("intensity")
+        m = np.array(props["to_world"].matrix if "to_world" in props.keys() else np.eye(4), dtype=np.float32)
+        self.to_world = mi.Transform4f(m)
+        self._to_local = self.to_world.inverse()
+        dr.make_opaque(self._to_local)
+        d = self.dist
+        self._h = mi.Float(d.h_deg.astype(np.float32))
+        self._v = mi.Float(d.v_deg.astype(np.float32))
+        self._rel = mi.Float((d.candela / d.peak_cd).astype(np.float32).ravel())
+        self._nv = len(d.v_deg)
+        self._h_lookup, self._v_lookup = _AxisLookup(mi, d.h_deg), _AxisLookup(mi, d.v_deg)
+        self._build_sampler()
+        self.m_flags = mi.EmitterFlags.DeltaPosition
+
+    # ------------------------------------------------------------ distribution
+    def _angles(self, dl):
+        deg = 180 / math.pi
+        if self.dist.system == "A":
+            return dr.atan2(-dl.x, dl.z) * deg, dr.asin(dr.clip(dl.y, -1, 1)) * deg
+        c = dr.atan2(dl.x, dl.z) * deg
+        return dr.select(c < 0, c + 360, c), dr.acos(dr.clip(-dl.y, -1, 1)) * deg
+
+    def relative(self, d_local, active=True):
+        """C(d) / C_max for emitter-local unit directions (bilinear in file angles, 0 outside)."""
+        h, v = self._angles(d_local)
+        d = self.dist
+        inside = active & (h >= d.h_deg[0]) & (h <= d.h_deg[-1]) & (v >= d.v_deg[0]) & (v <= d.v_deg[-1])
+        i = self._h_lookup(mi, dr, h, inside)
+        j = self._v_lookup(mi, dr, v, inside)
+        h0, h1 = dr.gather(mi.Float, self._h, i, inside), dr.gather(mi.Float, self._h, i + 1, inside)
+        v0, v1 = dr.gather(mi.Float, self._v, j, inside), dr.gather(mi.Float, self._v, j + 1, inside)
+        th = dr.clip((h - h0) / (h1 - h0), 0, 1)
+        tv = dr.clip((v - v0) / (v1 - v0), 0, 1)
+        k = i * self._nv + j
+        c00 = dr.gather(mi.Float, self._rel, k, inside)
+        c01 = dr.gather(mi.Float, self._rel, k + 1, inside)
+        c10 = dr.gather(mi.Float, self._rel, k + self._nv, inside)
+        c11 = dr.gather(mi.Float, self._rel, k + self._nv + 1, inside)
+        val = (1 - th) * ((1 - tv) * c00 + tv * c01) + th * ((1 - tv) * c10 + tv * c11)
+        return dr.select(inside, val, 0.0)
+
+    def _build_sampler(self):
+        """Cell distribution for sample_ray: weight = max corner x cell solid angle."""
+        d = self.dist
+        c = d.candela / d.peak_cd
+        cmax = np.maximum.reduce([c[:-1, :-1], c[1:, :-1], c[:-1, 1:], c[1:, 1:]])
+        hr, vr = np.radians(d.h_deg), np.radians(d.v_deg)
+        if d.system == "A":      # d omega = cos V dV dH
+            solid = np.diff(hr)[:, None] * np.diff(np.sin(vr))[None, :]
+        else:                    # d omega = sin gamma d gamma dC
+            solid = np.diff(hr)[:, None] * -np.diff(np.cos(vr))[None, :]
+        w = (cmax * solid).ravel()
+        self._cell_solid = mi.Float(solid.ravel().astype(np.float32))
+        self._cells = mi.DiscreteDistribution(w.astype(np.float32))
+        self._ncell_v = len(d.v_deg) - 1
+
+    def _sample_local_direction(self, u):
+        idx, u2 = self._cells.sample_reuse(u.x)
+        i, j = idx // self._ncell_v, idx % self._ncell_v
+        h0, h1 = dr.gather(mi.Float, self._h, i), dr.gather(mi.Float, self._h, i + 1)
+        v0, v1 = dr.gather(mi.Float, self._v, j), dr.gather(mi.Float, self._v, j + 1)
+        rad = math.pi / 180
+        h = (h0 + u2 * (h1 - h0)) * rad
+        if self.dist.system == "A":
+            sv = dr.lerp(dr.sin(v0 * rad), dr.sin(v1 * rad), u.y)
+            cv = dr.safe_sqrt(1 - sv * sv)
+            dl = mi.Vector3f(-dr.sin(h) * cv, sv, dr.cos(h) * cv)
+        else:
+            cg = dr.lerp(dr.cos(v0 * rad), dr.cos(v1 * rad), u.y)
+            sg = dr.safe_sqrt(1 - cg * cg)
+            dl = mi.Vector3f(sg * dr.sin(h), -cg, sg * dr.cos(h))
+        pdf = self._cells.eval_pmf_normalized(idx) / dr.gather(mi.Float, self._cell_solid, idx)
+        return dl, pdf
+
+    # ------------------------------------------------------------ Emitter interface
+    def _position(self):
+        return self.to_world @ mi.Point3f(0.0, 0.0, 0.0)
+
+    def _spectral(self, it_or_si, active):
+        si = dr.zeros(mi.SurfaceInteraction3f)
+        si.wavelengths = it_or_si.wavelengths
+        return self.intensity.eval(si, active)
+
+    def sample_direction(self, it, sample, active=True):
+        p = self._position()
+        ds = dr.zeros(mi.DirectionSample3f)
+        ds.p = p
+        ds.time = it.time
+        ds.pdf = 1.0
+        ds.delta = True
+        ds.emitter = mi.EmitterPtr(self)
+        d = p - it.p
+        dist = dr.norm(d)
+        ds.d = d / dist
+        ds.dist = dist
+        local = self._to_local @ (-ds.d)
+        value = self._spectral(it, active) * (self.relative(dr.normalize(local), active) / dr.square(dist))
+        return ds, dr.select(active, value, 0.0)
+
+    def eval_direction(self, it, ds, active=True):
+        local = self._to_local @ (-ds.d)
+        value = self._spectral(it, active) * (self.relative(dr.normalize(local), active) / dr.square(ds.dist))
+        return dr.select(active, value, 0.0)
+
+    def pdf_direction(self, it, ds, active=True):
+        return mi.Float(0.0)
+
+    def sample_ray(self, time, wavelength_sample, spatial_sample, direction_sample, active=True):
+        si = dr.zeros(mi.SurfaceInteraction3f)
+        wavelengths, spec_weight = self.intensity.sample_spectrum(
+            si, mi.math.sample_shifted(wavelength_sample), active)
+        dl, pdf = self._sample_local_direction(direction_sample)
+        weight = spec_weight * (self.relative(dl, active) / dr.maximum(pdf, 1e-30))
+        ray = mi.Ray3f(self._position(), dr.normalize(self.to_world @ dl), time, wavelengths)
+        return ray, dr.select(active & (pdf > 0), weight, 0.0)
+
+    def sample_wavelengths(self, si, sample, active=True):
+        return self.intensity.sample_spectrum(si, mi.math.sample_shifted(sample), active)
+
+    def sample_position(self, time, sample, active=True):
+        ps = dr.zeros(mi.PositionSample3f)
+        ps.p = self._position()
+        ps.time = time
+        ps.pdf = 1.0
+        ps.delta = True
+        return ps, mi.Float(1.0)
+
+    def pdf_position(self, ps, active=True):
+        return mi.Float(0.0)
+
+    def eval(self, si, active=True):
+        return mi.Spectrum(0.0)
+
+    def bbox(self):
+        p = np.array(self._position(), dtype=float).ravel()
+        return mi.ScalarBoundingBox3f(mi.ScalarPoint3f(*map(float, p[:3])))
+
+    def traverse(self, callback):
+        callback.put("to_world", self.to_world, mi.ParamFlags.NonDifferentiable)
+        callback.put("intensity", self.intensity, mi.ParamFlags.Differentiable)
+
+    def parameters_changed(self, keys):
+        self._to_local = self.to_world.inverse()
+        dr.make_opaque(self._to_local)
+
+    def to_string(self):
+        return f"PhotometricEmitter[distribution={self.dist.path!r}, system={self.dist.system}]"
+
+
 def _make_emitter_class():
-    import drjit as dr
-    import mitsuba as mi
+    """The `PhotometricEmitter` plugin class of the current Mitsuba variant."""
+    global mi, dr
+    import drjit
+    import mitsuba
 
-    class PhotometricEmitter(mi.Emitter):
-        """Mitsuba emitter `photometric` (see the module docstring)."""
-
-        def __init__(self, props):
-            mi.Emitter.__init__(self, props)
-            if "distribution" not in props.keys():
-                raise LampFileError("photometric emitter: the 'distribution' property (file path) is required")
-            self.dist = load_distribution(str(Path(str(props["distribution"])).resolve()))
-            if "intensity" not in props.keys():
-                raise LampFileError("photometric emitter: the 'intensity' spectrum (the beam's peak) is required")
-            self.intensity = props.get_emissive_texture("intensity")
-            m = np.array(props["to_world"].matrix if "to_world" in props.keys() else np.eye(4), dtype=np.float32)
-            self.to_world = mi.Transform4f(m)
-            self._to_local = self.to_world.inverse()
-            dr.make_opaque(self._to_local)
-            d = self.dist
-            self._h = mi.Float(d.h_deg.astype(np.float32))
-            self._v = mi.Float(d.v_deg.astype(np.float32))
-            self._rel = mi.Float((d.candela / d.peak_cd).astype(np.float32).ravel())
-            self._nv = len(d.v_deg)
-            self._h_lookup, self._v_lookup = _AxisLookup(mi, d.h_deg), _AxisLookup(mi, d.v_deg)
-            self._build_sampler()
-            self.m_flags = mi.EmitterFlags.DeltaPosition
-
-        # ------------------------------------------------------------ distribution
-        def _angles(self, dl):
-            deg = 180 / math.pi
-            if self.dist.system == "A":
-                return dr.atan2(-dl.x, dl.z) * deg, dr.asin(dr.clip(dl.y, -1, 1)) * deg
-            c = dr.atan2(dl.x, dl.z) * deg
-            return dr.select(c < 0, c + 360, c), dr.acos(dr.clip(-dl.y, -1, 1)) * deg
-
-        def relative(self, d_local, active=True):
-            """C(d) / C_max for emitter-local unit directions (bilinear in file angles, 0 outside)."""
-            h, v = self._angles(d_local)
-            d = self.dist
-            inside = active & (h >= d.h_deg[0]) & (h <= d.h_deg[-1]) & (v >= d.v_deg[0]) & (v <= d.v_deg[-1])
-            i = self._h_lookup(mi, dr, h, inside)
-            j = self._v_lookup(mi, dr, v, inside)
-            h0, h1 = dr.gather(mi.Float, self._h, i, inside), dr.gather(mi.Float, self._h, i + 1, inside)
-            v0, v1 = dr.gather(mi.Float, self._v, j, inside), dr.gather(mi.Float, self._v, j + 1, inside)
-            th = dr.clip((h - h0) / (h1 - h0), 0, 1)
-            tv = dr.clip((v - v0) / (v1 - v0), 0, 1)
-            k = i * self._nv + j
-            c00 = dr.gather(mi.Float, self._rel, k, inside)
-            c01 = dr.gather(mi.Float, self._rel, k + 1, inside)
-            c10 = dr.gather(mi.Float, self._rel, k + self._nv, inside)
-            c11 = dr.gather(mi.Float, self._rel, k + self._nv + 1, inside)
-            val = (1 - th) * ((1 - tv) * c00 + tv * c01) + th * ((1 - tv) * c10 + tv * c11)
-            return dr.select(inside, val, 0.0)
-
-        def _build_sampler(self):
-            """Cell distribution for sample_ray: weight = max corner x cell solid angle."""
-            d = self.dist
-            c = d.candela / d.peak_cd
-            cmax = np.maximum.reduce([c[:-1, :-1], c[1:, :-1], c[:-1, 1:], c[1:, 1:]])
-            hr, vr = np.radians(d.h_deg), np.radians(d.v_deg)
-            if d.system == "A":      # d omega = cos V dV dH
-                solid = np.diff(hr)[:, None] * np.diff(np.sin(vr))[None, :]
-            else:                    # d omega = sin gamma d gamma dC
-                solid = np.diff(hr)[:, None] * -np.diff(np.cos(vr))[None, :]
-            w = (cmax * solid).ravel()
-            self._cell_solid = mi.Float(solid.ravel().astype(np.float32))
-            self._cells = mi.DiscreteDistribution(w.astype(np.float32))
-            self._ncell_v = len(d.v_deg) - 1
-
-        def _sample_local_direction(self, u):
-            idx, u2 = self._cells.sample_reuse(u.x)
-            i, j = idx // self._ncell_v, idx % self._ncell_v
-            h0, h1 = dr.gather(mi.Float, self._h, i), dr.gather(mi.Float, self._h, i + 1)
-            v0, v1 = dr.gather(mi.Float, self._v, j), dr.gather(mi.Float, self._v, j + 1)
-            rad = math.pi / 180
-            h = (h0 + u2 * (h1 - h0)) * rad
-            if self.dist.system == "A":
-                sv = dr.lerp(dr.sin(v0 * rad), dr.sin(v1 * rad), u.y)
-                cv = dr.safe_sqrt(1 - sv * sv)
-                dl = mi.Vector3f(-dr.sin(h) * cv, sv, dr.cos(h) * cv)
-            else:
-                cg = dr.lerp(dr.cos(v0 * rad), dr.cos(v1 * rad), u.y)
-                sg = dr.safe_sqrt(1 - cg * cg)
-                dl = mi.Vector3f(sg * dr.sin(h), -cg, sg * dr.cos(h))
-            pdf = self._cells.eval_pmf_normalized(idx) / dr.gather(mi.Float, self._cell_solid, idx)
-            return dl, pdf
-
-        # ------------------------------------------------------------ Emitter interface
-        def _position(self):
-            return self.to_world @ mi.Point3f(0.0, 0.0, 0.0)
-
-        def _spectral(self, it_or_si, active):
-            si = dr.zeros(mi.SurfaceInteraction3f)
-            si.wavelengths = it_or_si.wavelengths
-            return self.intensity.eval(si, active)
-
-        def sample_direction(self, it, sample, active=True):
-            p = self._position()
-            ds = dr.zeros(mi.DirectionSample3f)
-            ds.p = p
-            ds.time = it.time
-            ds.pdf = 1.0
-            ds.delta = True
-            ds.emitter = mi.EmitterPtr(self)
-            d = p - it.p
-            dist = dr.norm(d)
-            ds.d = d / dist
-            ds.dist = dist
-            local = self._to_local @ (-ds.d)
-            value = self._spectral(it, active) * (self.relative(dr.normalize(local), active) / dr.square(dist))
-            return ds, dr.select(active, value, 0.0)
-
-        def eval_direction(self, it, ds, active=True):
-            local = self._to_local @ (-ds.d)
-            value = self._spectral(it, active) * (self.relative(dr.normalize(local), active) / dr.square(ds.dist))
-            return dr.select(active, value, 0.0)
-
-        def pdf_direction(self, it, ds, active=True):
-            return mi.Float(0.0)
-
-        def sample_ray(self, time, wavelength_sample, spatial_sample, direction_sample, active=True):
-            si = dr.zeros(mi.SurfaceInteraction3f)
-            wavelengths, spec_weight = self.intensity.sample_spectrum(
-                si, mi.math.sample_shifted(wavelength_sample), active)
-            dl, pdf = self._sample_local_direction(direction_sample)
-            weight = spec_weight * (self.relative(dl, active) / dr.maximum(pdf, 1e-30))
-            ray = mi.Ray3f(self._position(), dr.normalize(self.to_world @ dl), time, wavelengths)
-            return ray, dr.select(active & (pdf > 0), weight, 0.0)
-
-        def sample_wavelengths(self, si, sample, active=True):
-            return self.intensity.sample_spectrum(si, mi.math.sample_shifted(sample), active)
-
-        def sample_position(self, time, sample, active=True):
-            ps = dr.zeros(mi.PositionSample3f)
-            ps.p = self._position()
-            ps.time = time
-            ps.pdf = 1.0
-            ps.delta = True
-            return ps, mi.Float(1.0)
-
-        def pdf_position(self, ps, active=True):
-            return mi.Float(0.0)
-
-        def eval(self, si, active=True):
-            return mi.Spectrum(0.0)
-
-        def bbox(self):
-            p = np.array(self._position(), dtype=float).ravel()
-            return mi.ScalarBoundingBox3f(mi.ScalarPoint3f(*map(float, p[:3])))
-
-        def traverse(self, callback):
-            callback.put("to_world", self.to_world, mi.ParamFlags.NonDifferentiable)
-            callback.put("intensity", self.intensity, mi.ParamFlags.Differentiable)
-
-        def parameters_changed(self, keys):
-            self._to_local = self.to_world.inverse()
-            dr.make_opaque(self._to_local)
-
-        def to_string(self):
-            return f"PhotometricEmitter[distribution={self.dist.path!r}, system={self.dist.system}]"
-
-    return PhotometricEmitter
-
+    mi, dr = mitsuba, drjit
+    methods = {k: v for k, v in vars(_PhotometricEmitterMethods).items() if k not in ("__dict__", "__weakref__", "__module__")}
+    return type("PhotometricEmitter", (mi.Emitter,), methods)   # nanobind classes take one base: the methods are copied in
 
 def register() -> None:
     """Register `photometric` with the active Mitsuba variant (materials.register_plugins)."""

@@ -81,6 +81,8 @@ from types import SimpleNamespace
 
 import numpy as np
 
+from poevp_optics.core.params import param
+
 #: Largest roll-off width of the tail beyond the table (used when the efficiency is never reached).
 TAIL_SIGMA_MAX_DEG = 5.0
 #: The lobe ends this many roll-off widths beyond the last tabulated observation angle.
@@ -368,155 +370,163 @@ def _spectrum_mean(s):
     return dr.sum(s, axis=0) / len(s) if len(s) > 1 else s[0]
 
 
+#: Mitsuba and DrJit, bound by `_make_bsdf_class` (a plugin class needs a variant to exist).
+mi = dr = None
+
+
+class _RetroreflectiveBSDFMethods:
+    """Mitsuba BSDF `retroreflective` (see the module docstring)."""
+
+    def __init__(self, props):
+        mi.BSDF.__init__(self, props)
+        if "sheeting" not in props.keys():
+            raise SheetingError("retroreflective BSDF: the 'sheeting' property is required")
+        self.table = parse_sheeting(str(props["sheeting"]))
+        self.law = retro_law(self.table)
+        self.reflectance = props.get_texture("reflectance", 0.0)
+        self.retro_tint = props.get_texture("retro_tint", 1.0)
+        top = float(self.reflectance.max()) + float(self.law.eta_rows.max()) * float(self.retro_tint.max())
+        if top > 1 + 1e-6:
+            raise SheetingError(f"retroreflective BSDF ({self.table.name}): reflectance max "
+                                f"{float(self.reflectance.max()):.3f} + efficiency "
+                                f"{float(self.law.eta_rows.max()):.3f} x retro_tint max exceeds 1: "
+                                "energy would not be conserved")
+        pmf, cdf, dv = lobe_proposal(self.law)
+        self._pmf = mi.Float(pmf.ravel().astype(np.float32))
+        self._cdf = mi.Float(cdf.ravel().astype(np.float32))
+        self._eta_rows = mi.Float(self.law.eta_rows.astype(np.float32))
+        self._dv = float(dv)
+        self._ops = _ops_drjit()
+        glossy = mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.FrontSide
+        diffuse = mi.BSDFFlags.DiffuseReflection | mi.BSDFFlags.FrontSide
+        self.m_components = [glossy, diffuse]
+        self.m_flags = glossy | diffuse
+
+    # -------------------------------------------------------------- pieces
+    def _row(self, cos_theta_i):
+        beta_deg = dr.acos(dr.clip(cos_theta_i, -1.0, 1.0)) * (180 / math.pi)
+        return dr.minimum(mi.UInt32(dr.round(beta_deg / PROPOSAL_ROW_STEP_DEG)), PROPOSAL_ROWS - 1)
+
+    def _retro_prob(self, ctx, si, active):
+        has_retro = ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 0)
+        has_diffuse = ctx.is_enabled(mi.BSDFFlags.DiffuseReflection, 1)
+        if not has_diffuse:
+            return mi.Float(1.0)
+        if not has_retro:
+            return mi.Float(0.0)
+        eta = dr.gather(mi.Float, self._eta_rows, self._row(mi.Frame3f.cos_theta(si.wi)), active)
+        w_r = eta * _spectrum_mean(self.retro_tint.eval(si, active))
+        w_d = _spectrum_mean(self.reflectance.eval(si, active))
+        return dr.select(w_r + w_d > 0, w_r / dr.maximum(w_r + w_d, 1e-30), 0.5)
+
+    def _lobe_pdf(self, wi, wo, active):
+        v = dr.norm(wo - wi)
+        k = mi.UInt32(dr.floor(v / self._dv))
+        inside = active & (v < self._dv * LOBE_BINS)
+        idx = self._row(mi.Frame3f.cos_theta(wi)) * LOBE_BINS + dr.minimum(k, LOBE_BINS - 1)
+        pmf = dr.gather(mi.Float, self._pmf, idx, inside)
+        v0 = mi.Float(k) * self._dv
+        area = math.pi * (dr.square(v0 + self._dv) - dr.square(v0))
+        return dr.select(inside, pmf / area, 0.0)
+
+    def _retro_f_cos(self, si, wo, active):
+        """f cos(theta_o) of the retro lobe: R_A(alpha, beta_h) t / cos(theta_i)."""
+        wi = si.wi
+        v = dr.norm(wo - wi)
+        alpha_deg = 2 * dr.asin(dr.minimum(0.5 * v, 1.0)) * (180 / math.pi)
+        h = wi + wo
+        beta_deg = dr.atan2(dr.sqrt(dr.square(h.x) + dr.square(h.y)), h.z) * (180 / math.pi)
+        ra = dr.exp(self.law.log_ra_of(alpha_deg, beta_deg, self._ops))
+        ra = dr.select(alpha_deg <= self.law.alpha_end_deg, ra, 0.0)
+        cos_i = mi.Frame3f.cos_theta(wi)
+        return self.retro_tint.eval(si, active) * (ra / dr.maximum(cos_i, 1e-12))
+
+    def _eval_pdf(self, ctx, si, wo, active):
+        cos_i, cos_o = mi.Frame3f.cos_theta(si.wi), mi.Frame3f.cos_theta(wo)
+        active = active & (cos_i > 0) & (cos_o > 0)
+        has_retro = ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 0)
+        has_diffuse = ctx.is_enabled(mi.BSDFFlags.DiffuseReflection, 1)
+        value = mi.Spectrum(0.0)
+        if has_retro:
+            value += self._retro_f_cos(si, wo, active)
+        if has_diffuse:
+            value += self.reflectance.eval(si, active) * (cos_o / math.pi)
+        p_retro = self._retro_prob(ctx, si, active)
+        pdf = p_retro * self._lobe_pdf(si.wi, wo, active) + (1 - p_retro) * (cos_o / math.pi)
+        return (dr.select(active, value, 0.0), dr.select(active, pdf, 0.0))
+
+    # -------------------------------------------------------------- BSDF interface
+    def eval(self, ctx, si, wo, active=True):
+        return self._eval_pdf(ctx, si, wo, active)[0]
+
+    def pdf(self, ctx, si, wo, active=True):
+        return self._eval_pdf(ctx, si, wo, active)[1]
+
+    def eval_pdf(self, ctx, si, wo, active=True):
+        return self._eval_pdf(ctx, si, wo, active)
+
+    def sample(self, ctx, si, sample1, sample2, active=True):
+        wi = si.wi
+        active = active & (mi.Frame3f.cos_theta(wi) > 0)
+        p_retro = self._retro_prob(ctx, si, active)
+        pick_retro = sample1 < p_retro
+        # retro lobe: bin by binary search on the row's exclusive CDF, v^2 uniform in the bin
+        base = self._row(mi.Frame3f.cos_theta(wi)) * LOBE_BINS
+        u = sample2.x
+        k = mi.UInt32(0)
+        step = LOBE_BINS // 2
+        while step >= 1:
+            cand = k + step
+            k = dr.select(dr.gather(mi.Float, self._cdf, base + cand, active) <= u, cand, k)
+            step //= 2
+        c0 = dr.gather(mi.Float, self._cdf, base + k, active)
+        pk = dr.gather(mi.Float, self._pmf, base + k, active)
+        xi = dr.clip((u - c0) / dr.maximum(pk, 1e-30), 0.0, 1.0)
+        v0 = mi.Float(k) * self._dv
+        v = dr.sqrt(dr.square(v0) + xi * (dr.square(v0 + self._dv) - dr.square(v0)))
+        cos_a = 1 - 0.5 * dr.square(v)
+        sin_a = v * dr.sqrt(dr.maximum(1 - 0.25 * dr.square(v), 0.0))
+        s_phi, c_phi = dr.sincos(2 * math.pi * sample2.y)
+        wo_retro = mi.Frame3f(wi).to_world(mi.Vector3f(sin_a * c_phi, sin_a * s_phi, cos_a))
+        wo_diff = mi.warp.square_to_cosine_hemisphere(sample2)
+        wo = dr.select(pick_retro, wo_retro, wo_diff)
+
+        value, pdf = self._eval_pdf(ctx, si, wo, active)
+        bs = dr.zeros(mi.BSDFSample3f)
+        bs.wo = wo
+        bs.pdf = pdf
+        bs.eta = 1.0
+        bs.sampled_component = dr.select(pick_retro, mi.UInt32(0), mi.UInt32(1))
+        bs.sampled_type = dr.select(pick_retro, mi.UInt32(+mi.BSDFFlags.GlossyReflection),
+                                    mi.UInt32(+mi.BSDFFlags.DiffuseReflection))
+        ok = active & (pdf > 0)
+        weight = dr.select(ok, value / dr.maximum(pdf, 1e-30), 0.0)
+        return bs, weight
+
+    def eval_diffuse_reflectance(self, si, active=True):
+        return self.reflectance.eval(si, active)
+
+    def traverse(self, callback):
+        callback.put("reflectance", self.reflectance, mi.ParamFlags.Differentiable)
+        callback.put("retro_tint", self.retro_tint, mi.ParamFlags.Differentiable)
+
+    def parameters_changed(self, keys):
+        pass
+
+    def to_string(self):
+        return (f"RetroreflectiveBSDF[sheeting={self.table.name!r}, efficiency={self.table.efficiency}, "
+                f"tail_sigma_deg={self.law.tail_sigma_deg:.3f}]")
+
+
 def _make_bsdf_class():
-    import drjit as dr
-    import mitsuba as mi
+    """The `RetroreflectiveBSDF` plugin class of the current Mitsuba variant."""
+    global mi, dr
+    import drjit
+    import mitsuba
 
-    class RetroreflectiveBSDF(mi.BSDF):
-        """Mitsuba BSDF `retroreflective` (see the module docstring)."""
-
-        def __init__(self, props):
-            mi.BSDF.__init__(self, props)
-            if "sheeting" not in props.keys():
-                raise SheetingError("retroreflective BSDF: the 'sheeting' property is required")
-            self.table = parse_sheeting(str(props["sheeting"]))
-            self.law = retro_law(self.table)
-            self.reflectance = props.get_texture("reflectance", 0.0)
-            self.retro_tint = props.get_texture("retro_tint", 1.0)
-            top = float(self.reflectance.max()) + float(self.law.eta_rows.max()) * float(self.retro_tint.max())
-            if top > 1 + 1e-6:
-                raise SheetingError(f"retroreflective BSDF ({self.table.name}): reflectance max "
-                                    f"{float(self.reflectance.max()):.3f} + efficiency "
-                                    f"{float(self.law.eta_rows.max()):.3f} x retro_tint max exceeds 1: "
-                                    "energy would not be conserved")
-            pmf, cdf, dv = lobe_proposal(self.law)
-            self._pmf = mi.Float(pmf.ravel().astype(np.float32))
-            self._cdf = mi.Float(cdf.ravel().astype(np.float32))
-            self._eta_rows = mi.Float(self.law.eta_rows.astype(np.float32))
-            self._dv = float(dv)
-            self._ops = _ops_drjit()
-            glossy = mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.FrontSide
-            diffuse = mi.BSDFFlags.DiffuseReflection | mi.BSDFFlags.FrontSide
-            self.m_components = [glossy, diffuse]
-            self.m_flags = glossy | diffuse
-
-        # -------------------------------------------------------------- pieces
-        def _row(self, cos_theta_i):
-            beta_deg = dr.acos(dr.clip(cos_theta_i, -1.0, 1.0)) * (180 / math.pi)
-            return dr.minimum(mi.UInt32(dr.round(beta_deg / PROPOSAL_ROW_STEP_DEG)), PROPOSAL_ROWS - 1)
-
-        def _retro_prob(self, ctx, si, active):
-            has_retro = ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 0)
-            has_diffuse = ctx.is_enabled(mi.BSDFFlags.DiffuseReflection, 1)
-            if not has_diffuse:
-                return mi.Float(1.0)
-            if not has_retro:
-                return mi.Float(0.0)
-            eta = dr.gather(mi.Float, self._eta_rows, self._row(mi.Frame3f.cos_theta(si.wi)), active)
-            w_r = eta * _spectrum_mean(self.retro_tint.eval(si, active))
-            w_d = _spectrum_mean(self.reflectance.eval(si, active))
-            return dr.select(w_r + w_d > 0, w_r / dr.maximum(w_r + w_d, 1e-30), 0.5)
-
-        def _lobe_pdf(self, wi, wo, active):
-            v = dr.norm(wo - wi)
-            k = mi.UInt32(dr.floor(v / self._dv))
-            inside = active & (v < self._dv * LOBE_BINS)
-            idx = self._row(mi.Frame3f.cos_theta(wi)) * LOBE_BINS + dr.minimum(k, LOBE_BINS - 1)
-            pmf = dr.gather(mi.Float, self._pmf, idx, inside)
-            v0 = mi.Float(k) * self._dv
-            area = math.pi * (dr.square(v0 + self._dv) - dr.square(v0))
-            return dr.select(inside, pmf / area, 0.0)
-
-        def _retro_f_cos(self, si, wo, active):
-            """f cos(theta_o) of the retro lobe: R_A(alpha, beta_h) t / cos(theta_i)."""
-            wi = si.wi
-            v = dr.norm(wo - wi)
-            alpha_deg = 2 * dr.asin(dr.minimum(0.5 * v, 1.0)) * (180 / math.pi)
-            h = wi + wo
-            beta_deg = dr.atan2(dr.sqrt(dr.square(h.x) + dr.square(h.y)), h.z) * (180 / math.pi)
-            ra = dr.exp(self.law.log_ra_of(alpha_deg, beta_deg, self._ops))
-            ra = dr.select(alpha_deg <= self.law.alpha_end_deg, ra, 0.0)
-            cos_i = mi.Frame3f.cos_theta(wi)
-            return self.retro_tint.eval(si, active) * (ra / dr.maximum(cos_i, 1e-12))
-
-        def _eval_pdf(self, ctx, si, wo, active):
-            cos_i, cos_o = mi.Frame3f.cos_theta(si.wi), mi.Frame3f.cos_theta(wo)
-            active = active & (cos_i > 0) & (cos_o > 0)
-            has_retro = ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 0)
-            has_diffuse = ctx.is_enabled(mi.BSDFFlags.DiffuseReflection, 1)
-            value = mi.Spectrum(0.0)
-            if has_retro:
-                value += self._retro_f_cos(si, wo, active)
-            if has_diffuse:
-                value += self.reflectance.eval(si, active) * (cos_o / math.pi)
-            p_retro = self._retro_prob(ctx, si, active)
-            pdf = p_retro * self._lobe_pdf(si.wi, wo, active) + (1 - p_retro) * (cos_o / math.pi)
-            return (dr.select(active, value, 0.0), dr.select(active, pdf, 0.0))
-
-        # -------------------------------------------------------------- BSDF interface
-        def eval(self, ctx, si, wo, active=True):
-            return self._eval_pdf(ctx, si, wo, active)[0]
-
-        def pdf(self, ctx, si, wo, active=True):
-            return self._eval_pdf(ctx, si, wo, active)[1]
-
-        def eval_pdf(self, ctx, si, wo, active=True):
-            return self._eval_pdf(ctx, si, wo, active)
-
-        def sample(self, ctx, si, sample1, sample2, active=True):
-            wi = si.wi
-            active = active & (mi.Frame3f.cos_theta(wi) > 0)
-            p_retro = self._retro_prob(ctx, si, active)
-            pick_retro = sample1 < p_retro
-            # retro lobe: bin by binary search on the row's exclusive CDF, v^2 uniform in the bin
-            base = self._row(mi.Frame3f.cos_theta(wi)) * LOBE_BINS
-            u = sample2.x
-            k = mi.UInt32(0)
-            step = LOBE_BINS // 2
-            while step >= 1:
-                cand = k + step
-                k = dr.select(dr.gather(mi.Float, self._cdf, base + cand, active) <= u, cand, k)
-                step //= 2
-            c0 = dr.gather(mi.Float, self._cdf, base + k, active)
-            pk = dr.gather(mi.Float, self._pmf, base + k, active)
-            xi = dr.clip((u - c0) / dr.maximum(pk, 1e-30), 0.0, 1.0)
-            v0 = mi.Float(k) * self._dv
-            v = dr.sqrt(dr.square(v0) + xi * (dr.square(v0 + self._dv) - dr.square(v0)))
-            cos_a = 1 - 0.5 * dr.square(v)
-            sin_a = v * dr.sqrt(dr.maximum(1 - 0.25 * dr.square(v), 0.0))
-            s_phi, c_phi = dr.sincos(2 * math.pi * sample2.y)
-            wo_retro = mi.Frame3f(wi).to_world(mi.Vector3f(sin_a * c_phi, sin_a * s_phi, cos_a))
-            wo_diff = mi.warp.square_to_cosine_hemisphere(sample2)
-            wo = dr.select(pick_retro, wo_retro, wo_diff)
-
-            value, pdf = self._eval_pdf(ctx, si, wo, active)
-            bs = dr.zeros(mi.BSDFSample3f)
-            bs.wo = wo
-            bs.pdf = pdf
-            bs.eta = 1.0
-            bs.sampled_component = dr.select(pick_retro, mi.UInt32(0), mi.UInt32(1))
-            bs.sampled_type = dr.select(pick_retro, mi.UInt32(+mi.BSDFFlags.GlossyReflection),
-                                        mi.UInt32(+mi.BSDFFlags.DiffuseReflection))
-            ok = active & (pdf > 0)
-            weight = dr.select(ok, value / dr.maximum(pdf, 1e-30), 0.0)
-            return bs, weight
-
-        def eval_diffuse_reflectance(self, si, active=True):
-            return self.reflectance.eval(si, active)
-
-        def traverse(self, callback):
-            callback.put("reflectance", self.reflectance, mi.ParamFlags.Differentiable)
-            callback.put("retro_tint", self.retro_tint, mi.ParamFlags.Differentiable)
-
-        def parameters_changed(self, keys):
-            pass
-
-        def to_string(self):
-            return (f"RetroreflectiveBSDF[sheeting={self.table.name!r}, efficiency={self.table.efficiency}, "
-                    f"tail_sigma_deg={self.law.tail_sigma_deg:.3f}]")
-
-    return RetroreflectiveBSDF
-
+    mi, dr = mitsuba, drjit
+    methods = {k: v for k, v in vars(_RetroreflectiveBSDFMethods).items() if k not in ("__dict__", "__weakref__", "__module__")}
+    return type("RetroreflectiveBSDF", (mi.BSDF,), methods)   # nanobind classes take one base: the methods are copied in
 
 def register() -> None:
     """Register `retroreflective` with the active Mitsuba variant (materials.register_plugins)."""
@@ -524,3 +534,20 @@ def register() -> None:
 
     cls = _make_bsdf_class()
     mi.register_bsdf("retroreflective", lambda props: cls(props))
+
+
+@dataclass(frozen=True)
+class SheetingSpec:
+    """[sheeting.<param>]: retroreflective sheeting bound to `$<param>` of a `retroreflective` BSDF:
+    an R_A table (`source`) and its efficiency bound (NaN: the preset's)."""
+
+    source: str = param()
+    efficiency: float = param(math.nan, gt=0, lt=1)
+
+
+def sheeting_string(sh: SheetingSpec, base_dir: Path) -> str:
+    """The `sheeting` property string a [sheeting.<param>] entry binds (file paths made absolute)."""
+    source = sh.source
+    if source.startswith("file:") and not Path(source[5:]).is_absolute() and (base_dir / source[5:]).is_file():
+        source = f"file:{(base_dir / source[5:]).resolve()}"
+    return source if math.isnan(sh.efficiency) else f"{source};efficiency={sh.efficiency:.9g}"

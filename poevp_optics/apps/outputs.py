@@ -1,0 +1,119 @@
+"""What a run writes: the [outputs] keys and the writer of a render run's files."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from poevp_optics import __version__
+from poevp_optics.analysis.metrics import to_8bit
+from poevp_optics.analysis.tonemap import TONEMAPPERS, tonemap
+from poevp_optics.core.io import write_dn, write_exr, write_png
+from poevp_optics.core.params import param
+from poevp_optics.core.units import PHOTON_RADIANCE_UNIT
+
+
+@dataclass(frozen=True)
+class OutputsSpec:
+    """[outputs]: which files a run writes."""
+
+    radiance_exr: bool = param(True)
+    subframes_exr: bool = param(False)
+    previews: bool = param(True)
+    contact_sheet: bool = param(True)
+    tonemap: str = param("reinhard2004", choices=TONEMAPPERS)
+
+
+def mask_png(levels: np.ndarray, top: int) -> np.ndarray:
+    """DMD levels as an 8-bit image (0 dark ... 255 white)."""
+    return np.clip(np.rint(levels * 255.0 / top), 0, 255).astype(np.uint8)
+
+
+def contact_sheet(rows: list[list[np.ndarray]], labels: list[str]) -> np.ndarray:
+    """Tile uint8 grey images (rows of frames x columns of kinds) with column labels."""
+    import cv2
+
+    h, w = rows[0][0].shape
+    scale = min(1.0, 320.0 / w)
+    th, tw = int(round(h * scale)), int(round(w * scale))
+    band = 18
+    sheet = np.full((band + len(rows) * (th + 4), len(labels) * (tw + 4)), 255, np.uint8)
+    for c, lab in enumerate(labels):
+        cv2.putText(sheet, lab, (c * (tw + 4) + 4, 13), cv2.FONT_HERSHEY_SIMPLEX, 0.42, 0, 1, cv2.LINE_AA)
+    for r, row in enumerate(rows):
+        for c, img in enumerate(row):
+            y, x = band + r * (th + 4), c * (tw + 4)
+            sheet[y:y + th, x:x + tw] = cv2.resize(img, (tw, th), interpolation=cv2.INTER_AREA)
+    return sheet
+
+
+class OutputWriter:
+    """Writes a render run's files, frame by frame, into a staging folder (README's output tour):
+    radiance/ (sensor-grid truth and MC error), subframes/, capture/, ldr/, mask/, exposure/,
+    reconstruction/, preview*/ and, at `finish`, contact_sheet.png."""
+
+    def __init__(self, spec, camera, renderer, out_dir: Path):
+        self.spec, self.camera, self.renderer, self.out = spec, camera, renderer, Path(out_dir)
+        self.sheet_rows: list[list[np.ndarray]] = []
+        self.sheet_every = max(1, spec.timing.frames // 4)
+
+    def _attrs(self, ex) -> dict:
+        s, r = self.spec, self.renderer
+        return {"poevp_quantity": "", "poevp_unit": PHOTON_RADIANCE_UNIT,
+                "poevp_scene": s.name, "poevp_version": __version__, "poevp_frame": str(ex.index),
+                "poevp_t_start_s": repr(ex.t_start_s), "poevp_exposure_s": repr(ex.exposure_s),
+                "poevp_render_path": r.plan.mode, "poevp_variant": r.variant, "poevp_spp": str(s.render.spp)}
+
+    def _radiance(self, fc, name: str, attrs: dict) -> None:
+        ex, o = fc.exposure, self.spec.outputs
+        if o.radiance_exr:
+            write_exr(self.out / "radiance" / f"{name}.exr",
+                      {"Y": fc.truth_s, "mc_stderr": np.sqrt(self.camera.to_sensor(ex.variance))},
+                      {**attrs, "poevp_quantity": "sensor-weighted photon radiance on the sensor grid, "
+                                                  "exposure mean; mc_stderr = Monte Carlo standard error"})
+        if o.subframes_exr and ex.basis:
+            for bname, sub in zip(ex.basis, ex.subframes):
+                write_exr(self.out / "subframes" / f"{name}_{bname}.exr", {"Y": sub},
+                          {**attrs, "poevp_quantity": f"photon radiance of emitter group {bname!r} at full "
+                                                      "drive (mirror grid, guard band included)"})
+        elif o.subframes_exr and not self.spec.is_static:
+            for k, sub in enumerate(ex.subframes):
+                write_exr(self.out / "subframes" / f"{name}_sub{k:03d}.exr", {"Y": sub},
+                          {**attrs, "poevp_quantity": f"photon radiance at t = {ex.subframe_times_s[k]!r} s "
+                                                      "(mirror grid, guard band included)"})
+
+    def frame(self, fc) -> None:
+        """Write one frame's files (`render_run.FrameCapture`)."""
+        cam, o = self.camera, self.spec.outputs
+        name = f"frame_{fc.exposure.index:04d}"
+        attrs = self._attrs(fc.exposure)
+        self._radiance(fc, name, attrs)
+        bits, max_dn = cam.params.bits, cam.params.max_dn
+        write_dn(self.out / "capture" / name, fc.enc.dn, bits)
+        if cam.dmd:
+            write_dn(self.out / "ldr" / name, fc.ldr.dn, bits)
+            write_png(self.out / "mask" / f"{name}.png", mask_png(fc.mask, cam.top_level))
+        write_exr(self.out / "exposure" / f"{name}.exr", {"Y": fc.enc.exposure_s},
+                  {**attrs, "poevp_quantity": "effective exposure (DMD duty x throughput incl. leakage)",
+                   "poevp_unit": "s"})
+        write_exr(self.out / "reconstruction" / f"{name}.exr", {"Y": fc.est, "flags": fc.flags},
+                  {**attrs, "poevp_quantity": "radiance estimate; flags: 1 saturated, 2 SNR<1, 4 unexposed, "
+                                              "8 PSF crosstalk"})
+        if o.previews:
+            write_png(self.out / "preview" / f"{name}.png", tonemap(fc.truth_s, o.tonemap))
+            write_png(self.out / "preview_reconstruction" / f"{name}.png", tonemap(fc.est, o.tonemap))
+        if o.contact_sheet and fc.exposure.index % self.sheet_every == 0 and len(self.sheet_rows) < 4:
+            row = [tonemap(fc.truth_s, o.tonemap), to_8bit(fc.ldr.dn, max_dn).astype(np.uint8)]
+            if cam.dmd:
+                row.append(mask_png(fc.mask, cam.top_level))
+            row += [to_8bit(fc.enc.dn, max_dn).astype(np.uint8), tonemap(fc.est, o.tonemap)]
+            self.sheet_rows.append(row)
+
+    def finish(self) -> None:
+        """The contact sheet of the frames collected by `frame`."""
+        if self.sheet_rows:
+            labels = ["scene (tone-mapped)", "LDR twin"] + (["mask"] if self.camera.dmd else []) + \
+                     ["encoded capture", "reconstruction"]
+            write_png(self.out / "contact_sheet.png", contact_sheet(self.sheet_rows, labels))

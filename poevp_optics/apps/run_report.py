@@ -1,0 +1,213 @@
+"""The render run's `report.json`: scene, camera, per-stage seconds and errors, metrics, notes,
+skipped stages and per-frame values (README, "A short tour of the outputs")."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from poevp_optics import __version__
+from poevp_optics.analysis.error_budget import POISSON_BOUND, budget, physics_noise
+from poevp_optics.camera.dmd import attenuation_floor
+from poevp_optics.core.units import PHOTON_RADIANCE_UNIT
+
+
+def mean_of(vals):
+    """Mean of the values that are not None (None when there are none)."""
+    vals = [v for v in vals if v is not None]
+    return float(np.mean(vals)) if vals else None
+
+
+def error_budget(camera, per_frame, stage_s, temporal, render_s) -> dict:
+    """The numerical error budget of the run (analysis/error_budget.py)."""
+    roi = mean_of([f["rel_error_roi"] for f in per_frame])
+    frame = mean_of([f["rel_error"] for f in per_frame])
+    psf = camera.psf
+    return budget({
+        "render_mc": {"rel": roi if roi is not None else frame, "rel_frame": frame,
+                      "where": "ROI" if roi is not None else "frame", "seconds": render_s},
+        "temporal": temporal,
+        "psf_truncation": {"rel": psf.truncation_error if psf is not None else 0.0,
+                           "support_px": int(psf.kernel.shape[0]) if psf is not None else 1,
+                           **({"note": psf.note} if psf is not None and psf.note else {}),
+                           "seconds": stage_s["relay"]},
+        "poisson_sampler": {"rel": POISSON_BOUND, "method": "exact (Knuth < 10 e-, PTRS >= 10 e-); "
+                            "float32 counts exact to 2^24 e-", "seconds": stage_s["sensor"]},
+    })
+
+
+def skipped_stages(spec, camera, causal: bool) -> dict:
+    """What this run left out, and why (DESIGN.md: a run leaves out what its scene does not need)."""
+    skipped = {}
+    if spec.is_static:
+        skipped["render_repeat"] = (f"static scene: rendered once and reused for all "
+                                    f"{spec.timing.frames} frames; sub-frames not needed")
+    elif spec.geometry_static:
+        skipped["render_repeat"] = (f"static geometry with PWM lamps ({', '.join(spec.flicker)}): "
+                                    f"{1 + len(spec.flicker)} emitter-group images rendered once")
+        skipped["subframes"] = ("PWM lamps on static geometry: the camera integrates each lamp's "
+                                "drive against the DMD's bit-planes exactly; render.subframes unused")
+    if camera.psf is None:
+        skipped["relay"] = "psf = 'delta': no convolution"
+    sw = camera.sensor.switches
+    if not (sw.shot or sw.read):
+        skipped["sensor_noise"] = (f"sensor.noise = false: no random numbers drawn "
+                                   f"({camera.sensor.random_draws} draws)")
+    if camera.dmd is None:
+        skipped["dmd"] = "dmd.enabled = false: plain LDR camera"
+        skipped["predict"] = "no DMD: no mask to predict"
+    else:
+        if not causal:
+            skipped["predict"] = "predictor 'oracle' uses the rendered ground truth: no predictor runs"
+        if camera.taps is None:
+            skipped["registration"] = "identity mirror-to-sensor map: no resampling"
+    return skipped
+
+
+def run_metrics(spec, camera, per_frame, law_cmp, causal: bool) -> dict:
+    """Frame averages; after-init averages; the causal predictor against the oracle."""
+    keys2 = ("ldr", "encoded")
+    metrics = {
+        "saturated_fraction_roi": {k: mean_of([f["saturated_fraction_roi"][k] for f in per_frame]) for k in keys2},
+        "entropy_roi": {k: mean_of([f["entropy_roi"][k] for f in per_frame]) for k in keys2},
+        "saturated_fraction": {k: mean_of([f["saturated_fraction"][k] for f in per_frame]) for k in keys2},
+        "recon_rel_error": mean_of([f["recon_rel_error"] for f in per_frame]),
+        "recon_rel_error_roi": mean_of([f["recon_rel_error_roi"] for f in per_frame]),
+        "valid_fraction": mean_of([f["valid_fraction"] for f in per_frame]),
+    }
+    loop_frames = [f for f in per_frame if not f.get("init")]
+    if camera.dmd is not None:
+        # the first loop.init_frames frames are white for every predictor, the oracle included:
+        # averages after them compare predictors on the frames where a mask acts
+        for key in ("saturated_fraction_roi", "entropy_roi"):
+            metrics[key]["ldr_after_init"] = mean_of([f[key]["ldr"] for f in loop_frames])
+            metrics[key]["encoded_after_init"] = mean_of([f[key]["encoded"] for f in loop_frames])
+            if not causal:
+                metrics[key]["oracle_after_init"] = metrics[key]["encoded_after_init"]
+        metrics["init_frames"] = len(per_frame) - len(loop_frames)
+    if causal:
+        for key in ("saturated_fraction_roi", "entropy_roi"):
+            metrics[key]["oracle"] = mean_of([f[key]["oracle"] for f in per_frame])
+            metrics[key]["oracle_after_init"] = mean_of([f[key]["oracle"] for f in loop_frames])
+        metrics["mask_error"] = {"iou": mean_of([f["mask_error"]["iou"] for f in loop_frames]),
+                                 "mean_abs": mean_of([f["mask_error"]["mean_abs"] for f in loop_frames])}
+        # lag artifact: saturated plate fraction in the first two loop frames in which the LDR
+        # twin's plate is saturated (the highlight "arrives" and the mask must catch it)
+        lit = [f for f in loop_frames if f["saturated_fraction_roi"]["ldr"] > 0.1][:2]
+        metrics["lag_artifact"] = mean_of([f["saturated_fraction_roi"]["encoded"] for f in lit])
+    if camera.dmd and any(v["saturated"] for k, v in law_cmp.items() if k != "scene_law"):
+        metrics["mask_law_comparison"] = {
+            (f"scene:{spec.mask.law}" if k == "scene_law" else k):
+                {"saturated_fraction_roi": mean_of(v["saturated"]), "entropy_roi": mean_of(v["entropy"])}
+            for k, v in law_cmp.items()}
+    return metrics
+
+
+def run_notes(spec, renderer, camera, step, per_frame, metrics, floor) -> list[str]:
+    """Report notes: the spectra's coverage, the DMD's attenuation floor, fallbacks, PSF caps."""
+    notes = list(renderer.plan.notes)
+    if camera.dmd is not None and all(f.get("init") for f in per_frame):
+        notes.append(f"every frame is one of the loop.init_frames = {spec.loop.init_frames} all-white "
+                     f"initialisation frames: no mask acted; this run shows the LDR camera only")
+    if floor is not None and floor["white_fill_fraction"] > 0.01:
+        ldr_sat = metrics["saturated_fraction_roi"]["ldr"]
+        enc_sat = metrics["saturated_fraction_roi"]["encoded"]
+        notes.append(
+            f"DMD timing imposes an attenuation floor: outside the {spec.timing.dmd_window_s * 1e3:.2f} ms "
+            f"display window the mirrors are {spec.timing.outside_window} for "
+            f"{floor['white_fill_fraction']:.0%} of the {spec.timing.exposure_s * 1e3:.2f} ms exposure, "
+            f"so no mask can pass less than {floor['floor']:.1%} of the light ({floor['floor_db']:.1f} dB "
+            f"of suppression at most). Plate pixels brighter than 1/{floor['floor']:.2f} = "
+            f"{1 / floor['floor']:.2f}x full well stay saturated: saturated plate fraction "
+            f"{ldr_sat:.1%} (LDR) -> {enc_sat:.1%} (encoded).")
+    fell_back = [f["index"] for f in per_frame if f.get("prediction_fallback_pixels")]
+    if fell_back:
+        n = sum(f["prediction_fallback_pixels"] for f in per_frame if f.get("prediction_fallback_pixels"))
+        notes.append(f"predictor {step.model.name!r} gave NaN/Inf on frames {fell_back} ({n} pixels): those "
+                     "pixels held the last frame (the 'hold' prediction); per_frame "
+                     "'prediction_fallback_pixels' counts them")
+    if camera.psf is not None and camera.psf.note:
+        notes.append(f"relay PSF: {camera.psf.note}")
+    return notes
+
+
+def camera_sections(spec, camera, floor) -> dict:
+    """The report's description of the camera: timing, accuracy, sensor, optics, DMD, mask."""
+    p, t = camera.params, spec.timing
+    return {
+        "timing": {"fps": t.fps, "exposure_s": t.exposure_s, "exposure_offset_s": t.exposure_offset_s,
+                   "dmd_window_s": t.dmd_window_s, "dmd_window_offset_s": t.dmd_window_offset_s,
+                   "outside_window": t.outside_window},
+        "accuracy": {"spp": spec.render.spp, "subframes": 1 if spec.geometry_static else spec.render.subframes,
+                     "mc_splits": spec.render.mc_splits},
+        "sensor": {"preset": p.name, "bits": p.bits, "full_well_e": p.full_well_e,
+                   "read_noise_e": p.read_noise_e, "gain_dn_per_e": p.gain_dn_per_e,
+                   "offset_dn": p.offset_dn, "f_number": p.f_number,
+                   "pixel_pitch_m": p.pixel_pitch_m, "etendue_m2_sr": camera.etendue_m2_sr,
+                   "noise": camera.sensor.switches.__dict__},
+        "optics": {**camera.layout.as_dict(), "guard_px": camera.guard_px,
+                   "mirror_grid": list(camera.mirror_shape), "sensor_grid": list(camera.shape),
+                   "guard_definition": "mirrors rendered beyond each edge of the sensor's footprint so "
+                                       "the relay PSF sees the light beyond the field; cropped before "
+                                       "the sensor, never in metrics"},
+        "dmd": ({"bits": spec.dmd.bits, "bit_order": spec.dmd.bit_order,
+                 "contrast_ratio": spec.dmd.contrast_ratio,
+                 "throughput_on": spec.dmd.fill_factor * spec.dmd.reflectance,
+                 "attenuation_floor": floor} if camera.dmd else None),
+        "mask": ({"law": spec.mask.law, "vs": spec.mask.vs, "a": spec.mask.a, "b": spec.mask.b,
+                  "target": spec.mask.target, "smooth_px": spec.mask.smooth_px,
+                  "predictor": spec.predictor.name} if camera.dmd else None),
+    }
+
+
+def stage_sections(spec, renderer, step, res, setup_s: float, causal: bool) -> dict:
+    """Per-stage seconds (render, dmd, relay, sensor, reconstruct, mask, predict)."""
+    stats, per_frame, predict_s = renderer.stats, res.per_frame, res.predict_seconds
+    stages = {
+        "render": {
+            "seconds": stats.seconds + setup_s, "mitsuba_seconds": stats.seconds,
+            "setup_seconds": setup_s, "calls": stats.calls,
+            "rel_error": mean_of([f["rel_error"] for f in per_frame]),
+            "rel_error_roi": mean_of([f["rel_error_roi"] for f in per_frame]),
+            "rel_error_definition": "RMS per-pixel Monte Carlo standard error / mean radiance "
+                                    "(frame or ROI), from independent-seed renders; mean over frames",
+            "path": renderer.plan.mode, "path_reason": renderer.plan.reason,
+            "variant": renderer.variant, "variant_reason": renderer.variant_reason,
+            "static": spec.is_static},
+        **{k: {"seconds": v} for k, v in res.stage_seconds.items()},
+    }
+    if causal:
+        stages["predict"] = {
+            "seconds": float(np.median(predict_s)) if predict_s else None,
+            "seconds_definition": "median per frame, predictor + mask law",
+            "total_seconds": float(np.sum(predict_s)), "frames": len(predict_s),
+            "predictor": step.model.describe(), "mode": spec.loop.mode, "init_frames": spec.loop.init_frames,
+            "reference": {"paper_vp_plus_mask_ms_rtx3090": 16.9, "dlpc900_8bit_pattern_min_ms": 4.046}}
+    return stages
+
+
+def build_report(spec, renderer, camera, step, res, *, setup_s: float, t_run: float, temporal: dict) -> dict:
+    """The whole report of a render run (render_run.RunResult `res`)."""
+    causal = step is not None and not step.needs_truth
+    floor = attenuation_floor(spec.dmd, camera.schedule(0)) if camera.dmd else None
+    per_frame = res.per_frame
+    metrics = run_metrics(spec, camera, per_frame, res.law_comparison, causal)
+    p = camera.params
+    signal_dn = mean_of([f.get("mean_signal_dn_roi") for f in per_frame])
+    stats = renderer.stats
+    return {
+        "scene": spec.name, "scene_file": str(spec.toml_path), "description": spec.description,
+        "version": __version__, "seed": spec.render.seed, "resolution": list(spec.render.resolution),
+        "frames": spec.timing.frames, "unit": PHOTON_RADIANCE_UNIT,
+        **camera_sections(spec, camera, floor),
+        "stages": stage_sections(spec, renderer, step, res, setup_s, causal),
+        "metrics": metrics,
+        "errors": error_budget(camera, per_frame, res.stage_seconds, temporal or {"rel": None},
+                               stats.seconds + setup_s),
+        "physics_noise": physics_noise(signal_dn, signal_dn / p.gain_dn_per_e if signal_dn else None, p.bits),
+        "notes": run_notes(spec, renderer, camera, step, per_frame, metrics, floor),
+        "skipped_stages": skipped_stages(spec, camera, causal),
+        "io_seconds": res.write_seconds, "total_seconds": time.perf_counter() - t_run,
+        "per_frame": per_frame,
+    }

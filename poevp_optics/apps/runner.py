@@ -1,0 +1,91 @@
+"""One job runner for every scene command: load the scene (with its overrides), decide the output
+folder, run every check short of rendering (apps/preflight.py, with the memory estimate), set
+the thread counts, then run the job into a staging folder that replaces the output folder only
+when it succeeds (core/io.py). The jobs are a registry (`JOBS`): `render`, `chart` and `compare`
+here; `poevp sweep` runs the scene jobs (`SWEEP_JOBS`) per grid point.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+from poevp_optics.core import runtime
+from poevp_optics.core.registry import Registry
+
+
+@dataclass(frozen=True)
+class Job:
+    """run(spec, staging folder, progress, **options) -> the job's result (its report or rows);
+    suffix: the default output folder is out/<scene><suffix>; sweepable: a grid point can run it."""
+
+    run: Callable
+    suffix: str = ""
+    sweepable: bool = False
+
+
+def _render(spec, stage, progress, **_):
+    from poevp_optics.apps.render_run import run_render
+
+    return run_render(spec, stage, progress=progress)
+
+
+def _chart(spec, stage, progress, **_):
+    from poevp_optics.apps.chart import run_chart
+
+    return run_chart(spec, stage, progress=progress)
+
+
+def _compare(spec, stage, progress, *, predictors, modes, **_):
+    from poevp_optics.apps.compare import compare
+
+    return compare(spec, predictors, modes, stage, progress=progress)
+
+
+JOBS = Registry("job")
+JOBS.register("render", Job(_render, "", sweepable=True), source="apps/render_run.py: frames, masks, HDR, report")
+JOBS.register("chart", Job(_chart, "-chart", sweepable=True), source="apps/chart.py: dynamic range on a test chart")
+JOBS.register("compare", Job(_compare, "-compare"), source="apps/compare.py: predictors x loop modes on one render")
+
+
+def sweep_jobs() -> tuple[str, ...]:
+    """The jobs a sweep can run per grid point."""
+    return tuple(n for n in JOBS if JOBS[n].sweepable)
+
+
+def reads(spec) -> tuple:
+    """Paths a run reads and must never be given as (or inside) its output folder."""
+    return (spec.toml_path, spec.toml_path.resolve().parent, spec.xml_path)
+
+
+def output_folder(spec, job: str, out: str | Path | None) -> Path:
+    return Path(out) if out else Path("out") / f"{spec.name}{JOBS[job].suffix}"
+
+
+def run_job(job: str, scene, overrides: list[str], *, out=None, threads: int | None = None,
+            progress: bool = True, check: dict | None = None, **options):
+    """Run the scene job `job` (module docstring); returns (spec, output folder, result).
+    check: extra keywords of preflight.check_run (e.g. the predictors compare will run)."""
+    from poevp_optics.apps.preflight import check_run
+    from poevp_optics.core.io import check_output, staged_dir
+    from poevp_optics.scene.load import load_scene
+
+    spec = load_scene(scene, overrides)
+    folder = output_folder(spec, job, out)
+    check_output(folder, job, protect=reads(spec))
+    check_run(spec, job, **(check or {}))
+    runtime.set_threads(threads)
+    with staged_dir(folder, kind=job, protect=reads(spec)) as stage:
+        result = JOBS[job].run(spec, stage, progress, **options)
+    return spec, folder, result
+
+
+def run_in_folder(kind: str, out: Path, threads: int | None, fn: Callable[[Path], object]):
+    """A job that is not a scene's (evaluate): the same folder policy and thread counts."""
+    from poevp_optics.core.io import check_output, staged_dir
+
+    check_output(out, kind)
+    runtime.set_threads(threads)
+    with staged_dir(out, kind=kind) as stage:
+        return fn(stage)

@@ -1,0 +1,150 @@
+"""One step of the closed loop: past captures -> predictor input -> prediction -> mask.
+
+Per frame t the step gives the DMD mask for t (`next_mask`) from what the camera saw up to t - 1,
+then takes what the camera saw at t (`observe`). The first `loop.init_frames` frames are white
+for every predictor, the oracle included (paper Sec. 3; DESIGN.md), and a causal predictor also
+waits until it has `needs_frames` past frames. The same step drives the render run, the chart's
+mask settling, `compare`, `evaluate` and the benchmarks.
+
+Loop modes (`LOOP_MODES`, what the predictor sees; DESIGN.md "Loop modes"):
+
+| mode        | predictor input                                                     | reference |
+|-------------|---------------------------------------------------------------------|-----------|
+| open        | the LDR twin (DMD white), 8-bit                                     | paper Fig. 3 (its simulation) |
+| raw         | the encoded capture, 8-bit                                          | paper Fig. 7 (its hardware) |
+| demodulated | the reconstruction re-expressed as the all-white signal, 8-bit scale, unclipped | ours |
+
+Masks live on the mirror grid; predictions come from sensor-grid captures and are placed on the
+mirror grid through the inverse registration (camera.to_mirror) before the mask law.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from poevp_optics.analysis.metrics import to_8bit
+from poevp_optics.control.masks import MaskSpec, mask_levels, predicted_electrons
+from poevp_optics.control.predictors import PREDICTORS, PredictorSpec, checked_prediction, make_predictor
+from poevp_optics.core.params import param
+from poevp_optics.core.registry import Registry
+
+
+def resize_to(img: np.ndarray, shape) -> np.ndarray:
+    """float32 image resized to (H, W): area average when shrinking, bilinear when growing."""
+    import cv2
+
+    h, w = shape
+    if img.shape == (h, w):
+        return img.astype(np.float32)
+    interp = cv2.INTER_AREA if img.shape[0] > h else cv2.INTER_LINEAR
+    return cv2.resize(img.astype(np.float32), (w, h), interpolation=interp)
+
+
+def _open_input(camera, ldr, enc, est, flags, index, clipped_gain):
+    return to_8bit(ldr.dn, camera.params.max_dn).astype(np.float32)
+
+
+def _raw_input(camera, ldr, enc, est, flags, index, clipped_gain):
+    return to_8bit(enc.dn, camera.params.max_dn).astype(np.float32)
+
+
+def _demodulated_input(camera, ldr, enc, est, flags, index, clipped_gain):
+    """Reconstruction re-expressed as the signal an all-white mask would give, on the 8-bit
+    scale, unclipped. A saturated pixel's estimate is only a lower bound x_lb: behind a white
+    mirror (x_lb ~ 255) it is marked clipped (255), which the target law reads as clipped_gain x
+    saturation; behind a dimmed mirror (x_lb > 255) it becomes clipped_gain x x_lb, the same
+    assumption one step further, so a highlight brighter than the first guess is dimmed
+    geometrically, frame after frame (static scenes converge)."""
+    e_white = est.astype(np.float64) * camera.electrons_per_radiance() * camera.white_exposure_s(index)
+    x = 255.0 * e_white / camera.params.saturation_capacity_e
+    sat = (flags.astype(np.int64) & 1) > 0
+    lifted = np.where(x > 255.5, x * clipped_gain, 255.0)
+    x = np.where(sat, lifted, np.where(np.abs(x - 255.0) <= 0.5, 254.4, x))
+    return x.astype(np.float32)
+
+
+LOOP_MODES = Registry("loop mode")
+LOOP_MODES.register("open", _open_input, source="paper Fig. 3: the predictor sees unmasked LDR frames")
+LOOP_MODES.register("raw", _raw_input, source="paper Fig. 7: the predictor sees the masked captures")
+LOOP_MODES.register("demodulated", _demodulated_input,
+                    source="ours: the predictor sees reconstructions, so the mask does not fight itself")
+
+
+@dataclass(frozen=True)
+class LoopSpec:
+    """[loop]: what the predictor sees and how many all-white frames start the loop."""
+
+    mode: str = param("open", choices=LOOP_MODES)
+    init_frames: int = param(2, min=0, max=1000)
+
+
+def predictor_input(mode: str, camera, ldr, enc, est, flags, index: int, clipped_gain: float) -> np.ndarray:
+    """What the predictor sees of frame `index` (8-bit scale, float32, sensor grid), per mode."""
+    return LOOP_MODES[mode](camera, ldr, enc, est, flags, index, clipped_gain)
+
+
+def oracle_mask(camera, mask: MaskSpec, radiance_mean: np.ndarray, index: int) -> np.ndarray:
+    """The mask law applied to the true frame (mirror grid): the upper bound of any predictor."""
+    white_e = radiance_mean.astype(np.float64) * camera.electrons_per_radiance() * camera.white_exposure_s(index)
+    ldr8 = to_8bit(camera.noise_free_dn(white_e), camera.params.max_dn)
+    return mask_levels(mask, camera.dmd.spec.bits, pred_8bit=ldr8, pred_electrons=white_e,
+                       full_well_e=camera.params.full_well_e, level_exposure=camera.level_exposure_s(index))
+
+
+def predicted_mask(camera, mask: MaskSpec, pred_8bit: np.ndarray, index: int) -> np.ndarray:
+    """The mask law applied to a predicted frame on the 8-bit scale (sensor grid), placed on the
+    mirror grid through the inverse registration first (camera.to_mirror)."""
+    pred = camera.to_mirror(pred_8bit).astype(np.float64)
+    e = predicted_electrons(pred, camera.params, mask.clipped_gain)
+    return mask_levels(mask, camera.dmd.spec.bits, pred_8bit=np.clip(pred, 0, 255),
+                       pred_electrons=e, full_well_e=camera.params.full_well_e,
+                       level_exposure=camera.level_exposure_s(index))
+
+
+@dataclass(frozen=True)
+class MaskDecision:
+    """The mask for one frame and how it came about."""
+
+    levels: np.ndarray
+    init: bool                       # an all-white initialisation frame
+    predict_seconds: float | None    # predictor + mask law (causal predictors)
+    fallback_px: int = 0             # prediction pixels that were NaN/Inf and fell back to hold
+
+
+class LoopStep:
+    """The closed loop's state and its per-frame step (module docstring). State is real here:
+    the history of what the predictor has seen."""
+
+    HISTORY = 4
+
+    def __init__(self, camera, mask: MaskSpec, loop: LoopSpec, predictor: PredictorSpec,
+                 model=None):
+        """model: an already built predictor (else built from `predictor`); none for the oracle."""
+        self.camera, self.mask, self.loop, self.predictor_spec = camera, mask, loop, predictor
+        self.needs_truth = PREDICTORS[predictor.name].needs_truth
+        self.model = None if self.needs_truth else (model or make_predictor(
+            predictor.name, predictor.weights, predictor.resolution))
+        self.history: list[np.ndarray] = []
+
+    def next_mask(self, index: int, truth: np.ndarray | None = None) -> MaskDecision:
+        """The mask for frame `index`; `truth` (mirror grid, time-averaged radiance) for the oracle."""
+        needs = 0 if self.model is None else self.model.needs_frames
+        if index < self.loop.init_frames or len(self.history) < needs:
+            return MaskDecision(self.camera.white_mask(), True, None)
+        if self.needs_truth:
+            return MaskDecision(oracle_mask(self.camera, self.mask, truth, index), False, None)
+        t0 = time.perf_counter()
+        pred, n_bad = checked_prediction(self.model, self.history[-2:])
+        levels = predicted_mask(self.camera, self.mask, resize_to(pred, self.camera.shape), index)
+        return MaskDecision(levels, False, time.perf_counter() - t0, n_bad)
+
+    def observe(self, index: int, ldr, enc, est, flags) -> None:
+        """Take what the camera saw of frame `index` into the predictor's history."""
+        if self.model is None:
+            return
+        x = predictor_input(self.loop.mode, self.camera, ldr, enc, est, flags, index, self.mask.clipped_gain)
+        self.history.append(resize_to(x, self.predictor_spec.resolution))
+        self.history = self.history[-self.HISTORY:]

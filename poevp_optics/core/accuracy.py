@@ -1,0 +1,40 @@
+"""Numerical accuracy settings, kept apart from physics (STYLE.md 5, after GalSim's GSParams).
+
+A sweep over physics keys never changes the numerics by accident, and an error-vs-time study
+sweeps only these. Filled from the scene's stable keys (`SceneSpec.accuracy`):
+
+| field                   | scene key                | meaning |
+|-------------------------|--------------------------|---------|
+| spp                     | render.spp               | Mitsuba samples per pixel per radiance sample |
+| subframes               | render.subframes         | K uniform radiance nodes per exposure (ends included) |
+| pwm_nodes               | render.pwm_nodes         | join the DMD's switching times to the nodes |
+| mc_splits               | render.mc_splits         | independent-seed renders behind the Monte Carlo error |
+| temporal_spp            | render.temporal_spp      | spp of the temporal-error check (0: spp) |
+| psf_support_energy      | relay.support_energy     | energy an automatic PSF support holds |
+| psf_support_px          | relay.support_px         | explicit PSF support (0: from the energy) |
+| guard_max_px            | relay.guard_max_px       | widest guard band rendered for the PSF |
+| poisson_sampler         | sensor.poisson_sampler   | shot-noise sampler (camera/sensor.py POISSON_SAMPLERS) |
+| registration_oversample | -                        | sub-areas per sensor pixel side in the registration (4) |
+| dmd_full_table_max      | -                        | levels x nodes up to which the DMD tabulates every level |
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class Accuracy:
+    """Numerical settings of one run (see the module table)."""
+
+    spp: int = 16
+    subframes: int = 4
+    pwm_nodes: bool = True
+    mc_splits: int = 2
+    temporal_spp: int = 0
+    psf_support_energy: float = 0.999
+    psf_support_px: int = 0
+    guard_max_px: int = 256
+    poisson_sampler: str = "exact"
+    registration_oversample: int = 4
+    dmd_full_table_max: int = 1 << 22

@@ -1,0 +1,211 @@
+"""Checks that combine keys or reach outside the TOML: timing fits the frame, spectra resolve
+and have visible power, photometric and sheeting files load, the optical layout agrees,
+weights exist, the DMD can act on the exposure. Each failure is one line naming file and key.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+
+import numpy as np
+
+from poevp_optics.analysis.charts import ChartSpec
+from poevp_optics.camera.dmd import DMDSpec
+from poevp_optics.camera.relay import RelaySpec
+from poevp_optics.camera.sensor import SensorSpec
+from poevp_optics.control.masks import MaskSpec
+from poevp_optics.control.predictors import PREDICTORS, PredictorSpec, takes_weights
+from poevp_optics.core.paths import ASSETS_DIR
+from poevp_optics.core.timing import TimingSpec
+from poevp_optics.render.renderer import RenderSpec
+from poevp_optics.sources.motion import MotionSpec
+from poevp_optics.sources.plates import PlateSpec
+from poevp_optics.sources.spectra import SpectrumSpec
+
+
+def chart_spectra(ctx, path: Path, chart: ChartSpec, given) -> dict:
+    """The patch spectra a [chart] section implies: light box x 10^-D per patch."""
+    dens = chart.density_list()
+    if len(dens) != chart.patches:
+        raise ctx.fail("chart.densities", f"{len(dens)} densities for {chart.patches} patches")
+    if not chart.densities and chart.d_max <= chart.d_min:
+        raise ctx.fail("chart.d_max", f"must exceed d_min = {chart.d_min}")
+    if chart.reference_camera:
+        ref = path.parent / chart.reference_camera
+        if not (ref.is_file() or (ref / "scene.toml").is_file()):
+            raise ctx.fail("chart.reference_camera", f"scene not found: {ref}")
+    out = {}
+    for i, d in enumerate(dens):
+        name = chart.param(i)
+        if name in given:
+            raise ctx.fail(f"spectra.{name}", "set by [chart] (light box x 10^-D); remove it here")
+        entry = SpectrumSpec(kind="radiance", source=chart.source,
+                             luminance_cd_per_m2=chart.luminance_cd_per_m2 * 10.0 ** (-d))
+        check_spectrum(ctx, "chart.source", entry)
+        out[name] = entry
+    return out
+
+
+def check_timing(ctx, t: TimingSpec):
+    period = 1.0 / t.fps
+    if t.exposure_offset_s + t.exposure_s > period * (1 + 1e-9):
+        raise ctx.fail("timing.exposure_s",
+                       f"impossible timing: exposure_offset_s + exposure_s = "
+                       f"{t.exposure_offset_s + t.exposure_s:.6g} s exceeds the frame period "
+                       f"1/fps = {period:.6g} s")
+    if t.dmd_window_offset_s + t.dmd_window_s > period * (1 + 1e-9):
+        raise ctx.fail("timing.dmd_window_s",
+                       f"impossible timing: dmd_window_offset_s + dmd_window_s = "
+                       f"{t.dmd_window_offset_s + t.dmd_window_s:.6g} s exceeds the frame period "
+                       f"1/fps = {period:.6g} s")
+
+
+def check_accuracy(ctx, r: RenderSpec):
+    if r.spp < r.mc_splits:
+        raise ctx.fail("render.spp", f"must be >= render.mc_splits = {r.mc_splits} (the Monte Carlo "
+                       f"error comes from {r.mc_splits} independent-seed renders, each needs a "
+                       f"sample), got {r.spp}")
+
+
+def check_dmd_use(ctx, dmd: DMDSpec, t: TimingSpec, mask: MaskSpec):
+    """A DMD that can act on the capture: its window overlaps the exposure, and the mask law
+    has levels below white to use."""
+    e0, e1 = t.exposure_offset_s, t.exposure_offset_s + t.exposure_s
+    d0, d1 = t.dmd_window_offset_s, t.dmd_window_offset_s + t.dmd_window_s
+    if min(e1, d1) - max(e0, d0) <= 0:
+        raise ctx.fail("timing.dmd_window_offset_s",
+                       f"the DMD window [{d0:.6g}, {d1:.6g}] s misses the exposure [{e0:.6g}, "
+                       f"{e1:.6g}] s (from the frame start): no mask could act on the capture")
+    top = (1 << dmd.bits) - 1
+    if mask.law != "white" and mask.min_level >= top:
+        raise ctx.fail("mask.min_level", f"must be < {top}, the white level of a {dmd.bits}-bit DMD "
+                       f"(dmd.bits), so the mask law has a level that dims; got {mask.min_level}")
+
+
+def check_sensor_levels(ctx, sensor: SensorSpec):
+    """The preset with the scene's overrides leaves codes between black level and top code."""
+    from poevp_optics.camera.sensor import SENSOR_PRESETS
+
+    bits = sensor.bits if sensor.bits != -1 else SENSOR_PRESETS[sensor.preset].bits
+    top = (1 << bits) - 1
+    if not math.isnan(sensor.offset_dn) and sensor.offset_dn >= top:
+        raise ctx.fail("sensor.offset_dn", f"must be below the top code {top} of the {bits}-bit ADC "
+                       f"(sensor.bits), or no signal could be read; got {sensor.offset_dn:g}")
+
+
+def check_plate(ctx, plate: PlateSpec):
+    if plate.text and not plate.text.strip():
+        raise ctx.fail("plate.text", f"blank text {plate.text!r}: give the plate's characters, "
+                       "or leave it out ('') for the XML's own texture")
+
+
+def check_predictor(ctx, path: Path, pred: PredictorSpec, cross_checks: bool) -> PredictorSpec:
+    """Resolve `weights` against the scene's folder (as render.xml is) and check it is used."""
+    if not pred.weights:
+        return pred
+    if cross_checks and not PREDICTORS[pred.name].takes_weights:
+        raise ctx.fail("predictor.weights", f"predictor {pred.name!r} takes no weights (only "
+                       f"{', '.join(takes_weights())} do); remove the key or change predictor.name")
+    w = Path(pred.weights).expanduser()
+    w = w if w.is_absolute() else (path.parent / w)
+    w = w.resolve()
+    if not w.is_file():
+        raise ctx.fail("predictor.weights", f"weights file not found: {w}"
+                       + (" (relative paths are read from the scene's folder)" if not Path(pred.weights).is_absolute() else ""))
+    return dataclasses.replace(pred, weights=str(w))
+
+
+def check_motion(ctx, key, m: MotionSpec):
+    if m.kind == "keyframes":
+        if len(m.times_s) < 1 or len(m.times_s) != len(m.offsets_m):
+            raise ctx.fail(f"{key}.offsets_m",
+                           f"keyframes need as many offsets_m as times_s "
+                           f"({len(m.offsets_m)} vs {len(m.times_s)}), at least one")
+        if any(b <= a for a, b in zip(m.times_s, m.times_s[1:])):
+            raise ctx.fail(f"{key}.times_s", "keyframe times must increase strictly")
+    elif m.times_s or m.offsets_m:
+        raise ctx.fail(f"{key}.times_s", f"times_s/offsets_m only apply to kind = 'keyframes'")
+
+
+_PHOTOMETRIC = {"intensity": "intensity_cd", "radiance": "luminance_cd_per_m2",
+                "irradiance": "illuminance_lux"}
+
+
+def check_spectrum(ctx, key, s: SpectrumSpec):
+    from poevp_optics.sources.spectra import SpectrumError, load_spectrum
+
+    given = [k for k in _PHOTOMETRIC.values() if not math.isnan(getattr(s, k))]
+    if s.kind == "reflectance":
+        if given:
+            raise ctx.fail(f"{key}.{given[0]}", "a reflectance takes `scale`, not a photometric value")
+    else:
+        need = _PHOTOMETRIC[s.kind]
+        wrong = [k for k in given if k != need]
+        if wrong:
+            raise ctx.fail(f"{key}.{wrong[0]}", f"kind = {s.kind!r} takes {need}")
+        if need not in given:
+            raise ctx.fail(f"{key}.{need}", f"required for kind = {s.kind!r} (absolute scale)")
+        if s.scale != 1.0:
+            raise ctx.fail(f"{key}.scale", "scale only applies to reflectances")
+    try:
+        values = load_spectrum(s.source, emissive=s.kind != "reflectance")
+    except SpectrumError as e:
+        raise ctx.fail(f"{key}.source", str(e)) from None
+    if s.kind != "reflectance":
+        from poevp_optics.sources.spectra import integrate, photopic_v
+
+        if not integrate(photopic_v() * values) > 0:
+            raise ctx.fail(f"{key}.source", f"{s.source}: the spectrum has no visible power (zero "
+                           f"under V(lambda)), so it cannot be scaled to {_PHOTOMETRIC[s.kind]}")
+    if s.kind == "reflectance" and float(np.max(values * s.scale)) > 1.0 + 1e-9:
+        raise ctx.fail(f"{key}.scale", f"reflectance exceeds 1 (max {np.max(values * s.scale):.4g}): "
+                       "energy would not be conserved")
+
+
+def check_layout(ctx, sec: dict):
+    from poevp_optics.camera.layout import LayoutError, layout_of
+
+    try:
+        layout_of(sec["sensor"], sec["dmd"], sec["relay"], sec["objective"])
+    except LayoutError as e:
+        raise ctx.fail(e.key, str(e)) from None
+
+
+def check_plugin_tables(ctx, path: Path, spectra_, sheeting):
+    """Photometric files of [spectra] lamps and [sheeting] tables (materials/): readable, in range."""
+    from poevp_optics.render.materials.photometric_lamp import LampFileError, resolve_distribution
+    from poevp_optics.render.materials.retroreflective import (SheetingError, parse_sheeting, retro_law,
+                                                               sheeting_string)
+
+    for ident, s in spectra_.items():
+        if s.distribution:
+            if s.kind != "intensity":
+                raise ctx.fail(f"spectra.{ident}.distribution", "only a kind = 'intensity' lamp takes a distribution")
+            try:
+                resolve_distribution(s.distribution, path.parent)
+            except LampFileError as e:
+                raise ctx.fail(f"spectra.{ident}.distribution", str(e)) from None
+    for ident, sh in sheeting.items():
+        try:
+            retro_law(parse_sheeting(sheeting_string(sh, path.parent)))
+        except SheetingError as e:
+            raise ctx.fail(f"sheeting.{ident}", str(e)) from None
+
+
+def check_sensor_and_relay(ctx, path: Path, sensor: SensorSpec, relay: RelaySpec):
+    from poevp_optics.sources.spectra import SpectrumError, load_spectrum
+
+    if sensor.qe:
+        try:
+            load_spectrum(sensor.qe, emissive=True)
+        except SpectrumError as e:
+            raise ctx.fail("sensor.qe", str(e)) from None
+    if relay.psf == "measured":
+        if not relay.measured_file:
+            raise ctx.fail("relay.measured_file", "required when psf = 'measured'")
+        p = Path(relay.measured_file)
+        cand = [p] if p.is_absolute() else [path.parent / p, ASSETS_DIR / p]
+        if not any(c.is_file() for c in cand):
+            raise ctx.fail("relay.measured_file", f"PSF image not found: {relay.measured_file}")
