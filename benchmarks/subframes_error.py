@@ -187,7 +187,7 @@ def part_c(spec, frame, dense, spps=(128, 512)):
     from poevp_optics.camera.camera import Camera
     from poevp_optics.camera.dmd import node_times_s, on_time_table
     from poevp_optics.apps.temporal_check import temporal_error
-    from poevp_optics.apps.render_run import render_exposures
+    from poevp_optics.render.exposures import render_exposures
     from poevp_optics.render.renderer import Renderer
 
     _, _, box, mask = dense

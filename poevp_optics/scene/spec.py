@@ -8,6 +8,7 @@
 | [spectra.<param>]    | SpectrumSpec     | sources/spectra.py |
 | [flicker.<param>]    | FlickerSpec      | sources/flicker.py |
 | [plate]              | PlateSpec        | sources/plates.py |
+| [source]             | SourceSpec       | sources/kinds.py (kinds: mitsuba_source.py, exr_sequence.py, ldr_highlight.py) |
 | [sheeting.<param>]   | SheetingSpec     | render/materials/retroreflective.py |
 | [objective]          | ObjectiveSpec    | camera/objective.py |
 | [dmd]                | DMDSpec          | camera/dmd.py (registration: camera/registration.py) |
@@ -45,6 +46,7 @@ from poevp_optics.core.timing import TimingSpec
 from poevp_optics.render.materials.retroreflective import SheetingSpec
 from poevp_optics.render.renderer import RenderSpec
 from poevp_optics.sources.flicker import FlickerSpec
+from poevp_optics.sources.kinds import SourceSpec
 from poevp_optics.sources.motion import MotionSpec
 from poevp_optics.sources.plates import PlateSpec
 from poevp_optics.sources.spectra import SpectrumSpec
@@ -56,7 +58,7 @@ class SceneSpec:
 
     name: str
     toml_path: Path
-    xml_path: Path
+    xml_path: Path | None          # None: the radiance comes from a frame source ([source])
     description: str
     render: RenderSpec
     timing: TimingSpec
@@ -74,6 +76,7 @@ class SceneSpec:
     outputs: OutputsSpec
     plate: PlateSpec
     chart: ChartSpec
+    source: SourceSpec
     raw: Mapping[str, Any]
     origin: str = ""               # the file and the --set overrides it was read with (messages)
 
@@ -88,8 +91,8 @@ class SceneSpec:
 
     @property
     def geometry_static(self) -> bool:
-        """True when no shape or emitter moves."""
-        return all(m.is_static for m in self.motion.values())
+        """True when no shape or emitter moves (a frame source is taken to change in time)."""
+        return self.source.renders and all(m.is_static for m in self.motion.values())
 
     @property
     def is_static(self) -> bool:
@@ -131,6 +134,7 @@ SECTIONS = {
     "render": RenderSpec, "timing": TimingSpec, "dmd": DMDSpec, "objective": ObjectiveSpec,
     "relay": RelaySpec, "sensor": SensorSpec, "mask": MaskSpec, "predictor": PredictorSpec,
     "loop": LoopSpec, "outputs": OutputsSpec, "plate": PlateSpec, "chart": ChartSpec,
+    "source": SourceSpec,
 }
 TABLE_SECTIONS = {"motion": MotionSpec, "spectra": SpectrumSpec, "flicker": FlickerSpec,
                   "sheeting": SheetingSpec}
