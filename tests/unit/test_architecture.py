@@ -108,6 +108,27 @@ def test_sources_import_only_core():
     assert not bad, bad
 
 
+def test_benchmarks_and_scripts_import_names_that_exist():
+    """Every `from poevp_optics... import name` in benchmarks/ and scripts/ resolves (a module
+    move must carry the scripts that live outside the package along)."""
+    import importlib
+
+    missing = []
+    for path in sorted([*(ROOT / "benchmarks").glob("*.py"), *(ROOT / "scripts").glob("*.py")]):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if not (isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("poevp_optics")):
+                continue
+            module = importlib.import_module(node.module)
+            for alias in node.names:
+                if hasattr(module, alias.name):
+                    continue
+                try:
+                    importlib.import_module(f"{node.module}.{alias.name}")
+                except ImportError:
+                    missing.append(f"{path.name}:{node.lineno} {node.module}.{alias.name}")
+    assert not missing, missing
+
+
 def test_no_private_name_is_imported_from_another_module():
     bad = []
     for name, tree in MODULES.items():
