@@ -8,7 +8,9 @@ explicit argument, as a worker whose installed package differs would have); the 
 from __future__ import annotations
 
 import json
+import os
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -176,3 +178,141 @@ def test_a_point_whose_files_changed_is_refused_not_failed(client_scene):
     res = run_point(task)
     assert set(res) == {"refused"}
     assert res["refused"].startswith(f"this process: spectra.lamp.source: {lamp} holds other bytes there (sha256 ")
+
+
+# ---------------------------------------------------------------------------- the new layout's inputs
+LAMP_SHEET_TOML = """
+[spectra.lamp]
+kind = "intensity"
+source = "cie:LED-B4"
+intensity_cd = 20000.0
+distribution = "file:lamps/low_beam.ldt"
+
+[sheeting.wall_sheeting]
+source = "file:tables/sheet.csv"
+
+[relay]
+psf = "measured"
+measured_file = "psf/relay_example_psf.png"
+
+[predictor]
+name = "dmvfn_lite"
+resolution = [48, 64]
+"""
+
+
+@pytest.fixture
+def lamp_sheet_scene(tmp_path):
+    """smoke with a photometric low beam (an EULUMDAT file of assets/), its wall covered in
+    retroreflective sheeting from a CSV table beside the TOML, the measured PSF of assets/ and
+    the lite predictor's shipped weights: every kind of file the layout's loaders read
+    (render/materials/, camera/relay.py, control/predictors/dmvfn.py)."""
+    folder = tmp_path / "client" / "lampy"
+    (folder / "tables").mkdir(parents=True)
+    xml = (SCENES / "smoke" / "scene.xml").read_text()
+    spot = xml[xml.index('    <emitter type="spot"'):xml.index("</emitter>") + len("</emitter>")]
+    xml = xml.replace(spot, """    <emitter type="photometric" id="lamp">
+        <transform name="to_world"><lookat origin="0, 0.2, 0" target="0, 0, 5" up="0, 1, 0"/></transform>
+        <spectrum name="intensity" value="$lamp"/>
+        <string name="distribution" value="$lamp_distribution"/>
+    </emitter>""")
+    xml = xml.replace('<default name="lamp" value="1"/>', '<default name="lamp" value="1"/>\n'
+                      '    <default name="lamp_distribution" value=""/>\n'
+                      '    <default name="wall_sheeting" value="astm_d4956:III"/>')
+    xml = xml.replace('<bsdf type="diffuse"><spectrum name="reflectance" value="$wall"/></bsdf>',
+                      '<bsdf type="retroreflective"><string name="sheeting" value="$wall_sheeting"/>'
+                      '<spectrum name="reflectance" value="$wall"/></bsdf>')
+    (folder / "scene.xml").write_text(xml)
+    # ASTM D4956-01 Table 4, Type III white (cd lx-1 m-2), as tests/physics/test_retroreflection.py
+    ra = {4.0: {0.1: 300.0, 0.2: 250.0, 0.5: 95.0}, 30.0: {0.1: 180.0, 0.2: 150.0, 0.5: 65.0}}
+    (folder / "tables" / "sheet.csv").write_text(
+        "# efficiency = 0.3\nalpha_deg,beta_deg,ra_cd_per_lx_m2\n"
+        + "".join(f"{a},{b},{v}\n" for b, row in ra.items() for a, v in row.items()))
+    toml = (SCENES / "smoke" / "scene.toml").read_text()
+    lamp = toml[toml.index("[spectra.lamp]"):toml.index("[spectra.white]")]
+    (folder / "scene.toml").write_text(toml.replace(lamp, "") + LAMP_SHEET_TOML)
+    return folder / "scene.toml"
+
+
+def _opened_by_python(fn):
+    """Files Python opens while `fn()` runs (the `open` audit event: io.open, os.open, numpy,
+    photompy, eulumdat-py; not native readers such as OpenCV, Mitsuba's bitmap or safetensors)."""
+    import sys
+
+    seen: list[str] = []
+    _AUDIT["sink"] = seen
+    if not _AUDIT["installed"]:
+        def hook(event, args):
+            sink = _AUDIT["sink"]
+            if sink is not None and event == "open" and isinstance(args[0], (str, bytes)) and args[0]:
+                sink.append(os.fsdecode(args[0]))
+
+        sys.addaudithook(hook)                  # hooks cannot be removed: it records only while set
+        _AUDIT["installed"] = True
+    try:
+        fn()
+    finally:
+        _AUDIT["sink"] = None
+    return {str(Path(p).resolve()) for p in seen if Path(p).is_file()}
+
+
+_AUDIT = {"installed": False, "sink": None}
+
+
+def test_lamp_files_sheeting_tables_psf_and_weights_are_listed_and_travel(lamp_sheet_scene, tmp_path):
+    from poevp_optics.apps.preflight import check_run
+    from poevp_optics.control.predictors import make_predictor
+    from poevp_optics.render.renderer import Renderer
+    from poevp_optics.render.materials.photometric_lamp import load_distribution
+
+    toml = lamp_sheet_scene
+    folder = toml.parent
+    spec = load_scene(toml)
+    refs = with_hashes(scene_inputs(spec))
+    listed = {r.key: (r.kind, r.source) for r in refs}
+    a = lambda rel: str((ASSETS_DIR / rel).resolve())       # noqa: E731
+    assert listed == {
+        "scene file": ("scene", str(toml.resolve())),
+        "render.xml": ("scene", str((folder / "scene.xml").resolve())),
+        "scene.xml: <texture type='bitmap'> filename ($plate_texture)": ("assets", a("plates/plate_B4713.png")),
+        "spectra.lamp.distribution": ("assets", a("lamps/low_beam.ldt")),
+        "sheeting.wall_sheeting.source": ("scene", str((folder / "tables" / "sheet.csv").resolve())),
+        "relay.measured_file": ("assets", a("psf/relay_example_psf.png")),
+        "predictor.weights": ("assets", a("predictor/dmvfn_lite.safetensors")),
+        "sensor.qe": ("assets", a("spectra/imx253_mono_qe.csv")),
+    }
+    # the loaders themselves: every scene or assets/ file Python opens to load, check and build
+    # this scene (lamp and sheeting parsed again by the Mitsuba plugins) and its predictor is listed
+    load_distribution.cache_clear()                     # read the lamp file again, not from memory
+    opened = _opened_by_python(lambda: (check_run(load_scene(toml), "render", memory=False), Renderer(spec),
+                                        make_predictor(spec.predictor.name, spec.predictor.weights,
+                                                       spec.predictor.resolution)))
+    mine = {p for p in opened if p.startswith((str(folder.resolve()), str(ASSETS_DIR.resolve())))}
+    assert {a("lamps/low_beam.ldt"), str((folder / "tables" / "sheet.csv").resolve())} <= mine
+    assert mine <= {src for _, src in listed.values()}, mine - {src for _, src in listed.values()}
+    # a worker whose package assets/ holds none of them gets every file from the bundle
+    plan = make_plan("bundle", toml, refs)
+    bundle = make_bundle(plan, refs)
+    assert bundle.files == 8
+    bare = tmp_path / "worker_assets"
+    bare.mkdir()
+    work = tmp_path / "worker" / "point"
+    work.mkdir(parents=True)
+    m = materialize(plan, refs, bundle.data, work, assets_dir=bare)
+    mirror = work / "lampy"
+    for placed in ("lamps/low_beam.ldt", "psf/relay_example_psf.png", "tables/sheet.csv"):
+        assert (mirror / placed).is_file(), placed        # where the lookups look before assets/
+    assert sorted(o.split("=", 1)[0] for o in m.overrides) == ["predictor.weights", "sensor.qe"]
+    worker_spec = load_scene(m.scene, list(m.overrides))
+    check_same_inputs(refs, worker_spec, m.path_map)     # the same bytes under the same keys
+
+
+def test_a_chart_lists_its_reference_cameras_files():
+    """dr_chart36 renders the chart for lab_rail's camera (chart.reference_camera): lab_rail's
+    TOML, XML and plate texture are inputs of every point."""
+    refs = {r.key: r.source for r in scene_inputs(load_scene(SCENES / "dr_chart36"))}
+    prefix = "chart.reference_camera: "
+    ref = {k[len(prefix):]: v for k, v in refs.items() if k.startswith(prefix)}
+    lab = {r.key: r.source for r in scene_inputs(load_scene(SCENES / "lab_rail"))}
+    assert ref == lab
+    assert ref["scene file"] == str((SCENES / "lab_rail" / "scene.toml").resolve())
