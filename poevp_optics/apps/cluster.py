@@ -12,11 +12,13 @@
   (importlib.metadata) and so misses a source tree on PYTHONPATH or an edited editable install.
 * `dashboard_link`: the link only when the scheduler serves the dashboard. A scheduler started
   with `--no-dashboard` still advertises its HTTP port as `services["dashboard"]` (health and
-  metrics only; `/status` is 404), so the link is fetched once before it is printed.
+  metrics only; `/status` is 404), so the scheduler is asked which plots it serves before the
+  link is printed.
 """
 
 from __future__ import annotations
 
+import json
 import os
 import urllib.error
 import urllib.request
@@ -98,13 +100,26 @@ def check_workers(client, versions: dict[str, str]) -> int:
     return len(answers)
 
 
-def dashboard_link(client, timeout_s: float = 2.0) -> str | None:
-    """The scheduler's dashboard URL when it serves one (and this machine reaches it), else None."""
+def dashboard_link(client, timeout_s: float = 5.0) -> str | None:
+    """The scheduler's dashboard URL when it serves one (and this machine reaches it), else None.
+
+    Asks the scheduler's `individual-plots.json` (distributed/http/scheduler/info.py: the Bokeh
+    plots it serves, `{}` without a dashboard; ~20 ms) rather than the `/status` page, whose
+    Bokeh document takes ~2 s to build on a loaded machine; the page itself only when that route
+    is switched off (`distributed.scheduler.http.routes`)."""
     try:
         link = client.dashboard_link
     except (KeyError, AttributeError, OSError):
         return None
     if not link:
+        return None
+    try:
+        with urllib.request.urlopen(link.rsplit("/", 1)[0] + "/individual-plots.json", timeout=timeout_s) as r:
+            plots = json.load(r)
+        return link if any(not str(v).startswith("/statics/") for v in plots.values()) else None
+    except urllib.error.HTTPError:
+        pass
+    except (urllib.error.URLError, OSError, ValueError, AttributeError):
         return None
     try:
         with urllib.request.urlopen(link, timeout=timeout_s) as r:
