@@ -159,18 +159,8 @@ def _xml_names(xml_real: Path, rel: Path, seen: set) -> Iterator[tuple[str, str,
                 yield what, child.get("value") or "", rel, defaults
 
 
-def scene_inputs(spec, *, _prefix: str = "", _may_override: bool = True) -> list[InputRef]:
-    """Every file a run of `spec` reads besides the code, without hashes (`with_hashes`)."""
-    from poevp_optics.control.predictors.dmvfn import default_weights
-    from poevp_optics.control.predictors import PREDICTORS
-    from poevp_optics.scene.load import load_scene
-    from poevp_optics.camera.sensor import SENSOR_PRESETS
-
-    f = _Finder(_prefix, _may_override)
-    toml = _lexical(spec.toml_path)
-    toml_dir, toml_real = toml.parent, Path(spec.toml_path).resolve().parent
-    f.refs.append(InputRef(f.prefix + "scene file", str(Path(spec.toml_path).resolve()), "scene",
-                           place=str(toml)))
+def _xml_inputs(f: _Finder, spec, toml_dir: Path, toml_real: Path) -> None:
+    """The XML (`render.xml`) and every file it names, as Mitsuba and preflight resolve them."""
     f.add("render.xml", spec.render.xml, [toml_dir], lookup_bases=[toml_real], assets=False)
     # the XML as a worker sees it (no links in a mirror) and as the client reads it
     xml_spelt = Path(f.refs[-1].place).parent if f.refs[-1].key.endswith("render.xml") else spec.xml_path.parent
@@ -189,6 +179,44 @@ def scene_inputs(spec, *, _prefix: str = "", _may_override: bool = True) -> list
         if rel == Path("."):
             spelt, real = spelt[:1], real[:1]
         f.add(f"{spec.xml_path.name}: {what}", value, spelt, lookup_bases=real, assets=True)
+
+
+def _source_inputs(f: _Finder, spec, toml_dir: Path, toml_real: Path) -> None:
+    """A frame source's files (sources/kinds.py `SOURCES`: the keys its kind takes): the frames
+    its glob matches (sorted, as frames.frame_files), the video, times and boxes CSVs, named
+    relative to the scene's folder or absolute; its spectrum table (file:, as spectra tables)."""
+    from poevp_optics.sources.frames import frame_files
+    from poevp_optics.sources.kinds import SOURCES
+
+    src, keys = spec.source, SOURCES[spec.source.kind].keys
+    if "frames" in keys and src.frames:
+        absolute = Path(src.frames).expanduser().is_absolute()
+        for i, p in enumerate(frame_files(Path(spec.toml_path).parent, src.frames)):
+            name = str(p) if absolute else os.path.relpath(p, Path(spec.toml_path).parent)
+            f.add(f"source.frames[{i}]", name, [toml_dir], lookup_bases=[toml_real], assets=False)
+    for key in ("video", "times_csv", "boxes"):
+        if key in keys and getattr(src, key):
+            f.add(f"source.{key}", str(Path(getattr(src, key)).expanduser()), [toml_dir],
+                  lookup_bases=[toml_real], assets=False)
+    if "spectrum" in keys and src.spectrum.startswith("file:"):
+        f.add("source.spectrum", src.spectrum[5:], [], assets=True, override="source.spectrum=file:{}")
+
+
+def scene_inputs(spec, *, _prefix: str = "", _may_override: bool = True) -> list[InputRef]:
+    """Every file a run of `spec` reads besides the code, without hashes (`with_hashes`)."""
+    from poevp_optics.control.predictors.dmvfn import default_weights
+    from poevp_optics.control.predictors import PREDICTORS
+    from poevp_optics.scene.load import load_scene
+    from poevp_optics.camera.sensor import SENSOR_PRESETS
+
+    f = _Finder(_prefix, _may_override)
+    toml = _lexical(spec.toml_path)
+    toml_dir, toml_real = toml.parent, Path(spec.toml_path).resolve().parent
+    f.refs.append(InputRef(f.prefix + "scene file", str(Path(spec.toml_path).resolve()), "scene",
+                           place=str(toml)))
+    if spec.xml_path is not None:
+        _xml_inputs(f, spec, toml_dir, toml_real)
+    _source_inputs(f, spec, toml_dir, toml_real)
     # spectrum tables: file:<absolute> or under assets/ only (spectra.load_spectrum)
     raw_spectra = spec.raw.get("spectra", {})
     for name, s in spec.spectra.items():

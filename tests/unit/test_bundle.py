@@ -316,3 +316,38 @@ def test_a_chart_lists_its_reference_cameras_files():
     lab = {r.key: r.source for r in scene_inputs(load_scene(SCENES / "lab_rail"))}
     assert ref == lab
     assert ref["scene file"] == str((SCENES / "lab_rail" / "scene.toml").resolve())
+
+
+def test_a_frame_source_scene_sends_its_frames_and_csvs(tmp_path):
+    """exr_highbeam (issue 19: radiance from an EXR sequence, no XML): the bundle lists the files
+    its kind reads (sources/kinds.py source_files: every frame of the glob, the boxes CSV), and a
+    worker's mirror renders what the client renders."""
+    from poevp_optics.apps.render_run import run_render
+    from poevp_optics.sources.kinds import source_files
+    from tests.regression.bit_identical import hash_outputs
+
+    client = tmp_path / "client"
+    shutil.copytree(SCENES / "exr_highbeam", client / "exr_highbeam")
+    toml = client / "exr_highbeam" / "scene.toml"
+    spec = load_scene(toml, ["timing.frames=2"])
+    refs = with_hashes(scene_inputs(spec))
+    frames = sorted((client / "exr_highbeam" / "frames").glob("road_*.exr"))
+    assert len(frames) == 13
+    listed = {r.key: r.source for r in refs if r.kind == "scene"}
+    assert listed == {"scene file": str(toml.resolve()), "source.boxes": str(frames[0].parent / "boxes.csv"),
+                      **{f"source.frames[{i}]": str(p) for i, p in enumerate(frames)}}
+    assert set(listed.values()) == {str(toml.resolve())} | {str(p.resolve()) for p in source_files(spec)}
+    plan = make_plan("bundle", toml, refs)
+    work = tmp_path / "worker"
+    work.mkdir()
+    m = materialize(plan, refs, make_bundle(plan, refs).data, work)
+    worker_spec = load_scene(m.scene, ["timing.frames=2", *m.overrides])
+    check_same_inputs(refs, worker_spec, m.path_map)
+    outs = {}
+    for name, sp in (("client", spec), ("worker", worker_spec)):
+        outs[name] = tmp_path / "out" / name
+        outs[name].mkdir(parents=True)
+        run_render(sp, outs[name], progress=False)
+    report = json.loads((outs["worker"] / "report.json").read_text())
+    (outs["worker"] / "report.json").write_text(json.dumps(map_paths(report, m.path_map)))   # as run_point does
+    assert hash_outputs(outs["client"]) == hash_outputs(outs["worker"])
