@@ -1,8 +1,9 @@
 """What a sweep point reads, and how it travels to a Dask worker on another machine and back.
 
 A point reads files besides the code: the TOML, the XML and every file it names, spectrum
-tables, photometric lamp files, sheeting tables, the measured PSF, predictor weights, and for
-a chart the reference camera's scene. `scene_inputs` lists them, each as an `InputRef`: the key
+tables, photometric lamp files, sheeting tables, the measured PSF, predictor weights, a frame
+source's frames, video and CSVs ([source], sources/kinds.py), and for a chart the reference
+camera's scene. `scene_inputs` lists them, each as an `InputRef`: the key
 that names it, the file the client reads, its SHA-256, and how a worker finds it:
 
 | kind       | named                                   | on a worker                                 |

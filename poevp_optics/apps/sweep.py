@@ -15,7 +15,8 @@ the others go on, and `poevp sweep` exits 1 when any point failed.
 A sweep is its scene file (however named: `scenes/x` and `scenes/x/scene.toml` are one), job,
 seeds, grid (keys in any order: the grid is sorted by key) and the effective scene after the
 base overrides. Its record `sweep.json` also holds the SHA-256 of every file the points read
-(TOML, XML and the files it names, spectrum tables, PSF image, predictor weights). A rerun of
+(apps/bundle.py: TOML, XML and the files it names, spectrum tables, lamp and sheeting files,
+PSF image, predictor weights, a chart's reference camera, a frame source's files). A rerun of
 the same sweep resumes; a rerun whose record differs, or whose files changed since, is refused
 with what differs, so old and new points never mix in one table. Point folders are named by a
 hash of the point's effective scene table, not of the override text.
