@@ -36,6 +36,16 @@ def _positive_int(text: str) -> int:
     return value
 
 
+def _count(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}")
+    return value
+
+
 def _resolution_override(text: str) -> str:
     try:
         h, w = (int(v) for v in text.lower().split("x"))
@@ -193,7 +203,8 @@ def cmd_sweep(args) -> int:
     out = Path(args.out) if args.out else Path("out") / f"{spec.name}-sweep"
     check_output(out, "sweep", protect=reads(spec))
     df = sweep(args.scene, args.grid, out=out, seeds=args.seeds, workers=args.workers,
-               scheduler=args.scheduler, job=args.job, base_overrides=_overrides(args),
+               scheduler=args.scheduler, scheduler_file=args.scheduler_file, shared_fs=args.shared_fs,
+               retries=args.retries, job=args.job, base_overrides=_overrides(args),
                metric=args.plot, progress=not args.quiet, retry_failed=args.retry_failed,
                threads=args.threads)
     n_failed = 0
@@ -277,6 +288,21 @@ def cmd_info(args) -> int:
     return 0
 
 
+def _add_cluster_options(p) -> None:
+    """`poevp sweep` on an existing Dask cluster (apps/cluster.py, apps/bundle.py)."""
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("--scheduler", metavar="ADDRESS", help="tcp://HOST:PORT of an existing Dask scheduler")
+    where.add_argument("--scheduler-file", metavar="PATH",
+                       help="JSON file naming an existing Dask scheduler (as `dask scheduler "
+                            "--scheduler-file` and dask-jobqueue write)")
+    p.add_argument("--shared-fs", action="store_true",
+                   help="workers read this machine's paths (a shared file system; verified on each "
+                        "worker) instead of receiving the scene bundle")
+    p.add_argument("--retries", type=_count, default=2, metavar="N",
+                   help="run a point whose worker died again up to N times before it is a failed row "
+                        "(default 2)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     from poevp_optics.apps.runner import JOBS, sweep_jobs
 
@@ -315,7 +341,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seeds", type=_positive_int, default=1, help="seeds per point (render.seed, sensor.seed)")
     p.add_argument("--out", help="default out/<scene>-sweep; rerunning the same sweep resumes")
     p.add_argument("--workers", type=_positive_int, help="local Dask worker processes (default: cores)")
-    p.add_argument("--scheduler", help="tcp://HOST:PORT of an existing Dask scheduler")
+    _add_cluster_options(p)
     p.add_argument("--job", default="render", choices=sweep_jobs())
     p.add_argument("--plot", metavar="METRIC", help="column to plot, e.g. metrics.saturated_fraction_roi.encoded")
     p.add_argument("--retry-failed", action="store_true", help="rerun points recorded as failed")

@@ -15,19 +15,29 @@ the others go on, and `poevp sweep` exits 1 when any point failed.
 A sweep is its scene file (however named: `scenes/x` and `scenes/x/scene.toml` are one), job,
 seeds, grid (keys in any order: the grid is sorted by key) and the effective scene after the
 base overrides. Its record `sweep.json` also holds the SHA-256 of every file the points read
-(TOML, XML and the files it names, spectrum tables, PSF image, predictor weights). A rerun of
+(apps/bundle.py: TOML, XML and the files it names, spectrum tables, lamp and sheeting files,
+PSF image, predictor weights, a chart's reference camera, a frame source's files). A rerun of
 the same sweep resumes; a rerun whose record differs, or whose files changed since, is refused
 with what differs, so old and new points never mix in one table. Point folders are named by a
 hash of the point's effective scene table, not of the override text.
 
 Execution: Dask distributed (https://distributed.dask.org): an embedded `LocalCluster` of
 worker processes, one thread each, with DrJit/torch/OpenCV threads = cores // workers, or an
-existing cluster (`--scheduler tcp://HOST:PORT`). Each point writes its own folder
-`points/<key>-s<seed>/` (staged, so a killed point leaves nothing half-written) and the table
-`results.parquet` + `results.csv` is rewritten atomically after every finished point. A rerun of
-the same command skips the finished points (ok or failed), so killing a sweep loses at most the
-points in flight. Timing columns (`*.seconds`) naturally differ between runs; every other
-column of a point is reproducible from its seeds.
+existing cluster (`--scheduler tcp://HOST:PORT` or `--scheduler-file PATH`, cluster.py). The
+client resolves every path before submitting; a point carries its inputs (bundle.py): on a
+cluster a scene bundle (the files the points read, content-hashed, scattered once to the
+workers and unpacked into each point's temporary folder), or with `--shared-fs` (and on a
+LocalCluster) the client's own paths, which each worker verifies byte for byte. Workers must
+run the client's poevp_optics, Mitsuba, DrJit and torch (on a cluster: checked at start and by
+each point); a worker that differs, in software or in the files it sees, stops the sweep with
+one line. A worker writes only into its temporary folder, removed when the point ends; the point's
+folder comes back as a zip that the client writes to `points/<key>-s<seed>/` (staged, so a
+killed client leaves nothing half-written), and the table `results.parquet` +
+`results.csv` is rewritten atomically after every finished point. A point whose worker died
+(killed process, lost machine) runs again on another worker up to `retries` times before it
+becomes a `failed` row. A rerun of the same command skips the finished points (ok or failed),
+so killing a sweep loses at most the points in flight. Timing columns (`*.seconds`) naturally
+differ between runs; every other column of a point is reproducible from its seeds.
 """
 
 from __future__ import annotations
@@ -38,15 +48,23 @@ import json
 import math
 import os
 import time
+import uuid
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
+from poevp_optics.apps.bundle import (InputMismatch, InputPlan, InputRef, check_same_inputs, make_bundle,
+                                     make_plan, map_paths, materialize, pack_folder, point_workdir,
+                                     scene_inputs, unpack_archive, with_hashes)
+from poevp_optics.apps.cluster import (ClusterError, check_workers, connect, dashboard_link, software_versions,
+                                      version_mismatch)
 from poevp_optics.apps.runner import JOBS, sweep_jobs
-from poevp_optics.core.io import atomic_path, locked_dir, staged_dir, write_json
-from poevp_optics.core.runtime import Terminated, sigterm_raises
 from poevp_optics.core.exceptions import SceneError
+from poevp_optics.core.io import MARKER, atomic_path, locked_dir, staged_dir, write_json
+from poevp_optics.core.runtime import Terminated, sigterm_raises
 from poevp_optics.scene.load import apply_overrides, load_scene, parse_override, resolve_scene_path
+
 SEED_KEYS = ("render.seed", "sensor.seed")
 GRID_HELP = "KEY=v1,v2,... | KEY=start:stop:num | KEY=log:start:stop:num"
 
@@ -135,14 +153,6 @@ def point_key(raw_table: dict) -> str:
     return hashlib.sha1(_canonical(raw_table).encode()).hexdigest()[:12]
 
 
-def file_sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
 # ---------------------------------------------------------------------------- one point
 def flatten_report(report: dict) -> dict:
     """Scalar metrics of a run's report as dotted columns (metrics, stages, DR, limits)."""
@@ -165,25 +175,82 @@ def flatten_report(report: dict) -> dict:
     return out
 
 
-def run_point(scene: str, overrides: list[str], out_dir: str, job: str, threads: int) -> dict:
-    """Run one point in this (worker) process; never raises: failures come back as rows."""
+@dataclass(frozen=True)
+class PointTask:
+    """What a worker needs for one point (pickled with the task; small).
+
+    overrides: the point's `KEY=VALUE` overrides (base, grid values, seeds). job: a sweepable
+    job of apps/runner.py's JOBS. threads: DrJit/torch/OpenCV threads. plan, refs: where its inputs are and their
+    hashes (bundle.py). versions: the client's software (cluster.PACKAGES); empty on a
+    LocalCluster, whose workers run this interpreter's."""
+
+    overrides: tuple[str, ...]
+    job: str
+    threads: int
+    plan: InputPlan
+    refs: tuple[InputRef, ...]
+    versions: dict = field(default_factory=dict)
+
+
+def _worker_name() -> str:
+    try:
+        from distributed import get_worker
+
+        return f"worker {get_worker().address}"
+    except (ImportError, ValueError):
+        return "this process"
+
+
+def _one_line(e: BaseException) -> str:
+    msg = str(e).strip().splitlines()[0] if str(e).strip() else ""
+    return f"{type(e).__name__}: {msg}"
+
+
+def run_point(task: PointTask, bundle: bytes | None = None) -> dict:
+    """Run one point in this (worker) process, inside a temporary folder removed afterwards;
+    never raises. Returns {"row": columns, "archive": zip of the point's folder} (no archive
+    when the point failed), or {"refused": one line} when this worker cannot run the sweep
+    (other software, other files): the client then stops the sweep."""
     from poevp_optics.core import runtime
 
     from poevp_optics.apps.preflight import check_run
 
     t0 = time.perf_counter()
+    path_map = ()
     try:
-        runtime.set_threads(threads)
-        spec = load_scene(scene, overrides)
-        check_run(spec, job, memory=False)
-        with staged_dir(out_dir, kind=job) as stage:
-            report = JOBS[job].run(spec, stage, False)
-        return {"status": "ok", "error": "", **flatten_report(report),
-                "point_seconds": time.perf_counter() - t0}
+        problem = version_mismatch(task.versions, software_versions()) if task.versions else None
+        if problem:
+            return {"refused": f"{_worker_name()}: {problem}; install the same software on every worker"}
+        runtime.set_threads(task.threads)
+        with point_workdir() as work:
+            try:
+                inputs = materialize(task.plan, list(task.refs), bundle, work)
+                path_map = inputs.path_map
+                spec = load_scene(inputs.scene, [*task.overrides, *inputs.overrides])
+                check_same_inputs(list(task.refs), spec, path_map)
+            except InputMismatch as e:
+                return {"refused": f"{_worker_name()}: {map_paths(str(e), path_map)}"}
+            check_run(spec, task.job, memory=False)
+            folder = work / "out"
+            folder.mkdir()
+            report = JOBS[task.job].run(spec, folder, False)
+            _report_paths_to_client(folder / "report.json", path_map)
+            return {"row": {"status": "ok", "error": "", **flatten_report(report),
+                            "point_seconds": time.perf_counter() - t0},
+                    "archive": pack_folder(folder)}
     except Exception as e:  # noqa: BLE001 - a failed point is data, not a crash
-        msg = str(e).strip().splitlines()[0] if str(e).strip() else ""
-        return {"status": "failed", "error": f"{type(e).__name__}: {msg}",
-                "point_seconds": time.perf_counter() - t0}
+        return {"row": {"status": "failed", "error": map_paths(_one_line(e), path_map),
+                        "point_seconds": time.perf_counter() - t0}}
+
+
+def _report_paths_to_client(path: Path, path_map) -> None:
+    """Name the client's files in report.json, not the worker's temporary copies."""
+    if not path_map or not path.is_file():
+        return
+    report = json.loads(path.read_text())
+    mapped = map_paths(report, path_map)
+    if mapped != report:
+        write_json(path, mapped)
 
 
 # ---------------------------------------------------------------------------- table + plots
@@ -252,18 +319,35 @@ def plot_metric(df, keys: list[str], metric: str, path: Path) -> Path | None:
 
 
 # ---------------------------------------------------------------------------- driver
-def _record(toml: Path, job: str, seeds: int, grid: dict, base_raw: dict, specs) -> dict:
-    """What identifies a sweep, and the hashes of every file its points read."""
-    from poevp_optics.apps.preflight import input_files
+@dataclass(frozen=True)
+class ClusterSettings:
+    """Where a sweep runs (cluster.py): an embedded LocalCluster of `workers` processes, or the
+    scheduler at `scheduler` (tcp://HOST:PORT) or named by `scheduler_file`.
 
-    files = {}
-    for spec in specs:
-        for f in input_files(spec):
-            files.setdefault(str(f), None)
+    shared_fs: the workers read the client's paths (verified) instead of a scene bundle; a
+    LocalCluster always does. retries: how often a point whose worker died runs again
+    elsewhere before it is a failed row. threads: DrJit/torch/OpenCV threads per point
+    (default: cores // workers on a LocalCluster, 1 on a cluster)."""
+
+    workers: int | None = None
+    scheduler: str | None = None
+    scheduler_file: str | None = None
+    shared_fs: bool = False
+    retries: int = 2
+    threads: int | None = None
+
+    @property
+    def local(self) -> bool:
+        return not (self.scheduler or self.scheduler_file)
+
+
+def _record(toml: Path, job: str, seeds: int, grid: dict, base_raw: dict, point_refs) -> dict:
+    """What identifies a sweep, and the hashes of every file its points read."""
+    files = {r.source: r.sha256 for refs in point_refs for r in refs}
     return {"scene": str(toml), "job": job, "seeds": seeds,
             "grid": {k: grid[k] for k in sorted(grid)},
             "effective_scene_sha256": hashlib.sha256(_canonical(base_raw).encode()).hexdigest(),
-            "inputs_sha256": {f: file_sha256(Path(f)) for f in sorted(files)}}
+            "inputs_sha256": {f: files[f] for f in sorted(files)}}
 
 
 def _differences(old: dict, new: dict) -> list[str]:
@@ -280,16 +364,30 @@ def _differences(old: dict, new: dict) -> list[str]:
 
 
 def sweep(scene: str, grid_args: list[str], *, out: Path, seeds: int = 1, workers: int | None = None,
-          scheduler: str | None = None, job: str = "render", base_overrides: list[str] = (),
+          scheduler: str | None = None, scheduler_file: str | None = None, shared_fs: bool = False,
+          retries: int = 2, job: str = "render", base_overrides: list[str] = (),
           metric: str | None = None, progress: bool = True, retry_failed: bool = False,
           threads: int | None = None, log=print):
-    """Run the grid; returns the results DataFrame. See the module docstring."""
+    """Run the grid; returns the results DataFrame. See the module docstring.
+
+    scheduler / scheduler_file: an existing Dask scheduler (else a LocalCluster of `workers`).
+    shared_fs: workers read the client's paths (verified) instead of a scene bundle.
+    retries: runs again of a point whose worker died, >= 0 (default 2)."""
     from tqdm import tqdm
 
     if job not in sweep_jobs():
         raise SceneError(f"--job {job}: must be one of {', '.join(sweep_jobs())}")
     if seeds < 1:
         raise SceneError(f"--seeds {seeds}: must be >= 1")
+    if retries < 0:
+        raise SceneError(f"--retries {retries}: must be >= 0")
+    cl = ClusterSettings(workers, scheduler, str(scheduler_file) if scheduler_file else None, shared_fs,
+                         retries, threads)
+    if scheduler and scheduler_file:
+        raise ClusterError("--scheduler and --scheduler-file: give one of them")
+    if shared_fs and cl.local:
+        raise ClusterError("--shared-fs: only with --scheduler or --scheduler-file (a local cluster "
+                           "reads this machine's files in place)")
     grid = sorted((parse_grid(g) for g in grid_args), key=lambda kv: kv[0])
     keys = [k for k, _ in grid]
     if len(set(keys)) != len(keys):
@@ -298,36 +396,86 @@ def sweep(scene: str, grid_args: list[str], *, out: Path, seeds: int = 1, worker
         raise SceneError("--grid: give at least one KEY=VALUES")
     base = list(base_overrides)
     combos = list(itertools.product(*[v for _, v in grid]))
-    # validate every point before anything runs or is written
+    # validate every point before anything runs or is written; list and hash what each reads
     specs = [load_scene(scene, base + point_overrides(keys, values, 0), cross_checks=False)
              for values in combos]
+    hashes: dict[str, str] = {}
+    point_refs = [tuple(with_hashes(scene_inputs(sp), hashes)) for sp in specs]
     toml = resolve_scene_path(scene).resolve()
     base_raw = load_scene(scene, base, cross_checks=False).raw
-    if not scheduler:                  # a remote cluster's memory is not this machine's
+    if cl.local:                       # a remote cluster's memory is not this machine's
         from poevp_optics.apps.memory import check_memory, estimate_run
 
         n_workers = max(1, min(workers or os.cpu_count() or 1, len(combos) * seeds))
         biggest = max(specs, key=lambda sp: estimate_run(sp, job).total_bytes)
         check_memory(biggest, job, workers=n_workers,
                      where=f"{toml} (largest sweep point, {n_workers} at once)")
-    record = _record(toml, job, seeds, dict(grid), dict(base_raw), specs)
-    out = Path(out)
-    with locked_dir(out, kind="sweep", protect=(toml, toml.parent)):
-        mpath = out / "sweep.json"
-        if mpath.is_file():
-            diffs = _differences(json.loads(mpath.read_text()), record)
-            if diffs:
-                raise SceneError(f"{out}: holds a different sweep or one whose inputs changed since it "
-                                 f"started ({'; '.join(diffs)}); give another --out, or remove {out} to "
-                                 "start over")
-        write_json(mpath, record)
-        with sigterm_raises():
-            return _run_sweep(scene, out, keys, combos, seeds, base, job, workers, scheduler, metric,
-                              progress, retry_failed, threads, log, tqdm)
+    record = _record(toml, job, seeds, dict(grid), dict(base_raw), point_refs)
+    plan = make_plan("shared" if cl.local or shared_fs else "bundle", resolve_scene_path(scene),
+                     [r for refs in point_refs for r in refs])
+    out = Path(os.path.abspath(out))
+    dask = _Dask(cl, len(combos) * seeds, log)
+    try:
+        if not cl.local:
+            dask.open()                    # other software on the workers: refused before writing
+        with locked_dir(out, kind="sweep", protect=(toml, toml.parent)):
+            mpath = out / "sweep.json"
+            if mpath.is_file():
+                diffs = _differences(json.loads(mpath.read_text()), record)
+                if diffs:
+                    raise SceneError(f"{out}: holds a different sweep or one whose inputs changed since "
+                                     f"it started ({'; '.join(diffs)}); give another --out, or remove "
+                                     f"{out} to start over")
+            write_json(mpath, record)
+            with sigterm_raises():
+                return _run_sweep(scene, out, keys, combos, point_refs, plan, seeds, base, job, dask, metric,
+                                  progress, retry_failed, log, tqdm)
+    finally:
+        dask.close()
 
 
-def _run_sweep(scene, out, keys, combos, seeds, base, job, workers, scheduler, metric, progress,
-               retry_failed, threads, log, tqdm):
+class _Dask:
+    """The sweep's Dask client, connected on first use (cluster.py): an external scheduler
+    before anything is written, a LocalCluster only when points remain to run. Holds the
+    client's software versions and the threads per point."""
+
+    def __init__(self, cl: ClusterSettings, n_points: int, log):
+        self.cl, self.n_points, self.log = cl, n_points, log
+        self.client = self.cluster = None
+        self.versions: dict[str, str] = {}
+        self.threads = 1
+        self.workers_now = 0
+
+    def open(self):
+        if self.client is not None:
+            return self.client
+        cl = self.cl
+        self.client, self.cluster = connect(scheduler=cl.scheduler, scheduler_file=cl.scheduler_file,
+                                            workers=cl.workers, n_points=self.n_points)
+        link = dashboard_link(self.client)
+        if link:
+            self.log(f"poevp sweep: Dask dashboard {link}")
+        # only an external cluster's: a LocalCluster's workers are spawned from this interpreter
+        # and its sys.path, the same software by construction (importing torch to say so: 2 s)
+        if self.cluster is None:
+            self.versions = software_versions()
+            self.workers_now = check_workers(self.client, self.versions)
+        if self.cluster is not None:
+            self.threads = cl.threads or max(1, (os.cpu_count() or 1) // max(1, len(self.cluster.workers)))
+        else:
+            self.threads = cl.threads or 1
+        return self.client
+
+    def close(self) -> None:
+        if self.client is not None:
+            self.client.close()
+        if self.cluster is not None:
+            self.cluster.close()
+        self.client = self.cluster = None
+
+
+def _run_sweep(scene, out, keys, combos, point_refs, plan, seeds, base, job, dask, metric, progress,
+               retry_failed, log, tqdm):
     import shutil
     import tomllib
 
@@ -342,7 +490,7 @@ def _run_sweep(scene, out, keys, combos, seeds, base, job, workers, scheduler, m
             row = {"point": idx, "seed": s, "point_key": k,
                    **{f"grid.{key}": (json.dumps(v) if isinstance(v, (list, tuple)) else v)
                       for key, v in zip(keys, values)}}
-            tasks.append((row, ov, str(out / "points" / f"{k}-s{s}")))
+            tasks.append((row, tuple(ov), point_refs[idx], out / "points" / f"{k}-s{s}"))
     prev = read_table(out)
     done = {}
     if prev is not None:
@@ -355,7 +503,7 @@ def _run_sweep(scene, out, keys, combos, seeds, base, job, workers, scheduler, m
         f"{len(rows)} already finished, {len(todo)} to run -> {out}")
     df = write_table(rows, out) if rows else None
     if todo:
-        df = _execute(scene, todo, rows, out, job, workers, scheduler, progress, log, tqdm, threads)
+        df = _execute(todo, rows, out, job, plan, dask, progress, log, tqdm)
     if df is not None and metric:
         path = plot_metric(df, keys, metric, out / f"plot_{metric.replace('.', '_')}.png")
         if path:
@@ -365,44 +513,82 @@ def _run_sweep(scene, out, keys, combos, seeds, base, job, workers, scheduler, m
     return df
 
 
-def _execute(scene, todo, rows, out, job, workers, scheduler, progress, log, tqdm, threads=None):
-    from dask.distributed import Client, LocalCluster, as_completed
+def _write_point(folder: Path, archive: bytes, job: str) -> None:
+    """A point's outputs, as its worker zipped them, into `folder`: staged, swapped in whole."""
+    with staged_dir(folder, kind=job) as stage:
+        unpack_archive(archive, stage, skip=(MARKER,))
 
-    cores = os.cpu_count() or 1
-    cluster = None
+
+def _lost_worker_errors() -> tuple[type, ...]:
+    """What a future raises when the worker running it died or dropped off."""
+    from distributed import KilledWorker
+    from distributed.comm.core import CommClosedError
+
+    return KilledWorker, CommClosedError
+
+
+def _execute(todo, rows, out, job, plan: InputPlan, dask: _Dask, progress, log, tqdm):
+    from distributed import as_completed
+    from distributed.client import CancelledError
+
+    lost = _lost_worker_errors()
+    cl = dask.cl
     df = None
     try:
-        if scheduler:
-            client = Client(scheduler)
-            threads = threads or 1
-        else:
-            n = max(1, min(workers or cores, len(todo)))
-            threads = threads or max(1, cores // n)
-            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                                   dashboard_address=":0", silence_logs=40)
-            client = Client(cluster)
-        if client.dashboard_link:
-            log(f"poevp sweep: Dask dashboard {client.dashboard_link}")
-        futs = {}
-        for row, ov, folder in todo:
-            f = client.submit(run_point, scene, ov, folder, job, threads, pure=False,
-                              key=f"poevp-point-{row['point_key']}-s{row['seed']}")
-            futs[f] = row
+        client = dask.open()
+        bundle = None
+        if not cl.local and dask.workers_now == 0:
+            log("poevp sweep: no worker has joined the scheduler yet; waiting for one")
+            client.wait_for_workers(1)
+        if plan.mode == "bundle":
+            b = make_bundle(plan, [r for t in todo for r in t[2]])
+            plan = replace(plan, bundle_sha256=b.sha256)
+            log(f"poevp sweep: {dask.workers_now} workers now; scene bundle of {b.files} files, "
+                f"{len(b.data) / 1e6:.2f} MB (sha256 {b.sha256[:12]}), sent to the workers once")
+            bundle = client.scatter(b.data, broadcast=True, hash=True)
+        elif not cl.local:
+            log(f"poevp sweep: {dask.workers_now} workers now; they read this machine's paths "
+                "(--shared-fs), verified on each worker")
+        run_id = uuid.uuid4().hex[:8]
+
+        def submit(row, ov, refs, attempt):
+            task = PointTask(ov, job, dask.threads, plan, refs, dask.versions)
+            return client.submit(run_point, task, bundle, pure=False,
+                                 key=f"poevp-point-{row['point_key']}-s{row['seed']}-{run_id}-a{attempt}")
+
+        futs = {submit(row, ov, refs, 0): (row, ov, refs, folder, 0) for row, ov, refs, folder in todo}
         bar = tqdm(total=len(futs), desc="sweep", unit="point", disable=not progress or None)
-        for f in as_completed(futs):
+        pending = as_completed(list(futs))
+        for f in pending:
+            row, ov, refs, folder, attempt = futs.pop(f)
             try:
                 res = f.result()
-            except Exception as e:  # noqa: BLE001 - a worker died under this point
-                res = {"status": "failed", "error": f"{type(e).__name__}: {e}"}
-            rows.append({**futs[f], **res})
+            except lost as e:
+                if attempt < cl.retries:
+                    log(f"poevp sweep: point {row['point']} seed {row['seed']}: its worker was lost "
+                        f"({type(e).__name__}); running it again (retry {attempt + 1} of {cl.retries})")
+                    nf = submit(row, ov, refs, attempt + 1)
+                    futs[nf] = (row, ov, refs, folder, attempt + 1)
+                    pending.add(nf)
+                    continue
+                res = {"row": {"status": "failed",
+                               "error": f"worker lost {attempt + 1} times ({_one_line(e)})"}}
+            except CancelledError:
+                raise ClusterError("the Dask scheduler cancelled the sweep's tasks (it closed, restarted or "
+                                   f"lost this client); the finished points are in {out}/results.parquet: "
+                                   "run the same command again to resume") from None
+            except Exception as e:  # noqa: BLE001 - the task could not run at all
+                res = {"row": {"status": "failed", "error": _one_line(e)}}
+            if res.get("refused"):
+                client.cancel(list(futs))
+                raise ClusterError(res["refused"])
+            if res.get("archive") is not None:
+                _write_point(folder, res["archive"], job)
+            rows.append({**row, **res["row"]})
             df = write_table(rows, out)
             bar.update(1)
         bar.close()
-        client.close()
     except (Terminated, KeyboardInterrupt):
         log(f"poevp sweep: interrupted; {len(rows)} finished points are in {out}/results.parquet")
         raise
-    finally:
-        if cluster is not None:
-            cluster.close()
     return df

@@ -309,13 +309,13 @@ def test_ldr_video_matches_its_frames(tmp_path):
 
 
 def test_frame_source_scene_needs_no_xml_and_lists_its_files(tmp_path):
-    from poevp_optics.apps.preflight import input_files
+    from poevp_optics.apps.bundle import scene_inputs
 
     d = _exr_scene(tmp_path / "s", EXR + 'boxes = "boxes.csv"\n')
     (d / "boxes.csv").write_text("frame,x0,y0,x1,y1\n0,1,1,3,3\n")
     spec = load_scene(d)
     assert spec.xml_path is None and not spec.geometry_static and not spec.is_static
-    names = {p.name for p in input_files(spec)}
+    names = {Path(r.source).name for r in scene_inputs(spec)}
     assert {"scene.toml", "boxes.csv", "f_0.exr", "f_3.exr"} <= names
     assert math.isnan(spec.source.scale)
 
