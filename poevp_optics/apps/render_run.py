@@ -70,8 +70,8 @@ class RunResult:
 def _capture(spec, camera: Camera, step: LoopStep | None, ex: RenderedExposure, res: RunResult) -> FrameCapture:
     """LDR twin (DMD all white), the loop's mask, the encoded capture and its reconstruction."""
     i = ex.index
-    truth = ex.radiance.data                              # mirror (render) grid
-    subs = list(ex.subframes) if not spec.is_static else [truth]
+    truth = camera.dmd_image(ex.radiance.data)            # mirror grid: the image the objective forms there
+    subs = list(ex.subframes) if not spec.is_static else [ex.radiance.data]   # the camera applies the objective
     timing = ex.capture_timing() if not spec.is_static else {}
     ldr = camera.capture(subs, camera.white_mask(), i, capture_seed(spec.sensor.seed, spec.render.seed, i, LDR_STREAM),
                          **timing)
@@ -149,7 +149,7 @@ def _law_comparison(spec, camera: Camera, fc: FrameCapture, res: RunResult, caus
     timing = fc.exposure.capture_timing() if not spec.is_static else {}
     for lname, (law, a, b) in PAPER_LAWS.items():
         ms = MaskSpec(law=law, vs=200.0, a=a, b=b, smooth_px=spec.mask.smooth_px)
-        m2 = oracle_mask(camera, ms, fc.exposure.radiance.data, i)
+        m2 = oracle_mask(camera, ms, camera.dmd_image(fc.exposure.radiance.data), i)
         c2 = camera.capture(subs, m2, i, capture_seed(spec.sensor.seed, spec.render.seed, i, ENCODED_STREAM),
                             **timing)
         res.law_comparison[lname]["saturated"].append(saturated_fraction(crop(c2.dn, box), max_dn))
