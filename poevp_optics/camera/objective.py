@@ -969,6 +969,27 @@ def radius_px(params: ObjectiveParams, image_shape, *, cache_dir=None) -> int:
     return max(r, rg)
 
 
+def glare_floor(params: ObjectiveParams, image_shape, black_radius_px: float) -> dict:
+    """The veiling-glare floor under a dark spot: a black disc of radius rho (px) in a uniform
+    white field L gets g L E_H(> rho) at its centre (the halo's energy beyond rho,
+    `power_law_energy_beyond`), while the white field keeps L (unit-sum kernels): the veiling
+    glare index VGI = g E_H(> rho) (ISO 9358:1994; rho -> 0 gives g). The glare is in the image the
+    mirrors see, so no mask lowers it: a scene's darkest-to-brightest ratio below VGI is veiled,
+    and the encoded DR is capped at floor_db = -20 log10 VGI whatever the DMD's attenuation.
+    Valid for the `power_law` model; the halo's kernel truncation at the image's extent is
+    reported beside it."""
+    g = params.glare_fraction
+    if g <= 0:
+        return {"glare_fraction": 0.0, "black_radius_px": float(black_radius_px), "vgi": 0.0,
+                "floor_db": math.inf}
+    rc, ro = glare_radii_px(params)
+    vgi = g * power_law_energy_beyond(float(black_radius_px), rc, ro, params.glare_exponent)
+    kernel = glare_kernel(params, image_shape)
+    return {"glare_fraction": g, "black_radius_px": float(black_radius_px), "vgi": vgi,
+            "floor_db": float(-20 * math.log10(vgi)) if vgi > 0 else math.inf,
+            "halo_radii_px": [rc, ro], "halo_truncation": kernel.truncation_error}
+
+
 def radius_bound_px(params: ObjectiveParams, image_shape) -> int:
     """An upper bound of `radius_px` without building a kernel (the memory estimate): the glare
     halo's outer radius, and per PSF the Gaussian/Airy support radius or, for a prescription, 1.25 x
