@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from poevp_optics.analysis.metrics import crop, entropy_8bit, mask_iou, relative_error, saturated_fraction, to_8bit
+from poevp_optics.apps import night_road
 from poevp_optics.apps.outputs import OutputWriter, mask_png
 from poevp_optics.apps.run_report import build_report
 from poevp_optics.apps.temporal_check import temporal_error
@@ -24,6 +25,7 @@ from poevp_optics.core.report import write_report
 from poevp_optics.core.seeds import ENCODED_STREAM, LDR_STREAM, capture_seed
 from poevp_optics.render.exposures import RenderedExposure, render_exposures
 from poevp_optics.render.renderer import Renderer
+from poevp_optics.sources.road import scene_laws
 
 #: Mask laws compared beside the scene's own on every oracle run: the paper's two readings of
 #: Eq. 2 at its simulation (a, b) = (0.9, 0) and hardware (0.7, 0.2) settings, Vs = 200.
@@ -169,11 +171,14 @@ def simulate(spec, camera: Camera, step: LoopStep | None, exposures, *, writer: 
     res = RunResult()
     mid = spec.timing.frames // 2
     causal = step is not None and not step.needs_truth
+    road_laws = scene_laws(spec) if spec.has_road else None
     for ex in exposures:
         fc = _capture(spec, camera, step, ex, res)
         if ex.index == mid and not ex.basis and not spec.is_static:
             res.mid_frame = (ex, fc.mask)
         _metrics(camera, fc)
+        if road_laws is not None:
+            fc.record["plate"] = night_road.frame_record(spec, camera, fc, road_laws)
         if causal:
             step.observe(ex.index, fc.ldr, fc.enc, fc.est, fc.flags)
             _against_oracle(spec, camera, fc)
@@ -237,6 +242,12 @@ def run_frames(spec, out_dir: Path, progress: bool = True, *, renderer: Renderer
     else:
         temporal = temporal_error(spec, renderer, camera, *(res.mid_frame or (None, None)))
     report = build_report(spec, renderer, camera, step, res, setup_s=setup_s, t_run=t_run, temporal=temporal)
+    if spec.has_road:
+        report["night_road"] = night_road.summary(spec, camera, report["per_frame"])
+        report["notes"].append(f"night road: {report['night_road']['statement']}")
+        if write_images:
+            night_road.plot(out_dir / "night_road.png", report["night_road"],
+                            f"{spec.name}: plate peak over saturation vs distance")
     write_report(out_dir, report)
     return report, res.kept
 

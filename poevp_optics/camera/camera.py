@@ -158,6 +158,16 @@ class Camera:
         self._objective_memo[id(radiance)] = (radiance, out)      # holds the input: ids stay unique
         return out
 
+    def glare_veil(self, radiance: np.ndarray) -> np.ndarray | None:
+        """The objective's veiling-glare part of `dmd_image` (mirror grid): g H * (V x); None
+        without glare. No mask lowers it: it is in the image the mirrors see."""
+        if self.objective is None or self._objective_parts["glare"] is None:
+            return None
+        x = np.asarray(radiance, dtype=np.float64)
+        ri = self._objective_parts["ri"]
+        v = x * ri if ri is not None else x
+        return self.objective.glare_fraction * obj.convolve_reflect(v, self._objective_parts["glare"].kernel)
+
     def objective_summary(self) -> dict | None:
         """The objective stage for a report (objective.summary), or None when it is skipped."""
         if self.objective is None:

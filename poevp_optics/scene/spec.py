@@ -8,6 +8,7 @@
 | [spectra.<param>]    | SpectrumSpec     | sources/spectra.py |
 | [flicker.<param>]    | FlickerSpec      | sources/flicker.py |
 | [plate]              | PlateSpec        | sources/plates.py |
+| [road]               | RoadSpec         | sources/road.py (night-road geometry; only road scenes) |
 | [sheeting.<param>]   | SheetingSpec     | render/materials/retroreflective.py |
 | [objective]          | ObjectiveSpec    | camera/objective.py |
 | [dmd]                | DMDSpec          | camera/dmd.py (registration: camera/registration.py) |
@@ -47,6 +48,7 @@ from poevp_optics.render.renderer import RenderSpec
 from poevp_optics.sources.flicker import FlickerSpec
 from poevp_optics.sources.motion import MotionSpec
 from poevp_optics.sources.plates import PlateSpec
+from poevp_optics.sources.road import RoadSpec
 from poevp_optics.sources.spectra import SpectrumSpec
 
 
@@ -74,6 +76,7 @@ class SceneSpec:
     outputs: OutputsSpec
     plate: PlateSpec
     chart: ChartSpec
+    road: RoadSpec
     raw: Mapping[str, Any]
     origin: str = ""               # the file and the --set overrides it was read with (messages)
 
@@ -85,6 +88,11 @@ class SceneSpec:
                         temporal_spp=r.temporal_spp, psf_support_energy=rel.support_energy,
                         psf_support_px=rel.support_px, guard_max_px=rel.guard_max_px,
                         poisson_sampler=self.sensor.poisson_sampler)
+
+    @property
+    def has_road(self) -> bool:
+        """True for a night-road scene (a [road] section: sources/road.py)."""
+        return "road" in self.raw
 
     @property
     def geometry_static(self) -> bool:
@@ -130,7 +138,7 @@ class SceneSpec:
 SECTIONS = {
     "render": RenderSpec, "timing": TimingSpec, "dmd": DMDSpec, "objective": ObjectiveSpec,
     "relay": RelaySpec, "sensor": SensorSpec, "mask": MaskSpec, "predictor": PredictorSpec,
-    "loop": LoopSpec, "outputs": OutputsSpec, "plate": PlateSpec, "chart": ChartSpec,
+    "loop": LoopSpec, "outputs": OutputsSpec, "plate": PlateSpec, "chart": ChartSpec, "road": RoadSpec,
 }
 TABLE_SECTIONS = {"motion": MotionSpec, "spectra": SpectrumSpec, "flicker": FlickerSpec,
                   "sheeting": SheetingSpec}

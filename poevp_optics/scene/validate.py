@@ -232,3 +232,14 @@ def check_sensor_and_relay(ctx, path: Path, sensor: SensorSpec, relay: RelaySpec
         cand = [p] if p.is_absolute() else [path.parent / p, ASSETS_DIR / p]
         if not any(c.is_file() for c in cand):
             raise ctx.fail("relay.measured_file", f"PSF image not found: {relay.measured_file}")
+
+
+def check_road(ctx, road, spectra_, sheeting) -> None:
+    """[road] (sources/road.py): its high beam names an intensity lamp with a photometric file,
+    its sheeting a [sheeting] entry (the per-frame report reads both)."""
+    lamp = spectra_.get(road.highbeam)
+    if lamp is None or lamp.kind != "intensity" or not lamp.distribution:
+        raise ctx.fail("road.highbeam", f"{road.highbeam!r} must name a [spectra] entry of kind 'intensity' "
+                       "with a photometric distribution (our high beams)")
+    if road.sheeting not in sheeting:
+        raise ctx.fail("road.sheeting", f"{road.sheeting!r} names no [sheeting] entry")
