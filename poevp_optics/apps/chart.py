@@ -170,10 +170,10 @@ def objective_limit(cam: Camera, truth, regions, dens, res: dict) -> dict:
     equivalent radius sqrt(area / pi), mirrors: the closed form), and this chart's own: the glare
     the halo brings onto the darkest patch from every patch, g (H * x) (x the pinhole image),
     over the brightest patch's radiance. Glare is in the image the mirrors see, so the mask
-    cannot lower either: a patch darker than the floor relative to the brightest is seen only
-    through the glare (the ISO 15739 SNR may still resolve it while shot noise allows); the DMD's
-    floor caps the encoded DR at the LDR DR + its headroom. `binding`: the lower of the chart's
-    glare floor and that cap."""
+    cannot lower either: a patch darker than the floor relative to the brightest gets more glare
+    than light of its own (the ISO 15739 SNR may still resolve it while shot noise allows); the
+    DMD's floor adds at most its headroom to the LDR DR. `binding`: the lower of the chart's glare
+    limit and that DMD limit."""
     from poevp_optics.camera.objective import glare_floor
 
     dark, bright = int(np.argmax(dens)), int(np.argmin(dens))
@@ -195,14 +195,17 @@ def objective_limit(cam: Camera, truth, regions, dens, res: dict) -> dict:
         dmd_cap = ldr_db + res["parts"]["gain_db"]
         binds = "objective glare" if glare_db < dmd_cap else "DMD attenuation floor"
         out.update(dmd_floor_db=res["parts"]["gain_db"], dmd_floor=res["parts"]["floor"],
-                   encoded_cap_by_dmd_db=dmd_cap, encoded_cap_by_glare_db=glare_db, binding=binds,
+                   dmd_limit_db=dmd_cap, glare_limit_db=glare_db, binding=binds,
                    explanation=(f"objective glare (g = {cam.objective.glare_fraction:g}) veils the darkest "
                                 f"patch at {10 ** (-glare_db / 20):.3g} of the brightest ({glare_db:.1f} dB; "
                                 f"{out['glare']['floor_db']:.1f} dB in a white surround, VGI "
-                                f"{out['glare']['vgi']:.3g}) whatever the mask; the DMD's floor "
-                                f"({res['parts']['floor']:.3g}, {res['parts']['gain_db']:.1f} dB) caps the "
-                                f"encoded DR at LDR {ldr_db:.1f} + {res['parts']['gain_db']:.1f} = "
-                                f"{dmd_cap:.1f} dB: {binds} binds"))
+                                f"{out['glare']['vgi']:.3g}) whatever the mask: a patch darker than that "
+                                f"gets more glare than light of its own; the DMD's floor "
+                                f"({res['parts']['floor']:.3g}, {res['parts']['gain_db']:.1f} dB) adds at most "
+                                f"that to the LDR DR ({ldr_db:.1f} + {res['parts']['gain_db']:.1f} = "
+                                f"{dmd_cap:.1f} dB): the lower of the two, {binds}, binds (the ISO 15739 "
+                                f"figure may exceed both: it resolves steps inside the veil while shot noise "
+                                f"allows)"))
     return out
 
 
