@@ -97,6 +97,9 @@ def _capture(spec, camera: Camera, step: LoopStep | None, ex: RenderedExposure, 
                              **timing)
     for k in ("dmd", "relay", "sensor"):
         res.stage_seconds[k] += enc.seconds[k]
+    if camera.objective is not None:         # the LDR twin formed the image; the encoded capture reuses it
+        res.stage_seconds["objective"] = (res.stage_seconds.get("objective", 0.0) + ldr.seconds["objective"]
+                                          + (enc.seconds["objective"] if enc is not ldr else 0.0))
     tr = time.perf_counter()
     est, flags, _ = camera.reconstruct(enc, i)
     res.stage_seconds["reconstruct"] += time.perf_counter() - tr

@@ -464,3 +464,21 @@ def test_glare_before_the_dmd_is_not_removed_by_a_mask():
     np.testing.assert_allclose(cap_d.signal_e[ring], p.glare_fraction * L * halo * e_per, rtol=2e-3)
     # the mask does act on the source's own mirror: it drops to the DMD's floor
     assert cap_d.signal_e[cy - g, cx - g] < 0.01 * cap_w.signal_e[cy - g, cx - g]
+
+
+def test_memory_estimate_counts_the_objective_and_its_guard():
+    """apps/memory.py: the rendered grid it sizes is the camera's (the objective's guard band),
+    and the objective's part holds at least its glare FFT (relay.fft_bytes of that grid)."""
+    from poevp_optics.apps.memory import estimate_run
+    from poevp_optics.camera.relay import fft_bytes
+    from poevp_optics.scene.load import load_scene
+    from tests.conftest import SCENES
+
+    spec = load_scene(SCENES / "smoke", ["render.resolution=[96,128]", *GLARE_KEYS])
+    cam = _objective_camera(*GLARE_KEYS)
+    est = estimate_run(spec)
+    h, w = cam.mirror_shape
+    assert est.parts["frame pipeline"].bytes >= h * w * 300
+    n = 2 * cam.guard_px + 1
+    assert est.parts["objective"].bytes >= fft_bytes(cam.mirror_shape, n)
+    assert "objective" not in estimate_run(load_scene(SCENES / "smoke")).parts
