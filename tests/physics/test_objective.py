@@ -482,3 +482,17 @@ def test_memory_estimate_counts_the_objective_and_its_guard():
     n = 2 * cam.guard_px + 1
     assert est.parts["objective"].bytes >= fft_bytes(cam.mirror_shape, n)
     assert "objective" not in estimate_run(load_scene(SCENES / "smoke")).parts
+
+
+def test_scene_errors_name_the_objective_key():
+    """A contradictory [objective] is one line naming the file and the key: glare radii out of
+    order, a prescription asked for a field wider than its design, an unknown PSF."""
+    from poevp_optics.core.exceptions import SceneError
+    from poevp_optics.scene.load import load_scene
+    from tests.conftest import SCENES
+
+    for extra, key in ((["objective.glare_outer_radius_deg=0.01"], "objective.glare_outer_radius_deg"),
+                       (["objective.psf='prescription'", "objective.focal_length_m=0.001"], "objective.focal_length_m"),
+                       (["objective.psf='bokeh'"], "objective.psf")):
+        with pytest.raises(SceneError, match=f"smoke.*{key}"):
+            load_scene(SCENES / "smoke", extra)
