@@ -32,7 +32,7 @@ def render_overhead(shape, spp=16):
     straight from the XML with the same parameters, through the same sensor/film."""
     import mitsuba as mi
 
-    from poevp_optics.apps.render_run import _seeds
+    from poevp_optics.core.seeds import render_seeds
     from poevp_optics.render.renderer import Renderer
     from poevp_optics.scene.load import load_scene
     spec = load_scene("scenes/highbeam_plate", [f"render.resolution=[{shape[0]},{shape[1]}]"])
@@ -41,7 +41,7 @@ def render_overhead(shape, spp=16):
     seeds = iter(range(1, 10**6))
     t_raw = timed(lambda: np.array(mi.render(raw_scene, sensor=ours.sensor, spp=spp, seed=next(seeds))), 5)[0]
     t_once = timed(lambda: ours.render_once(next(seeds), spp), 5)[0]
-    t_err = timed(lambda: ours.render_with_error(_seeds(1, next(seeds), 0, spec.render.mc_splits), spp), 5)[0]
+    t_err = timed(lambda: ours.render_with_error(render_seeds(1, next(seeds), 0, spec.render.mc_splits), spp), 5)[0]
     return t_raw, t_once, t_err
 
 

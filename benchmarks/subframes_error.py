@@ -132,7 +132,7 @@ def _dense(name, frame, res, spp):
 
 def part_b(name, frame, res, spp):
     from poevp_optics.camera.camera import Camera
-    from poevp_optics.apps.render_run import oracle_mask
+    from poevp_optics.control.loop_step import oracle_mask
 
     spec, imgs, times, box = _dense(name, frame, res, spp)
     rel = times - times[0]
@@ -155,7 +155,7 @@ def part_b(name, frame, res, spp):
     # the encoded plate with the frame's oracle mask, at the scene's K
     w_t = np.gradient(rel)
     truth = np.einsum("k,khw->hw", w_t / w_t.sum(), imgs)
-    mask = oracle_mask(spec, cam, truth, frame)
+    mask = oracle_mask(cam, spec.mask, truth, frame)
     lv = np.rint(mask).astype(int)
     uq, inv = np.unique(lv, return_inverse=True)
     inv = inv.reshape(lv.shape)
@@ -187,7 +187,7 @@ def part_c(spec, frame, dense, spps=(128, 512)):
     from poevp_optics.camera.camera import Camera
     from poevp_optics.camera.dmd import node_times_s, on_time_table
     from poevp_optics.apps.temporal_check import temporal_error
-    from poevp_optics.apps.render_run import render_exposures
+    from poevp_optics.render.exposures import render_exposures
     from poevp_optics.render.renderer import Renderer
 
     _, _, box, mask = dense

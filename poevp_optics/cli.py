@@ -108,7 +108,8 @@ def cmd_render(args) -> int:
     print(f"poevp: rendered {report['frames']} frames of {spec.name} at "
           f"{report['resolution'][0]}x{report['resolution'][1]} ({r['path']}, {r['variant']}) in "
           f"{report['total_seconds']:.1f} s; MC rel. error "
-          + (f"{frame:.2%} frame" if frame is not None else "- (black frame)")
+          + (f"{frame:.2%} frame" if frame is not None else
+             "- (black frame)" if spec.source.renders else f"- (radiance from [source] {spec.source.kind})")
           + (f", {roi:.2%} ROI" if roi is not None else "") + f" -> {out}/report.json")
     return 0
 
@@ -121,10 +122,14 @@ def cmd_validate(args) -> int:
     job = args.job or ("chart" if spec.chart.patches else "render")
     pf = check_run(spec, job, load=args.load)
     plan = pf.plan
+    if not spec.source.renders:
+        what = f"source {plan.mode}: {plan.reason}" + "".join(f"; note: {n}" for n in plan.notes)
+    else:
+        what = (f"spp {spec.render.spp}, "
+                f"{'static' if spec.is_static else ('PWM lamps on static geometry: ' + ', '.join(spec.flicker)) if spec.geometry_static else 'moving: ' + ', '.join(spec.motion)}; "
+                f"render path {plan.mode} ({plan.reason})")
     print(f"poevp: {spec.toml_path} is valid for `poevp {job}`: {spec.timing.frames} frames, "
-          f"{spec.render.resolution[0]}x{spec.render.resolution[1]}, spp {spec.render.spp}, "
-          f"{'static' if spec.is_static else ('PWM lamps on static geometry: ' + ', '.join(spec.flicker)) if spec.geometry_static else 'moving: ' + ', '.join(spec.motion)}; "
-          f"render path {plan.mode} ({plan.reason}); {fits_note(pf.memory)}")
+          f"{spec.render.resolution[0]}x{spec.render.resolution[1]}, {what}; {fits_note(pf.memory)}")
     return 0
 
 

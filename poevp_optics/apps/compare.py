@@ -21,12 +21,11 @@ from poevp_optics.analysis.metrics import crop, local_entropy
 from poevp_optics.apps.render_run import run_frames
 from poevp_optics.camera.camera import Camera
 from poevp_optics.core.io import atomic_path, write_png
-from poevp_optics.render.exposures import render_exposures
-from poevp_optics.render.renderer import Renderer
+from poevp_optics.render.radiance import open_source
 def compare(base, predictors, modes, out: Path, progress=True, frames_shown=4) -> list[dict]:
     """Every predictor x loop mode on one render of the scene `base` (a SceneSpec)."""
-    renderer = Renderer(base, guard_px=Camera.from_scene(base).guard_px)
-    exposures = list(render_exposures(base, renderer, progress))
+    renderer = open_source(base, Camera.from_scene(base).guard_px)     # the scene's [source] kind
+    exposures = list(renderer.exposures(progress))
     n = base.timing.frames
     shown = tuple(sorted({min(n - 1, max(base.loop.init_frames, round(x))) for x in
                           np.linspace(base.loop.init_frames, n - 1, frames_shown)}))

@@ -26,7 +26,27 @@ from pathlib import Path
 import numpy as np
 
 from poevp_optics.analysis.metrics import crop
-from poevp_optics.sources.road import plate_centre_m, plate_geometry, scene_laws
+from poevp_optics.sources.road import plate_centre_m, plate_geometry
+
+
+def scene_laws(spec):
+    """(candela(h, v), R_A(alpha, beta)) of a road scene: our high beam's file scaled to its
+    `intensity_cd` peak, and the plate's sheeting law (retroreflective.py)."""
+    from poevp_optics.render.materials.photometric_lamp import load_distribution, resolve_distribution
+    from poevp_optics.render.materials.retroreflective import parse_sheeting, retro_law, sheeting_string
+
+    road, base = spec.road, spec.toml_path.parent
+    lamp = spec.spectra[road.highbeam]
+    dist = load_distribution(str(resolve_distribution(lamp.distribution, base)))
+    law = retro_law(parse_sheeting(sheeting_string(spec.sheeting[road.sheeting], base)))
+
+    def candela(h, v):
+        return float(dist.relative([h], [v])[0]) * lamp.intensity_cd
+
+    def ra(alpha, beta):
+        return float(np.asarray(law.ra_numpy(np.array([alpha]), np.array([beta]))).ravel()[0])
+
+    return candela, ra
 
 
 def saturation_luminance_cd_m2(spec, camera, frame_index: int) -> float:

@@ -14,8 +14,10 @@ things outside the TOML, checked here in one pass before any output folder is to
 | loop             | the predictor gets frames: `loop.init_frames` below the frames it runs on |
 | predictor        | weights load and are finite; `predictor.resolution` is large enough for the network |
 | chart            | `poevp chart` on a static scene with a [chart] section            |
+| source           | a frame source ([source] kind other than mitsuba; replaces the spectra, XML, emitter and variant checks): every frame the run reads has one size, finite values >= 0 (EXR) and the channel; times and boxes CSVs parse; the frames cover every radiance sample's time; the field has render.resolution's aspect |
 
-Each failure is a `SceneError`: one line naming the file and the key.
+Each failure is a `SceneError` (a frame source's: `sources.frames.SourceError`): one line naming
+the file and the key.
 """
 
 from __future__ import annotations
@@ -60,18 +62,30 @@ def check_run(spec: SceneSpec, job: str = "render", *, workers: int = 1, memory:
         check_chart(spec)
     check_relay(spec)                # the memory estimate reads the PSF file's size
     est = check_memory(spec, job, workers=workers) if memory else None
-    plan = plan_spectra(spec)
-    check_xml_references(spec, plan.xml_params)
-    check_emitters(spec, plan.response_e_per_J)
-    check_variant(spec, plan)
+    if spec.source.renders:
+        plan = plan_spectra(spec)
+        check_xml_references(spec, plan.xml_params)
+        check_emitters(spec, plan.response_e_per_J)
+        check_variant(spec, plan)
+    else:
+        plan = check_frame_source(spec)
     check_loop(spec, job)
     for name in (predictors or (spec.predictor.name,)):
         check_predictor(spec, job, name)
-    if load:
+    if load and spec.source.renders:
         from poevp_optics.render.renderer import Renderer
 
         Renderer(spec)
     return Preflight(plan, est)
+
+
+def check_frame_source(spec: SceneSpec):
+    """A frame source opens on the camera's mirror grid and every frame its run reads is valid
+    (sources/kinds.py check_source); returns its plan (mode, reason, notes)."""
+    from poevp_optics.camera.camera import Camera
+    from poevp_optics.render.radiance import check_frame_source as check
+
+    return check(spec, Camera.from_scene(spec).guard_px)
 
 
 def _fail(spec: SceneSpec, key: str, msg: str) -> SceneError:
@@ -231,13 +245,15 @@ def check_chart(spec: SceneSpec) -> None:
 # ---------------------------------------------------------------------------- inputs
 def input_files(spec: SceneSpec) -> list[Path]:
     """Every file a run of `spec` reads besides the code: the TOML, the XML and the files it
-    names, spectrum tables, the measured PSF, the predictor's weights (for sweep records)."""
+    names (or a frame source's frames and CSVs), spectrum tables, the measured PSF, the predictor's weights (for sweep records)."""
     from poevp_optics.control.predictors.dmvfn import default_weights
     from poevp_optics.camera.relay import measured_psf_path
     from poevp_optics.sources.spectra import ASSETS_DIR
 
-    files = [spec.toml_path, spec.xml_path]
-    root = _xml_root(spec)
+    from poevp_optics.sources.kinds import source_files
+
+    files = [spec.toml_path, *([spec.xml_path] if spec.xml_path else []), *source_files(spec)]
+    root = _xml_root(spec) if spec.xml_path else ET.Element("scene")
     defaults = {d.get("name"): d.get("value") for d in root.iter("default")}
     for node in root.iter("string"):
         if node.get("name") != "filename":

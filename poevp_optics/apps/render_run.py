@@ -1,4 +1,5 @@
-"""`poevp render`: the run over frames. Per frame: the ground truth (render/exposures.py), the
+"""`poevp render`: the run over frames. Per frame: the ground truth (the scene's [source]:
+render/radiance.py, a Mitsuba render or frames read by sources/), the
 LDR twin and the encoded capture (camera/), the reconstruction, the closed loop's next step
 (control/loop_step.py), the per-frame metrics; then the outputs (apps/outputs.py) and the report
 (apps/run_report.py). A run leaves out what its scene does not need; the report lists it.
@@ -23,9 +24,8 @@ from poevp_optics.control.masks import MaskSpec
 from poevp_optics.core.exceptions import SceneError
 from poevp_optics.core.report import write_report
 from poevp_optics.core.seeds import ENCODED_STREAM, LDR_STREAM, capture_seed
-from poevp_optics.render.exposures import RenderedExposure, render_exposures
-from poevp_optics.render.renderer import Renderer
-from poevp_optics.sources.road import scene_laws
+from poevp_optics.core.frame import RenderedExposure
+from poevp_optics.render.radiance import open_source
 
 #: Mask laws compared beside the scene's own on every oracle run: the paper's two readings of
 #: Eq. 2 at its simulation (a, b) = (0.9, 0) and hardware (0.7, 0.2) settings, Vs = 200.
@@ -174,7 +174,7 @@ def simulate(spec, camera: Camera, step: LoopStep | None, exposures, *, writer: 
     res = RunResult()
     mid = spec.timing.frames // 2
     causal = step is not None and not step.needs_truth
-    road_laws = scene_laws(spec) if spec.has_road else None
+    road_laws = night_road.scene_laws(spec) if spec.has_road else None
     for ex in exposures:
         fc = _capture(spec, camera, step, ex, res)
         if ex.index == mid and not ex.basis and not spec.is_static:
@@ -190,9 +190,10 @@ def simulate(spec, camera: Camera, step: LoopStep | None, exposures, *, writer: 
         if ex.index in keep_frames:
             res.kept[ex.index] = _kept(camera, fc)
         box = fc.box
+        truth = {"ground_truth": ex.ground_truth} if ex.ground_truth else {}
         if writer is None:
             res.per_frame.append({**fc.record, "roi": list(box) if box else None, "rel_error": ex.rel_error,
-                                  "rel_error_roi": ex.rel_error_roi})
+                                  "rel_error_roi": ex.rel_error_roi, **truth})
             continue
         tw = time.perf_counter()
         writer.frame(fc)
@@ -202,7 +203,7 @@ def simulate(spec, camera: Camera, step: LoopStep | None, exposures, *, writer: 
                           "radiance_mean": float(np.mean(fc.truth_s)), "radiance_max": float(np.max(fc.truth_s)),
                           "radiance_min": float(np.min(fc.truth_s)),
                           "roi_radiance_mean": float(np.mean(crop(fc.truth_s, box))) if box else None,
-                          "rel_error": ex.rel_error, "rel_error_roi": ex.rel_error_roi})
+                          "rel_error": ex.rel_error, "rel_error_roi": ex.rel_error_roi, **truth})
         res.per_frame.append(fc.record)
     return res
 
@@ -219,29 +220,32 @@ def loop_step_of(spec, camera: Camera) -> LoopStep | None:
         raise SceneError(f"{spec.toml_path}: predictor.weights: {e}") from None
 
 
-def run_frames(spec, out_dir: Path, progress: bool = True, *, renderer: Renderer | None = None,
+def run_frames(spec, out_dir: Path, progress: bool = True, *, renderer=None,
                exposures: list | None = None, write_images: bool = True,
                keep_frames: tuple[int, ...] = ()) -> tuple[dict, dict]:
-    """Render `spec` and run the camera into `out_dir` (an empty staging folder); return (report,
-    kept frames). renderer/exposures: reuse a loaded scene and rendered exposures (the
-    comparison runs many camera loops over one render; its guard band must be the camera's).
+    """Render (or read: [source]) `spec` and run the camera into `out_dir` (an empty staging
+    folder); return (report, kept frames). renderer/exposures: reuse an opened source
+    (render/radiance.py open_source) and its exposures (the comparison runs many camera loops
+    over one render; its guard band must be the camera's).
     write_images=False writes only report.json. keep_frames: frame indices whose masks and
     captures come back in the second value."""
     out_dir = Path(out_dir)
     t_run = time.perf_counter()
     camera = Camera.from_scene(spec)
-    renderer = renderer or Renderer(spec, guard_px=camera.guard_px)
+    renderer = renderer or open_source(spec, camera.guard_px)       # the scene's [source] kind
     if renderer.guard_px != camera.guard_px:
         raise ValueError(f"renderer guard band {renderer.guard_px} px != camera's {camera.guard_px} px")
     step = loop_step_of(spec, camera)
     setup_s = time.perf_counter() - t_run
     writer = OutputWriter(spec, camera, renderer, out_dir) if write_images else None
-    res = simulate(spec, camera, step, exposures if exposures is not None else
-                   render_exposures(spec, renderer, progress), writer=writer, keep_frames=keep_frames)
+    res = simulate(spec, camera, step, exposures if exposures is not None else renderer.exposures(progress),
+                   writer=writer, keep_frames=keep_frames)
     if writer is not None:
         writer.finish()
     if exposures is not None:
         temporal = {"rel": None, "method": "not estimated: this run reuses a shared render", "seconds": 0.0}
+    elif renderer.temporal_skip:
+        temporal = {"rel": None, "method": renderer.temporal_skip, "seconds": 0.0}
     else:
         temporal = temporal_error(spec, renderer, camera, *(res.mid_frame or (None, None)))
     report = build_report(spec, renderer, camera, step, res, setup_s=setup_s, t_run=t_run, temporal=temporal)

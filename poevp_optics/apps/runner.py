@@ -56,7 +56,7 @@ def sweep_jobs() -> tuple[str, ...]:
 
 def reads(spec) -> tuple:
     """Paths a run reads and must never be given as (or inside) its output folder."""
-    return (spec.toml_path, spec.toml_path.resolve().parent, spec.xml_path)
+    return tuple(p for p in (spec.toml_path, spec.toml_path.resolve().parent, spec.xml_path) if p)
 
 
 def output_folder(spec, job: str, out: str | Path | None) -> Path:

@@ -1,10 +1,13 @@
-"""The immutable `Frame` passed between stages (DESIGN.md "The Frame")."""
+"""The immutable `Frame` passed between stages (DESIGN.md "The Frame"), and the ground truth of
+one exposure (`RenderedExposure`) that every radiance source (render/, sources/) yields."""
 
 from __future__ import annotations
 
 import enum
 from dataclasses import dataclass
 from typing import Any
+
+import numpy as np
 
 
 class Quantity(enum.Enum):
@@ -38,3 +41,28 @@ class Frame:
     @property
     def shape(self) -> tuple[int, ...]:
         return tuple(self.data.shape)
+
+
+@dataclass(frozen=True)
+class RenderedExposure:
+    """Ground truth for one frame: K radiance samples and their time average (mirror grid)."""
+
+    index: int
+    t_start_s: float
+    exposure_s: float
+    subframe_times_s: np.ndarray        # (K,) sample times (camera/dmd.py node_times_s)
+    subframes: tuple[np.ndarray, ...]   # K x (H, W) photon radiance, mirror (render) grid
+    radiance: Frame                     # time average over the exposure
+    variance: np.ndarray                # MC variance of `radiance` per pixel
+    roi: tuple[int, int, int, int] | None
+    rel_error: float | None
+    rel_error_roi: float | None
+    basis: tuple[str, ...] = ()         # subframes are emitter-group images (PWM lamps), not times
+    subframe_variances: tuple[np.ndarray, ...] = ()   # MC variance of each sample (temporal error)
+    ground_truth: dict | None = None    # from a frame source: plate text, frames read, plate velocity
+
+    def capture_timing(self) -> dict:
+        """The keyword a capture of these samples takes: the basis names, or the sample times."""
+        if self.basis:
+            return {"basis": self.basis}
+        return {"times_s": self.subframe_times_s} if len(self.subframes) > 1 else {}

@@ -11,38 +11,12 @@ is split into `mc_splits` independent-seed renders (renderer.py).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 from tqdm import tqdm
 
-from poevp_optics.core.frame import Frame, Quantity
+from poevp_optics.core.frame import Frame, Quantity, RenderedExposure
 from poevp_optics.core.seeds import render_seeds
 from poevp_optics.core.units import PHOTON_RADIANCE_UNIT
-
-
-@dataclass(frozen=True)
-class RenderedExposure:
-    """Ground truth for one frame: K radiance samples and their time average (mirror grid)."""
-
-    index: int
-    t_start_s: float
-    exposure_s: float
-    subframe_times_s: np.ndarray        # (K,) sample times (camera/dmd.py node_times_s)
-    subframes: tuple[np.ndarray, ...]   # K x (H, W) photon radiance, mirror (render) grid
-    radiance: Frame                     # time average over the exposure
-    variance: np.ndarray                # MC variance of `radiance` per pixel
-    roi: tuple[int, int, int, int] | None
-    rel_error: float | None
-    rel_error_roi: float | None
-    basis: tuple[str, ...] = ()         # subframes are emitter-group images (PWM lamps), not times
-    subframe_variances: tuple[np.ndarray, ...] = ()   # MC variance of each sample (temporal error)
-
-    def capture_timing(self) -> dict:
-        """The keyword a capture of these samples takes: the basis names, or the sample times."""
-        if self.basis:
-            return {"basis": self.basis}
-        return {"times_s": self.subframe_times_s} if len(self.subframes) > 1 else {}
 
 
 def rel_error(mean: np.ndarray, var: np.ndarray, box=None) -> float | None:

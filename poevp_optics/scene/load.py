@@ -1,4 +1,5 @@
-"""Scene files: `scenes/<name>/scene.toml` (+ Mitsuba XML) -> validated, frozen `SceneSpec`.
+"""Scene files: `scenes/<name>/scene.toml` (+ Mitsuba XML, or the frames of a [source] kind)
+-> validated, frozen `SceneSpec`.
 
 Every key is checked on entry by its section's params class (core/params.py): unknown keys,
 wrong types, out-of-range or non-finite values; then the checks that combine keys
@@ -133,10 +134,8 @@ def build_spec(raw: dict, path: Path, ctx: Where | None = None, *, cross_checks:
             entries[ident] = parse_params(cls, table, f"{name}.{ident}", ctx)
         tables[name] = MappingProxyType(entries)
 
-    render: RenderSpec = sec["render"]
-    xml_path = (path.parent / render.xml).resolve()
-    if not xml_path.is_file():
-        raise ctx.fail("render.xml", f"Mitsuba scene file not found: {xml_path}")
+    render = sec["render"]
+    xml_path = validate.check_source(ctx, path, raw, sec, tables)
     sec["predictor"] = validate.check_predictor(ctx, path, sec["predictor"], cross_checks)
     validate.check_plate(ctx, sec["plate"])
     if cross_checks:

@@ -8,6 +8,7 @@
 | [spectra.<param>]    | SpectrumSpec     | sources/spectra.py |
 | [flicker.<param>]    | FlickerSpec      | sources/flicker.py |
 | [plate]              | PlateSpec        | sources/plates.py |
+| [source]             | SourceSpec       | sources/kinds.py (kinds: mitsuba_source.py, exr_sequence.py, ldr_highlight.py) |
 | [road]               | RoadSpec         | sources/road.py (night-road geometry; only road scenes) |
 | [sheeting.<param>]   | SheetingSpec     | render/materials/retroreflective.py |
 | [objective]          | ObjectiveSpec    | camera/objective.py |
@@ -46,6 +47,7 @@ from poevp_optics.core.timing import TimingSpec
 from poevp_optics.render.materials.retroreflective import SheetingSpec
 from poevp_optics.render.renderer import RenderSpec
 from poevp_optics.sources.flicker import FlickerSpec
+from poevp_optics.sources.kinds import SourceSpec
 from poevp_optics.sources.motion import MotionSpec
 from poevp_optics.sources.plates import PlateSpec
 from poevp_optics.sources.road import RoadSpec
@@ -58,7 +60,7 @@ class SceneSpec:
 
     name: str
     toml_path: Path
-    xml_path: Path
+    xml_path: Path | None          # None: the radiance comes from a frame source ([source])
     description: str
     render: RenderSpec
     timing: TimingSpec
@@ -77,6 +79,7 @@ class SceneSpec:
     plate: PlateSpec
     chart: ChartSpec
     road: RoadSpec
+    source: SourceSpec
     raw: Mapping[str, Any]
     origin: str = ""               # the file and the --set overrides it was read with (messages)
 
@@ -96,8 +99,8 @@ class SceneSpec:
 
     @property
     def geometry_static(self) -> bool:
-        """True when no shape or emitter moves."""
-        return all(m.is_static for m in self.motion.values())
+        """True when no shape or emitter moves (a frame source is taken to change in time)."""
+        return self.source.renders and all(m.is_static for m in self.motion.values())
 
     @property
     def is_static(self) -> bool:
@@ -138,7 +141,8 @@ class SceneSpec:
 SECTIONS = {
     "render": RenderSpec, "timing": TimingSpec, "dmd": DMDSpec, "objective": ObjectiveSpec,
     "relay": RelaySpec, "sensor": SensorSpec, "mask": MaskSpec, "predictor": PredictorSpec,
-    "loop": LoopSpec, "outputs": OutputsSpec, "plate": PlateSpec, "chart": ChartSpec, "road": RoadSpec,
+    "loop": LoopSpec, "outputs": OutputsSpec, "plate": PlateSpec, "chart": ChartSpec,
+    "source": SourceSpec, "road": RoadSpec,
 }
 TABLE_SECTIONS = {"motion": MotionSpec, "spectra": SpectrumSpec, "flicker": FlickerSpec,
                   "sheeting": SheetingSpec}

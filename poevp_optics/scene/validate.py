@@ -1,6 +1,7 @@
 """Checks that combine keys or reach outside the TOML: timing fits the frame, spectra resolve
 and have visible power, photometric and sheeting files load, the optical layout agrees,
-weights exist, the DMD can act on the exposure. Each failure is one line naming file and key.
+weights exist, the DMD can act on the exposure, the [source] kind's keys go together (a frame
+source needs no XML). Each failure is one line naming file and key.
 """
 
 from __future__ import annotations
@@ -20,6 +21,8 @@ from poevp_optics.control.predictors import PREDICTORS, PredictorSpec, takes_wei
 from poevp_optics.core.paths import ASSETS_DIR
 from poevp_optics.core.timing import TimingSpec
 from poevp_optics.render.renderer import RenderSpec
+from poevp_optics.sources.frames import SourceKeyError
+from poevp_optics.sources.kinds import SOURCES, SourceSpec
 from poevp_optics.sources.motion import MotionSpec
 from poevp_optics.sources.plates import PlateSpec
 from poevp_optics.sources.spectra import SpectrumSpec
@@ -232,6 +235,38 @@ def check_sensor_and_relay(ctx, path: Path, sensor: SensorSpec, relay: RelaySpec
         cand = [p] if p.is_absolute() else [path.parent / p, ASSETS_DIR / p]
         if not any(c.is_file() for c in cand):
             raise ctx.fail("relay.measured_file", f"PSF image not found: {relay.measured_file}")
+
+
+def check_source(ctx, path: Path, raw: dict, sec: dict, tables: dict) -> Path | None:
+    """[source]: the kind's keys and their combinations (sources/kinds.py SOURCES), its files; a
+    frame source refuses the sections only Mitsuba reads. Returns the XML path (None for frames)."""
+    src: SourceSpec = sec["source"]
+    kind = SOURCES[src.kind]
+    given = frozenset(raw.get("source", {})) - {"kind"}
+    for key in sorted(given - set(kind.keys)):
+        raise ctx.fail(f"source.{key}", f"not a key of kind = {src.kind!r}"
+                       + (f" (its keys: {', '.join(kind.keys)})" if kind.keys else " (it takes none)"))
+    try:
+        kind.check_keys(src, given, path.parent)
+    except SourceKeyError as e:
+        raise ctx.fail(f"source.{e.key}", str(e)) from None
+    if src.renders:
+        xml_path = (path.parent / sec["render"].xml).resolve()
+        if not xml_path.is_file():
+            raise ctx.fail("render.xml", f"Mitsuba scene file not found: {xml_path}")
+        return xml_path
+    why = f"source.kind = {src.kind!r} takes its radiance from frames"
+    for name in ("motion", "spectra", "flicker", "sheeting"):
+        if tables[name]:
+            raise ctx.fail(f"{name}.{next(iter(tables[name]))}", f"{why}: [{name}] applies to kind = 'mitsuba' only")
+    for key in ("xml", "roi_shape"):
+        if key in raw.get("render", {}):
+            raise ctx.fail(f"render.{key}", f"{why}: no Mitsuba scene to read (the ROI comes from source.boxes)")
+    if sec["plate"].text:
+        raise ctx.fail("plate.text", f"{why}: the plate text comes from source.boxes (or source.text)")
+    if sec["chart"].patches:
+        raise ctx.fail("chart.patches", f"{why}: a dynamic-range chart is rendered by Mitsuba (kind = 'mitsuba')")
+    return None
 
 
 def check_road(ctx, road, spectra_, sheeting) -> None:

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from poevp_optics.scene.load import load_scene
-from poevp_optics.sources.road import plate_centre_m, plate_geometry, scene_laws
+from poevp_optics.apps.night_road import scene_laws
+from poevp_optics.sources.road import plate_centre_m, plate_geometry
 from tests.conftest import SCENES
 
 #: ASTM D4956-01 Table 2, Type I white minimums (cd lx-1 m-2): {(alpha, beta): R_A}.

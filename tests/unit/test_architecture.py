@@ -94,6 +94,41 @@ def test_no_import_cycles():
     assert not cycles, cycles
 
 
+def test_sources_import_only_core():
+    """DESIGN.md's package table: sources/ (spectra, flicker, plates, the [source] kinds) may
+    import only core/ (and itself); the Mitsuba kind is opened from render/radiance.py."""
+    bad = []
+    for name, tree in MODULES.items():
+        if not name.startswith("poevp_optics.sources"):
+            continue
+        for mod, names in _imports(name, tree):
+            for t in _target(mod, names):
+                if not t.startswith(("poevp_optics.core", "poevp_optics.sources")) and t != "poevp_optics":
+                    bad.append(f"{name} imports {t}")
+    assert not bad, bad
+
+
+def test_benchmarks_and_scripts_import_names_that_exist():
+    """Every `from poevp_optics... import name` in benchmarks/ and scripts/ resolves (a module
+    move must carry the scripts that live outside the package along)."""
+    import importlib
+
+    missing = []
+    for path in sorted([*(ROOT / "benchmarks").glob("*.py"), *(ROOT / "scripts").glob("*.py")]):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if not (isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("poevp_optics")):
+                continue
+            module = importlib.import_module(node.module)
+            for alias in node.names:
+                if hasattr(module, alias.name):
+                    continue
+                try:
+                    importlib.import_module(f"{node.module}.{alias.name}")
+                except ImportError:
+                    missing.append(f"{path.name}:{node.lineno} {node.module}.{alias.name}")
+    assert not missing, missing
+
+
 def test_no_private_name_is_imported_from_another_module():
     bad = []
     for name, tree in MODULES.items():
@@ -138,9 +173,12 @@ def test_every_registry_is_its_keys_validator_choices():
     from poevp_optics.analysis.tonemap import TONEMAPPERS
     from poevp_optics.core.params import parse_params
     from poevp_optics.core.exceptions import ParamError
+    from poevp_optics.sources.kinds import SOURCES
+    from poevp_optics.sources.ldr_highlight import RADIUS_RULES, TRANSFERS
 
     found = {id(reg) for _, _, reg in _registry_fields()}
-    for reg in (PSFS, SENSOR_PRESETS, POISSON_SAMPLERS, LOOP_MODES, MASK_LAWS, PREDICTORS, TONEMAPPERS):
+    for reg in (PSFS, SENSOR_PRESETS, POISSON_SAMPLERS, LOOP_MODES, MASK_LAWS, PREDICTORS, TONEMAPPERS,
+                SOURCES, TRANSFERS, RADIUS_RULES):
         assert id(reg) in found, reg
     for cls, field, reg in _registry_fields():
         hints = typing.get_type_hints(cls)
