@@ -6,7 +6,7 @@ import subprocess
 import sys
 
 SCRIPTS = ["render_error_vs_time", "subframes_error", "camera_throughput", "predictor_latency",
-           "loop_comparison", "sweep_scaling", "stage_performance", "work_precision"]
+           "loop_comparison", "sweep_scaling", "stage_performance", "work_precision", "objective_psf"]
 
 if __name__ == "__main__":
     failed = []

@@ -51,7 +51,7 @@ def settle_mask(spec: SceneSpec, cam: Camera, truth: np.ndarray, white_capture) 
     1 % of mirrors changing their exposure by more than 25 % from one frame to the next."""
     lev = cam.level_exposure_s(0)
     if spec.chart.mask_source == "oracle":
-        return oracle_mask(cam, spec.mask, truth, 0), {"source": "oracle", "frames": 0, "converged": True,
+        return oracle_mask(cam, spec.mask, cam.dmd_image(truth), 0), {"source": "oracle", "frames": 0, "converged": True,
                                                        "history": []}
     step = LoopStep(cam, spec.mask, spec.loop, spec.predictor)
     source = f"loop ({step.model.name}, {spec.loop.mode})"
@@ -158,8 +158,55 @@ def measure_camera(spec: SceneSpec, truth_field, regions, lum, dens, true_sig) -
                                          res["tables"]["encoded"], floor_e)
     res["psf"] = cam.psf.name if cam.psf is not None else "delta"
     res["psf_truncation"] = cam.psf.truncation_error if cam.psf is not None else 0.0
+    if cam.objective is not None:
+        res["objective"] = objective_limit(cam, truth, regions, dens, res)
     res["seconds"] = time.perf_counter() - t0
     return res
+
+
+def objective_limit(cam: Camera, truth, regions, dens, res: dict) -> dict:
+    """How the objective's veiling glare limits the encoded DR (objective.glare_floor). Two
+    floors: the ISO 9358 VGI of the darkest patch in a white surround (a black disc of the patch's
+    equivalent radius sqrt(area / pi), mirrors: the closed form), and this chart's own: the glare
+    the halo brings onto the darkest patch from every patch, g (H * x) (x the pinhole image),
+    over the brightest patch's radiance. Glare is in the image the mirrors see, so the mask
+    cannot lower either: a patch darker than the floor relative to the brightest gets more glare
+    than light of its own (the ISO 15739 SNR may still resolve it while shot noise allows); the
+    DMD's floor adds at most its headroom to the LDR DR. `binding`: the lower of the chart's glare
+    limit and that DMD limit."""
+    from poevp_optics.camera.objective import glare_floor
+
+    dark, bright = int(np.argmax(dens)), int(np.argmin(dens))
+    scale = cam.registration.scale if cam.dmd is not None else 1.0
+    rho = math.sqrt(float(regions[dark].sum()) / math.pi) / scale
+    out = {**cam.objective_summary(), "glare": glare_floor(cam.objective, cam.mirror_shape, rho)}
+    glare_db = out["glare"]["floor_db"]
+    if cam.objective.glare_fraction > 0:
+        from poevp_optics.camera.objective import convolve_reflect, glare_kernel
+
+        veil = cam.objective.glare_fraction * convolve_reflect(np.asarray(truth, np.float64),
+                                                               glare_kernel(cam.objective, cam.mirror_shape).kernel)
+        x_s = cam.to_sensor(truth)
+        ratio = float(cam.to_sensor(veil)[regions[dark]].mean() / x_s[regions[bright]].mean())
+        glare_db = float(-20 * math.log10(ratio))
+        out["glare"].update(chart_veil_ratio=ratio, chart_floor_db=glare_db)
+    if "parts" in res:
+        ldr_db = res["dr"]["ldr"]["iso15739"]
+        dmd_cap = ldr_db + res["parts"]["gain_db"]
+        binds = "objective glare" if glare_db < dmd_cap else "DMD attenuation floor"
+        out.update(dmd_floor_db=res["parts"]["gain_db"], dmd_floor=res["parts"]["floor"],
+                   dmd_limit_db=dmd_cap, glare_limit_db=glare_db, binding=binds,
+                   explanation=(f"objective glare (g = {cam.objective.glare_fraction:g}) veils the darkest "
+                                f"patch at {10 ** (-glare_db / 20):.3g} of the brightest ({glare_db:.1f} dB; "
+                                f"{out['glare']['floor_db']:.1f} dB in a white surround, VGI "
+                                f"{out['glare']['vgi']:.3g}) whatever the mask: a patch darker than that "
+                                f"gets more glare than light of its own; the DMD's floor "
+                                f"({res['parts']['floor']:.3g}, {res['parts']['gain_db']:.1f} dB) adds at most "
+                                f"that to the LDR DR ({ldr_db:.1f} + {res['parts']['gain_db']:.1f} = "
+                                f"{dmd_cap:.1f} dB): the lower of the two, {binds}, binds (the ISO 15739 "
+                                f"figure may exceed both: it resolves steps inside the veil while shot noise "
+                                f"allows)"))
+    return out
 
 
 def _eight_bit_note(res) -> str | None:
@@ -243,7 +290,7 @@ def _summary(res: dict) -> dict:
     out = {"dynamic_range_db": res["dr"], "details": res["details"], "emva": res["emva"],
            "psf": res["psf"], "seconds": res["seconds"],
            "patches": {m: t.rows() for m, t in res["tables"].items()}}
-    for k in ("limits", "settle", "emva_8bit"):
+    for k in ("limits", "settle", "emva_8bit", "objective"):
         if k in res:
             out[k] = res[k]
     note = _eight_bit_note(res)

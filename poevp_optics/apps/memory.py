@@ -10,6 +10,7 @@ on scenes/smoke (llvm_ad_mono, 2 cores, numpy 2, DrJit 1.x):
 | frame pipeline  | P (300 + 16 K): film, K sub-frames, MC splits, DMD weights, sensor draws, reconstruction, EXR/PNG/tone-map buffers | 280-300 B/px at K = 2 (256^2 ... 2048^2), +6.4 B/px per extra sub-frame; spp does not matter (one wavefront per pixel) |
 | held exposures  | compare only: frames x P (4 K + 8)                     | the exposures list it keeps  |
 | PSF             | kernel n^2 x 16 + build strips + FFT buffers (`relay.fft_bytes`) | +27 MB at 1024^2, sigma 20 |
+| objective       | `objective.memory_bytes`: PSF grid, field_convolve's float64 images, PSF and glare FFTs, K float32 DMD-plane images | bound from `objective.radius_bound_px` |
 | DMD tables      | 4 x V x S x (K + 1) x 8: V levels, S = bits + 3 segments (x2 with settle) | 2.9-3.7 copies (`transmission_table` alone, V = 256 ... 65536, K = 16 ... 4096) |
 | JIT kernels     | K x 200 KiB + K^2 x 600 B: DrJit traces one gather and one FMA per sub-frame into one kernel | +80 MB at K = 256, +780 MB at K = 1024 (8x8 px) |
 | registration    | P x 400 (area-weighted taps and their construction)    | 345 B/px at 1024^2           |
@@ -159,15 +160,45 @@ def _kernel_px(spec) -> int:
     return kernel_size_px(relay, ctx)
 
 
+def _objective_params(spec):
+    """The [objective] keys resolved as the camera resolves them (None: the stage is skipped)."""
+    from poevp_optics.camera.layout import layout_of
+    from poevp_optics.camera.objective import ObjectiveParams
+    from poevp_optics.camera.sensor import resolve_sensor
+
+    if spec.objective.is_identity:
+        return None
+    p = resolve_sensor(spec.sensor)
+    n = layout_of(spec.sensor, spec.dmd, spec.relay, spec.objective).objective_f_number
+    return ObjectiveParams.resolve(spec.objective, f_number=n, qe=p.qe,
+                                   pixel_pitch_m=spec.dmd.pitch_m if spec.dmd.enabled else p.pixel_pitch_m)
+
+
 def _render_shape(spec) -> tuple[int, int]:
-    """The rendered (mirror) grid: the sensor plus the PSF's guard band on each side (camera.py;
-    at most relay.guard_max_px, more for a registration that shrinks the image)."""
+    """The rendered (mirror) grid: the sensor plus the larger of the relay's and the objective's
+    guard bands on each side (camera.py; each at most its guard_max_px, the relay's more for a
+    registration that shrinks the image; the objective's from objective.radius_bound_px)."""
+    from poevp_optics.camera.objective import radius_bound_px
+
     h, w = spec.render.resolution
     g = min(_kernel_px(spec) // 2, spec.relay.guard_max_px)
     reg = spec.dmd.registration
     if spec.dmd.enabled and g and reg.scale < 1.0:
         g = int(g / reg.scale) + 1
+    o = _objective_params(spec)
+    if o is not None:
+        g = max(g, min(radius_bound_px(o, (h, w)), spec.objective.guard_max_px))
     return h + 2 * g, w + 2 * g
+
+
+def _objective_part(spec, k: int) -> Part | None:
+    from poevp_optics.camera.objective import memory_bytes
+
+    o = _objective_params(spec)
+    if o is None:
+        return None
+    key = "objective.pupil_rays" if o.psf == "prescription" else "objective.glare_outer_radius_deg"
+    return Part(memory_bytes(o, _render_shape(spec), k), key)
 
 
 def _psf_part(spec) -> Part | None:
@@ -233,7 +264,7 @@ def estimate_run(spec, job: str = "render") -> MemoryEstimate:
         parts["held exposures"] = Part(spec.timing.frames * px * (4 * k + 8), "timing.frames")
     if job == "chart":
         parts["chart captures"] = Part(spec.chart.repeats * px * CHART_BYTES_PER_PX_REPEAT, "chart.repeats")
-    optional = {"PSF": _psf_part(spec), "DMD tables": _dmd_part(spec, k),
+    optional = {"PSF": _psf_part(spec), "objective": _objective_part(spec, k), "DMD tables": _dmd_part(spec, k),
                 "predictor": _predictor_part(spec, job)}
     reg = spec.dmd.registration
     if spec.dmd.enabled and (reg.scale != 1.0 or reg.rotation_deg != 0.0 or tuple(reg.offset_px) != (0.0, 0.0)):

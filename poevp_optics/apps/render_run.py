@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from poevp_optics.analysis.metrics import crop, entropy_8bit, mask_iou, relative_error, saturated_fraction, to_8bit
+from poevp_optics.apps import night_road
 from poevp_optics.apps.outputs import OutputWriter, mask_png
 from poevp_optics.apps.run_report import build_report
 from poevp_optics.apps.temporal_check import temporal_error
@@ -71,8 +72,8 @@ class RunResult:
 def _capture(spec, camera: Camera, step: LoopStep | None, ex: RenderedExposure, res: RunResult) -> FrameCapture:
     """LDR twin (DMD all white), the loop's mask, the encoded capture and its reconstruction."""
     i = ex.index
-    truth = ex.radiance.data                              # mirror (render) grid
-    subs = list(ex.subframes) if not spec.is_static else [truth]
+    truth = camera.dmd_image(ex.radiance.data)            # mirror grid: the image the objective forms there
+    subs = list(ex.subframes) if not spec.is_static else [ex.radiance.data]   # the camera applies the objective
     timing = ex.capture_timing() if not spec.is_static else {}
     ldr = camera.capture(subs, camera.white_mask(), i, capture_seed(spec.sensor.seed, spec.render.seed, i, LDR_STREAM),
                          **timing)
@@ -96,6 +97,9 @@ def _capture(spec, camera: Camera, step: LoopStep | None, ex: RenderedExposure, 
                              **timing)
     for k in ("dmd", "relay", "sensor"):
         res.stage_seconds[k] += enc.seconds[k]
+    if camera.objective is not None:         # the LDR twin formed the image; the encoded capture reuses it
+        res.stage_seconds["objective"] = (res.stage_seconds.get("objective", 0.0) + ldr.seconds["objective"]
+                                          + (enc.seconds["objective"] if enc is not ldr else 0.0))
     tr = time.perf_counter()
     est, flags, _ = camera.reconstruct(enc, i)
     res.stage_seconds["reconstruct"] += time.perf_counter() - tr
@@ -150,7 +154,7 @@ def _law_comparison(spec, camera: Camera, fc: FrameCapture, res: RunResult, caus
     timing = fc.exposure.capture_timing() if not spec.is_static else {}
     for lname, (law, a, b) in PAPER_LAWS.items():
         ms = MaskSpec(law=law, vs=200.0, a=a, b=b, smooth_px=spec.mask.smooth_px)
-        m2 = oracle_mask(camera, ms, fc.exposure.radiance.data, i)
+        m2 = oracle_mask(camera, ms, camera.dmd_image(fc.exposure.radiance.data), i)
         c2 = camera.capture(subs, m2, i, capture_seed(spec.sensor.seed, spec.render.seed, i, ENCODED_STREAM),
                             **timing)
         res.law_comparison[lname]["saturated"].append(saturated_fraction(crop(c2.dn, box), max_dn))
@@ -170,11 +174,14 @@ def simulate(spec, camera: Camera, step: LoopStep | None, exposures, *, writer: 
     res = RunResult()
     mid = spec.timing.frames // 2
     causal = step is not None and not step.needs_truth
+    road_laws = night_road.scene_laws(spec) if spec.has_road else None
     for ex in exposures:
         fc = _capture(spec, camera, step, ex, res)
         if ex.index == mid and not ex.basis and not spec.is_static:
             res.mid_frame = (ex, fc.mask)
         _metrics(camera, fc)
+        if road_laws is not None:
+            fc.record["plate"] = night_road.frame_record(spec, camera, fc, road_laws)
         if causal:
             step.observe(ex.index, fc.ldr, fc.enc, fc.est, fc.flags)
             _against_oracle(spec, camera, fc)
@@ -242,6 +249,12 @@ def run_frames(spec, out_dir: Path, progress: bool = True, *, renderer=None,
     else:
         temporal = temporal_error(spec, renderer, camera, *(res.mid_frame or (None, None)))
     report = build_report(spec, renderer, camera, step, res, setup_s=setup_s, t_run=t_run, temporal=temporal)
+    if spec.has_road:
+        report["night_road"] = night_road.summary(spec, camera, report["per_frame"])
+        report["notes"].append(f"night road: {report['night_road']['statement']}")
+        if write_images:
+            night_road.plot(out_dir / "night_road.png", report["night_road"],
+                            f"{spec.name}: plate peak over saturation vs distance")
     write_report(out_dir, report)
     return report, res.kept
 

@@ -135,7 +135,9 @@ def run_notes(spec, renderer, camera, step, per_frame, metrics, floor) -> list[s
 def camera_sections(spec, camera, floor) -> dict:
     """The report's description of the camera: timing, accuracy, sensor, optics, DMD, mask."""
     p, t = camera.params, spec.timing
+    objective = camera.objective_summary()
     return {
+        **({"objective": objective} if objective is not None else {}),
         "timing": {"fps": t.fps, "exposure_s": t.exposure_s, "exposure_offset_s": t.exposure_offset_s,
                    "dmd_window_s": t.dmd_window_s, "dmd_window_offset_s": t.dmd_window_offset_s,
                    "outside_window": t.outside_window},

@@ -1,8 +1,11 @@
-"""One capture of the DMD camera: radiance sub-frames + mask -> DN (DMD -> relay -> sensor).
+"""One capture of the DMD camera: radiance sub-frames + mask -> DN (objective -> DMD -> relay -> sensor).
 
 The optical path of the real camera (DESIGN.md): objective -> image on the DMD -> each mirror
-sends light to the relay for its PWM share of the exposure -> relay lens (PSF) -> sensor. So the
-relay PSF acts on (mask x scene), and the sensor sees the registered, blurred DMD-plane image.
+sends light to the relay for its PWM share of the exposure -> relay lens (PSF) -> sensor. The
+renderer draws a pinhole image; the objective stage (objective.py: field-dependent PSF,
+vignetting, veiling glare) turns it into the image the mirrors see, so the mask multiplies the
+blurred, vignetted, glare-veiled image and cannot remove the glare. The relay PSF acts on
+(mask x objective image), and the sensor sees the registered, blurred DMD-plane image.
 """
 
 from __future__ import annotations
@@ -17,7 +20,8 @@ import numpy as np
 from poevp_optics.camera.dmd import (DMD, DMDSpec, Schedule, interval_transmission, node_time_weights_s,
                                      throughput_on, transmission_table)
 from poevp_optics.camera.layout import layout_of
-from poevp_optics.camera.objective import ObjectiveSpec
+from poevp_optics.camera import objective as obj
+from poevp_optics.camera.objective import ObjectiveParams, ObjectiveSpec
 from poevp_optics.camera.registration import (apply_taps, apply_taps_numpy, box_to_sensor, forward_taps,
                                               is_identity, to_mirror)
 from poevp_optics.camera.relay import PSFContext, RelaySpec, build_psf, convolve, max_support_px
@@ -54,9 +58,11 @@ class Camera:
 
     Grids: the sensor grid is `render.resolution` (`shape`); the mirror grid (`mirror_shape`) is
     what the renderer draws: the sensor's footprint on the DMD plus a guard band wide enough for
-    the relay PSF (`guard_px` mirrors on each side, registration.py), so light from beyond the
-    sensor's field spills in through the blur as it does from the DMD's outer mirrors; the guard
-    is cropped before the sensor and never enters metrics.
+    the relay PSF and the objective's kernels (`guard_px` mirrors on each side: the larger of the
+    two guards, each capped by its guard_max_px; registration.py), so light from beyond the
+    sensor's field spills in through the blur as it does from the DMD's outer mirrors (beyond the
+    guard, both stages continue the image by reflection); the guard is cropped before the sensor
+    and never enters metrics.
     """
 
     def __init__(self, sensor: SensorSpec, dmd: DMDSpec, relay: RelaySpec, objective: ObjectiveSpec,
@@ -80,7 +86,9 @@ class Camera:
             band_nm=spectra.WAVELENGTHS_NM, band_weights=spectra.sensor_response_e_per_J(qe),
             base_dir=base_dir, cap_px=max_support_px(self.shape), support_px=accuracy.psf_support_px,
             support_energy=accuracy.psf_support_energy))
+        self._init_objective(objective, dmd, base_dir)
         self._init_grids(dmd.registration if self.dmd else _IDENTITY)
+        self._build_objective()
         self.etendue_m2_sr = pixel_etendue_m2_sr(self.params)
         # lens transmission (objective) x relay transmission; DMD throughput is in the exposure
         self.throughput = self.params.optical_throughput * (relay.transmission if self.dmd else 1.0)
@@ -91,21 +99,80 @@ class Camera:
         return cls(spec.sensor, spec.dmd, spec.relay, spec.objective, spec.timing, spec.render.resolution,
                    spec.accuracy, base_dir=spec.toml_path.parent, flicker=spec.flicker, switches=switches)
 
+    def _init_objective(self, spec: ObjectiveSpec, dmd: DMDSpec, base_dir) -> None:
+        """The objective's resolved params (None: identity, the stage is skipped) and its guard
+        band in mirrors (its widest kernel on the sensor's footprint, capped at guard_max_px)."""
+        self.objective_spec = spec
+        self.objective = None
+        self.objective_guard_px = 0
+        self._objective_parts = None
+        self._objective_memo: dict = {}
+        if spec.is_identity:
+            return
+        pitch = dmd.pitch_m if dmd.enabled else self.params.pixel_pitch_m
+        self.objective = ObjectiveParams.resolve(spec, f_number=self.layout.objective_f_number,
+                                                 pixel_pitch_m=pitch, qe=self.params.qe)
+        self.objective_guard_px = min(obj.radius_px(self.objective, self.shape), spec.guard_max_px)
+
+    def _build_objective(self) -> None:
+        """PSF grid, glare kernel and relative illumination for the mirror grid (built once)."""
+        if self.objective is None:
+            return
+        p, shape = self.objective, self.mirror_shape
+        self._objective_parts = {"grid": obj.psf_grid(p, shape), "glare": obj.glare_kernel(p, shape),
+                                 "ri": obj.relative_illumination(p, shape)}
+
     def _init_grids(self, reg) -> None:
         """Sensor grid, guard band, mirror grid and the registration taps between them."""
         self.registration = reg
         radius = self.psf.kernel.shape[0] // 2 if self.psf is not None else 0
         self.sensor_guard_px = min(radius, self.accuracy.guard_max_px)
         h, w = self.shape
-        self.extended_shape = (h + 2 * self.sensor_guard_px, w + 2 * self.sensor_guard_px)
         if is_identity(reg):
+            self.sensor_guard_px = max(self.sensor_guard_px, self.objective_guard_px)
             self.guard_px = self.sensor_guard_px
         else:   # mirrors needed to cover the guard ring through the affine map (+1 for sampling)
-            self.guard_px = int(math.ceil(self.sensor_guard_px / reg.scale)) + (1 if self.sensor_guard_px else 0)
+            self.guard_px = max(int(math.ceil(self.sensor_guard_px / reg.scale)) + (1 if self.sensor_guard_px else 0),
+                                self.objective_guard_px)
+        self.extended_shape = (h + 2 * self.sensor_guard_px, w + 2 * self.sensor_guard_px)
         self.mirror_shape = (h + 2 * self.guard_px, w + 2 * self.guard_px)
         o = self.accuracy.registration_oversample
         self.taps = forward_taps(reg, self.mirror_shape, self.extended_shape, o)
         self._sensor_taps = None
+
+    # ------------------------------------------------------------------ objective
+    def dmd_image(self, radiance: np.ndarray) -> np.ndarray:
+        """The image the objective forms on the DMD from a pinhole render (mirror grid, float32):
+        (1 - g) B(V x) + g H * (V x) (objective.py); the input itself when the stage is skipped.
+        The last few results are kept by the input's identity (captures of one frame reuse them)."""
+        if self.objective is None:
+            return radiance
+        hit = self._objective_memo.get(id(radiance))
+        if hit is not None and hit[0] is radiance:
+            return hit[1]
+        parts = self._objective_parts
+        out = obj.apply(np.asarray(radiance, dtype=np.float32), self.objective, grid=parts["grid"],
+                        glare=parts["glare"], ri=parts["ri"])
+        if len(self._objective_memo) >= 16:
+            self._objective_memo.pop(next(iter(self._objective_memo)))
+        self._objective_memo[id(radiance)] = (radiance, out)      # holds the input: ids stay unique
+        return out
+
+    def glare_veil(self, radiance: np.ndarray) -> np.ndarray | None:
+        """The objective's veiling-glare part of `dmd_image` (mirror grid): g H * (V x); None
+        without glare. No mask lowers it: it is in the image the mirrors see."""
+        if self.objective is None or self._objective_parts["glare"] is None:
+            return None
+        x = np.asarray(radiance, dtype=np.float64)
+        ri = self._objective_parts["ri"]
+        v = x * ri if ri is not None else x
+        return self.objective.glare_fraction * obj.convolve_reflect(v, self._objective_parts["glare"].kernel)
+
+    def objective_summary(self) -> dict | None:
+        """The objective stage for a report (objective.summary), or None when it is skipped."""
+        if self.objective is None:
+            return None
+        return {**obj.summary(self.objective, self.mirror_shape), "guard_px": self.objective_guard_px}
 
     # ------------------------------------------------------------------ grids
     def _crop(self, img: np.ndarray) -> np.ndarray:
@@ -226,6 +293,9 @@ class Camera:
         h, w = self.shape
         n_mirrors = self.mirror_shape[0] * self.mirror_shape[1]
         secs = {}
+        t_obj = time.perf_counter()
+        subframes = [self.dmd_image(s) for s in subframes]       # objective: before the mirrors
+        secs["objective"] = time.perf_counter() - t_obj
         t0 = time.perf_counter()
         subs = [Float(np.ascontiguousarray(s, dtype=np.float32).ravel()) for s in subframes]
         if basis:

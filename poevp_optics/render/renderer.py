@@ -201,6 +201,15 @@ def plan_spectra(spec, force_mode: str | None = None) -> SpectralPlan:
 
         params[spec.plate.param] = str(cached_plate_path(spec.plate.text, spec.plate.width_px,
                                                          spec.plate.height_px))
+    if spec.has_road:
+        from poevp_optics.sources.road import xml_params as road_xml_params
+
+        road = road_xml_params(spec.road)
+        missing = sorted(set(road) - set(facts.defaults))
+        if missing:
+            raise SceneError(f"{spec.toml_path}: road: the XML {spec.xml_path.name} declares no "
+                             f"<default name=\"{missing[0]}\"> ({len(missing)} of the [road] parameters missing)")
+        params.update(road)
     notes = tuple(n for n in (spectra.coverage_note(name, spec.spectra[name].source, response)
                               for name in emissive) if n)
     return SpectralPlan(mode, reason, params, response, notes)

@@ -149,6 +149,8 @@ def build_spec(raw: dict, path: Path, ctx: Where | None = None, *, cross_checks:
     for ident, s in tables["spectra"].items():
         validate.check_spectrum(ctx, f"spectra.{ident}", s)
     validate.check_plugin_tables(ctx, path, tables["spectra"], tables["sheeting"])
+    if "road" in raw:
+        validate.check_road(ctx, sec["road"], tables["spectra"], tables["sheeting"])
     validate.check_sensor_and_relay(ctx, path, sec["sensor"], sec["relay"])
     validate.check_layout(ctx, sec)
     for ident in tables["flicker"]:

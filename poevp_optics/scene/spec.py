@@ -9,6 +9,7 @@
 | [flicker.<param>]    | FlickerSpec      | sources/flicker.py |
 | [plate]              | PlateSpec        | sources/plates.py |
 | [source]             | SourceSpec       | sources/kinds.py (kinds: mitsuba_source.py, exr_sequence.py, ldr_highlight.py) |
+| [road]               | RoadSpec         | sources/road.py (night-road geometry; only road scenes) |
 | [sheeting.<param>]   | SheetingSpec     | render/materials/retroreflective.py |
 | [objective]          | ObjectiveSpec    | camera/objective.py |
 | [dmd]                | DMDSpec          | camera/dmd.py (registration: camera/registration.py) |
@@ -49,6 +50,7 @@ from poevp_optics.sources.flicker import FlickerSpec
 from poevp_optics.sources.kinds import SourceSpec
 from poevp_optics.sources.motion import MotionSpec
 from poevp_optics.sources.plates import PlateSpec
+from poevp_optics.sources.road import RoadSpec
 from poevp_optics.sources.spectra import SpectrumSpec
 
 
@@ -76,6 +78,7 @@ class SceneSpec:
     outputs: OutputsSpec
     plate: PlateSpec
     chart: ChartSpec
+    road: RoadSpec
     source: SourceSpec
     raw: Mapping[str, Any]
     origin: str = ""               # the file and the --set overrides it was read with (messages)
@@ -88,6 +91,11 @@ class SceneSpec:
                         temporal_spp=r.temporal_spp, psf_support_energy=rel.support_energy,
                         psf_support_px=rel.support_px, guard_max_px=rel.guard_max_px,
                         poisson_sampler=self.sensor.poisson_sampler)
+
+    @property
+    def has_road(self) -> bool:
+        """True for a night-road scene (a [road] section: sources/road.py)."""
+        return "road" in self.raw
 
     @property
     def geometry_static(self) -> bool:
@@ -134,7 +142,7 @@ SECTIONS = {
     "render": RenderSpec, "timing": TimingSpec, "dmd": DMDSpec, "objective": ObjectiveSpec,
     "relay": RelaySpec, "sensor": SensorSpec, "mask": MaskSpec, "predictor": PredictorSpec,
     "loop": LoopSpec, "outputs": OutputsSpec, "plate": PlateSpec, "chart": ChartSpec,
-    "source": SourceSpec,
+    "source": SourceSpec, "road": RoadSpec,
 }
 TABLE_SECTIONS = {"motion": MotionSpec, "spectra": SpectrumSpec, "flicker": FlickerSpec,
                   "sheeting": SheetingSpec}

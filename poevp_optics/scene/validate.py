@@ -174,6 +174,29 @@ def check_layout(ctx, sec: dict):
         layout_of(sec["sensor"], sec["dmd"], sec["relay"], sec["objective"])
     except LayoutError as e:
         raise ctx.fail(e.key, str(e)) from None
+    check_objective(ctx, sec)
+
+
+def check_objective(ctx, sec: dict):
+    """[objective]: the glare radii in order, and a prescription's design field covering the
+    rendered image's corner (sensor footprint on the DMD; the guard band is checked by the camera)."""
+    from poevp_optics.camera.objective import PRESCRIPTIONS
+    from poevp_optics.camera.sensor import resolve_sensor
+
+    o = sec["objective"]
+    if o.glare_outer_radius_deg < o.glare_core_radius_deg:
+        raise ctx.fail("objective.glare_outer_radius_deg", f"{o.glare_outer_radius_deg:g} is below "
+                       f"glare_core_radius_deg = {o.glare_core_radius_deg:g}")
+    if o.psf != "prescription" and o.vignetting != "prescription":
+        return
+    h, w = sec["render"].resolution
+    pitch = sec["dmd"].pitch_m if sec["dmd"].enabled else resolve_sensor(sec["sensor"]).pixel_pitch_m
+    corner = math.degrees(math.atan(math.hypot(h / 2, w / 2) * pitch / o.focal_length_m))
+    design = PRESCRIPTIONS[o.prescription].field_deg
+    if corner > design:
+        raise ctx.fail("objective.focal_length_m", f"{o.focal_length_m:g} m puts the image's corner "
+                       f"{corner:.2f} deg off axis, beyond the {o.prescription!r} design field of "
+                       f"{design:g} deg: use a longer focal length or a smaller render.resolution")
 
 
 def check_plugin_tables(ctx, path: Path, spectra_, sheeting):
@@ -244,3 +267,14 @@ def check_source(ctx, path: Path, raw: dict, sec: dict, tables: dict) -> Path | 
     if sec["chart"].patches:
         raise ctx.fail("chart.patches", f"{why}: a dynamic-range chart is rendered by Mitsuba (kind = 'mitsuba')")
     return None
+
+
+def check_road(ctx, road, spectra_, sheeting) -> None:
+    """[road] (sources/road.py): its high beam names an intensity lamp with a photometric file,
+    its sheeting a [sheeting] entry (the per-frame report reads both)."""
+    lamp = spectra_.get(road.highbeam)
+    if lamp is None or lamp.kind != "intensity" or not lamp.distribution:
+        raise ctx.fail("road.highbeam", f"{road.highbeam!r} must name a [spectra] entry of kind 'intensity' "
+                       "with a photometric distribution (our high beams)")
+    if road.sheeting not in sheeting:
+        raise ctx.fail("road.sheeting", f"{road.sheeting!r} names no [sheeting] entry")
