@@ -147,12 +147,15 @@ def paper_tables(cells: dict, cfg) -> list[str]:
         p = _pct(k, n)
         return f"{p['pct']:.1f} [{p['ci95'][0]:.0f}-{p['ci95'][1]:.0f}] (n={n})", f"{np.median([c['method_ms'] for c in sel]):.1f}"
 
+    rows = [("Exposure fusion (classical)", "fusion_classic", PAPER["fusion_classic"]),
+            ("Exposure fusion (artifact reduced)", "fusion_deghost", PAPER["fusion_deghost"]),
+            ("Deep optics", None, PAPER["deep_optics"]),
+            *((f"POE-VP ({p})", p, PAPER["poevp"] if p == "dmvfn" else None) for p in cfg.predictors)]
+    if "dmvfn" not in cfg.predictors:
+        rows.append(("POE-VP (paper: DMVFN)", "", PAPER["poevp"]))
     t2 = []
-    for name, ours in (("Exposure fusion (classical)", "fusion_classic"), ("Exposure fusion (artifact reduced)", "fusion_deghost"),
-                       ("Deep optics", None), *((f"POE-VP ({p})", p) for p in cfg.predictors)):
-        key = ours if ours in PAPER else ("poevp" if ours in CAUSAL or ours == "oracle" else "deep_optics" if ours is None else None)
-        paper = PAPER.get(key) if (ours is None or ours in PAPER or ours == "dmvfn") else None
-        acc, ms = pooled(ours) if ours else ("out of scope", "-")
+    for name, ours, paper in rows:
+        acc, ms = pooled(ours) if ours else (("out of scope" if ours is None else "not run"), "-")
         t2.append([name, f"{paper[0]:.2f}" if paper else "-", f"{paper[1]:.1f}" if paper else "-", acc, ms])
     out = ["\n### Paper Table 2 (its simulation, E = 9/29/49 averaged, RTX 3090) beside ours "
            "(lateral cells at E = 9, 29, 49, ALPR, pooled; ms on this CPU)\n"]
