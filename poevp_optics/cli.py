@@ -221,17 +221,52 @@ def cmd_sweep(args) -> int:
     return 0
 
 
+def _csv_numbers(flag: str, text: str | None):
+    if text is None:
+        return None
+    try:
+        return tuple(float(v) for v in text.split(",") if v.strip())
+    except ValueError:
+        raise UserError(f"evaluate: {flag}: {text!r} is not a comma-separated list of numbers") from None
+
+
+def _eval_config(args):
+    """The evaluation's configuration from the command line (defaults: EvalConfig, --quick: CI set)."""
+    import dataclasses
+
+    from poevp_optics.apps.evaluate import BASE, EvalConfig, quick_config
+    from poevp_optics.scene.load import resolve_scene_path
+
+    scene = resolve_scene_path(args.scene) if args.scene else BASE
+    cfg = quick_config(scene) if args.quick else EvalConfig(scene=scene)
+    texts = [t.strip() for t in args.texts.split(",")] if args.texts else None
+    if args.texts_file:
+        f = Path(args.texts_file)
+        if not f.is_file():
+            raise UserError(f"{f}: --texts-file: no such file")
+        texts = [ln.strip() for ln in f.read_text().splitlines() if ln.strip() and not ln.startswith("#")]
+    new = {"texts": tuple(texts) if texts is not None else None,
+           "speeds_px": _csv_numbers("--speeds", args.speeds), "e_levels": _csv_numbers("--E", args.E),
+           "e_sweep": _csv_numbers("--E-sweep", args.E_sweep),
+           "kinds": tuple(args.kinds.split(",")) if args.kinds else None,
+           "predictors": tuple(args.predictors.split(",")) if args.predictors else None,
+           "baselines": tuple(b for b in args.baselines.split(",") if b) if args.baselines is not None else None,
+           "search": args.search, "loop_mode": args.loop_mode}
+    return dataclasses.replace(cfg, **{k: v for k, v in new.items() if v is not None})
+
+
 def cmd_evaluate(args) -> int:
-    from poevp_optics.apps.evaluate import E_LEVELS, evaluate
+    from poevp_optics.apps.evaluate import check_config, evaluate
     from poevp_optics.apps.runner import run_in_folder
 
+    cfg = _eval_config(args)
+    check_config(cfg)
     out = Path(args.out) if args.out else Path("out") / ("evaluate-quick" if args.quick else "evaluate")
-    summary = run_in_folder("evaluate", out, args.threads,
-                            lambda stage: evaluate(stage, quick=args.quick, progress=not args.quiet))
-    e = str(max(E_LEVELS))
-    for m, s in ((k, v) for k, v in summary.items() if k != "test_set"):
-        print(f"{m:>15s}  accuracy E={e}: {s[e]['accuracy_pct']:5.1f} %  all: {s['all']['accuracy_pct']:5.1f} %"
-              f"  entropy {s[e]['entropy_bits']:.2f} bits  {s['all']['method_ms']:.1f} ms/frame")
+    log = (lambda *a: None) if args.quiet else print
+    report = run_in_folder("evaluate", out, args.threads, lambda stage: evaluate(stage, cfg, log=log))
+    for e, v in report["findings"]["separating_speed_px"].items():
+        print(f"poevp: E = {e}: " + (f"hold < 50 % while flow/dmvfn > 80 % from {v:g} px/frame" if v is not None
+                                      else "no separating speed in the sweep"))
     print(f"poevp: evaluation -> {out}/evaluation.md")
     return 0
 
@@ -303,6 +338,26 @@ def _add_cluster_options(p) -> None:
                         "(default 2)")
 
 
+def _add_evaluate_parser(sub) -> None:
+    """`poevp evaluate`'s flags (apps/evaluate.py EvalConfig holds the defaults)."""
+    p = sub.add_parser("evaluate", help="plate recognition (full ALPR) over speed, E and motion: LDR vs fusion vs POE-VP")
+    p.add_argument("scene", nargs="?", help="a scene with a plate (render.roi_shape); default highbeam_plate")
+    p.add_argument("--quick", action="store_true", help="CI size: 1 text, 2 speeds, E = 49 (about a minute)")
+    p.add_argument("--texts", help="comma-separated plate texts (default: 2 held-out texts)")
+    p.add_argument("--texts-file", help="plate texts, one a line")
+    p.add_argument("--speeds", help="lateral speeds, px/frame, comma-separated (default 4,8,16,24,32,48)")
+    p.add_argument("--E", help="over-exposure rates of the speed sweep (default 9,49)")
+    p.add_argument("--E-sweep", dest="E_sweep", help="over-exposure rates of the accuracy-vs-E sweep")
+    p.add_argument("--kinds", help="motion kinds: lateral,approaching,receding,swerve,reversal")
+    p.add_argument("--predictors", help="hold,flow,dmvfn,dmvfn_lite,oracle (default hold,flow,dmvfn,oracle)")
+    p.add_argument("--baselines", help="ldr,fusion_classic,fusion_deghost (default all; '' for none)")
+    p.add_argument("--search", choices=("frame", "vehicle"), help="ALPR search region (default frame)")
+    p.add_argument("--loop-mode", dest="loop_mode", choices=("open", "raw", "demodulated"),
+                   help="what the predictor sees (default open, paper Fig. 3)")
+    _add_job_options(p, "default out/evaluate")
+    p.set_defaults(func=cmd_evaluate)
+
+
 def build_parser() -> argparse.ArgumentParser:
     from poevp_optics.apps.runner import JOBS, sweep_jobs
 
@@ -352,10 +407,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=cmd_sweep)
 
-    p = sub.add_parser("evaluate", help="plate recognition: LDR vs exposure fusion vs POE-VP (OCR)")
-    p.add_argument("--quick", action="store_true", help="2 sequences x 5 frames (CI size)")
-    _add_job_options(p, "default out/evaluate")
-    p.set_defaults(func=cmd_evaluate)
+    _add_evaluate_parser(sub)
 
     p = sub.add_parser("train-predictor", help="train dmvfn_lite (or dmvfn) on rendered sequences")
     p.add_argument("--name", default="dmvfn_lite", choices=("dmvfn_lite", "dmvfn"))

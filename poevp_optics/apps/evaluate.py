@@ -1,111 +1,135 @@
-"""`poevp evaluate`: recognising highlighted moving plates, LDR vs exposure fusion vs POE-VP.
+"""`poevp evaluate SCENE`: recognising highlighted moving plates, over plate speed, over-exposure E
+and motion kind, with every predictor, exposure fusion and the plain LDR camera.
 
-Test set (fixed, `TEXTS` x `MOTIONS`, seeded): the default road scene with other plate texts and
-motions, rendered once per sequence and cached (`~/.cache/poevp_optics/eval`, or
-$POEVP_CACHE_DIR/eval). Highlight strengths as the paper's over-exposure rates E = 9, 29, 49:
-radiance is linear in the beams' intensity, so each sequence is scaled until the plate's peak
-reaches (E + 1) x the LDR saturation level (the paper adds an artificial Gaussian highlight
-H = O (E G + 1); here the beams themselves are the highlight).
+Test set: the scene's plate carrying each test text along each motion (eval_sequences.py: lateral
+at 2 ... 48 px/frame, approaching, receding, swerve, sudden reversal), rendered physically once per
+sequence and cached by content. Highlight strength as the paper's over-exposure rate E (Sec. 4A:
+H = O (E G + 1)): radiance is linear in the lights' intensity, so each sequence is scaled until the
+plate's peak reaches (E + 1) x the LDR saturation level (here the scene's own beams are the
+highlight, not an added Gaussian).
 
-Methods, one 8-bit image per frame t (frames 0-1 are the loop's white initialisation; t >= 2):
+Methods, one 8-bit image per frame t (frames < loop.init_frames are the loop's white start, not
+scored):
   ldr             the DMD all white
-  fusion_classic  captures t-2, t-1, t at global exposures 1/8, 1/5, 1, Mertens fusion
-                  (OpenCV `createMergeMertens`; Mertens, Kautz & Van Reeth 2007)
+  fusion_classic  captures t-2, t-1, t at global exposures 1/8, 1/5, 1 (paper Sec. 6), Mertens
+                  fusion (OpenCV `createMergeMertens`; Mertens, Kautz & Van Reeth 2007)
   fusion_deghost  the same after median-threshold-bitmap alignment (OpenCV `createAlignMTB`;
                   Ward 2003)
-  hold, flow, dmvfn, oracle   POE-VP single shot, open loop, target mask law
-Deep optics (the paper's third baseline) is out of scope: it needs a learned optical element.
-Recognition: recognize.py (RapidOCR PP-OCRv4); accuracy per paper Eq. 4, entropy of the plate
-box per Eq. 5, local entropy maps per Sec. 5C; run time = each method's own processing per
-output frame (fusion: alignment + merge; POE-VP: predictor + mask law).
+  hold, flow, dmvfn, ... oracle   POE-VP single shot (control/loop_step.py LoopStep), loop mode
+                  `open` by default (paper Fig. 3), the scene's mask law
+Every method sees the same sensor noise (common seeds), so differences are the methods'.
+Reading: full ALPR (PP-OCRv4 detection + recognition on the frame) and recognition only (the
+plate box), analysis/recognition.py; Eq. 4 accuracy with Wilson 95 % intervals, Eq. 5 plate
+entropy, the reversal's lag (analysis/statistics.py). Deep optics (the paper's third baseline)
+is out of scope: it needs a learned optical element.
 """
 
 from __future__ import annotations
 
-import csv
+import dataclasses
 import hashlib
-import io as _io
-import json
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from poevp_optics import __version__
+from poevp_optics.analysis.metrics import crop, entropy_8bit, to_8bit
+from poevp_optics.analysis.recognition import alpr_read, correct, read_plate, search_window
+from poevp_optics.apps.eval_sequences import (KINDS, SequenceSpec, calibrate, eval_overrides,
+                                              render_sequences)
 from poevp_optics.camera.camera import Camera
-from poevp_optics.core.frame import Frame, Quantity
-from poevp_optics.core.io import atomic_path, write_json, write_png
-import dataclasses
-
-from poevp_optics.apps.render_run import run_frames
-from poevp_optics.core.runtime import cache_dir
-from poevp_optics.core.seeds import FUSION_STREAM, capture_seed
-from poevp_optics.render.exposures import RenderedExposure, render_exposures
-from poevp_optics.analysis.metrics import crop, entropy_8bit, local_entropy, to_8bit
-from poevp_optics.analysis.recognition import correct, read_plate
-from poevp_optics.render.renderer import Renderer
-from poevp_optics.scene.load import load_scene
-from poevp_optics.core.units import PHOTON_RADIANCE_UNIT
+from poevp_optics.control.loop_step import LoopSpec, LoopStep
+from poevp_optics.control.predictors import PREDICTORS, make_predictor
+from poevp_optics.core.exceptions import UserError
 from poevp_optics.core.paths import SCENES_DIR
+from poevp_optics.core.seeds import ENCODED_STREAM, FUSION_STREAM, LDR_STREAM, capture_seed
+from poevp_optics.render.exposures import RenderedExposure
+from poevp_optics.scene.load import load_scene
 
 BASE = SCENES_DIR / "highbeam_plate"
-TEXTS = ("KA 7391", "MH 20DV", "TN 09BX", "DL 3CAF", "GJ 5RT8", "HR 26QZ")
-MOTIONS = ((1.0, 0.0, -1.5), (-1.0, 0.0, -1.5))          # m/s: drift across, closing in
-E_LEVELS = (9, 29, 49)
+#: Test texts: 6 characters, "LL DDDD"; the predictor's training texts (apps/training_data.py
+#: random_plate_text) are all 7 characters ("LL D" + 4), so no test text was ever trained on.
+TEXTS = ("KA 7391", "MH 2046", "TN 0952", "DL 3817")
 FUSION_EXPOSURES = (1 / 8, 1 / 5, 1.0)
-POEVP = ("hold", "flow", "dmvfn", "oracle")
-METHODS = ("ldr", "fusion_classic", "fusion_deghost", *POEVP)
-#: Paper Table 2 (accuracy %, ms per frame); E-averaged, its own data and hardware.
-PAPER = {"fusion_classic": (65.07, 135.0), "fusion_deghost": (88.56, 425.0),
-         "deep_optics": (21.64, 1161.0), "poevp": (94.86, 16.9)}
+BASELINES = ("ldr", "fusion_classic", "fusion_deghost")
+@dataclass(frozen=True)
+class EvalConfig:
+    """What one `poevp evaluate` run measures (defaults: the benchmark in benchmarks/results)."""
+
+    scene: Path = BASE
+    texts: tuple[str, ...] = TEXTS[:2]                             # one each way; --texts for more
+    speeds_px: tuple[float, ...] = (4, 8, 16, 24, 32, 48)          # lateral sweep, px/frame
+    e_levels: tuple[float, ...] = (9, 49)                          # speed-sweep panels
+    e_sweep: tuple[float, ...] = (9, 29, 49, 200, 1000)            # accuracy vs E ...
+    e_speed_px: float = 8                                          # ... at this speed
+    kinds: tuple[str, ...] = KINDS                                 # motion sweep ...
+    motion_speed_px: float = 16                                    # ... at this speed, E:
+    motion_e: float = 9
+    predictors: tuple[str, ...] = ("hold", "flow", "dmvfn", "oracle")
+    baselines: tuple[str, ...] = BASELINES
+    resolution: tuple[int, int] = (184, 320)
+    spp: int = 8
+    frames: int = 6
+    motion_frames: int = 7
+    search: str = "frame"              # ALPR search region: "frame" or "vehicle"
+    loop_mode: str = "open"
+    quick: bool = False
+
+    @property
+    def methods(self) -> tuple[str, ...]:
+        return (*self.baselines, *self.predictors)
 
 
-def sequence_overrides(text: str, motion, frames: int) -> list[str]:
-    dur = frames / 30.0
-    start = [-motion[0] * dur / 2, 0.0, -motion[2] * dur / 2]
-    return [f"plate.text={json.dumps(text)}", f"motion.plate.velocity_m_per_s={list(motion)}",
-            f"motion.plate.start_offset_m={start}", f"timing.frames={frames}",
-            "render.subframes=2", "render.spp=16", "outputs.previews=false",
-            "outputs.contact_sheet=false", "outputs.radiance_exr=false"]
+def quick_config(scene: Path = BASE, texts: tuple[str, ...] = TEXTS[:1]) -> EvalConfig:
+    """The CI set: one text, 4 and 24 px/frame at E = 9, lateral + reversal (about a minute)."""
+    return EvalConfig(scene=scene, texts=texts, speeds_px=(4, 24), e_levels=(9,), e_sweep=(9,),
+                      e_speed_px=4, kinds=("lateral", "reversal"), motion_speed_px=24, motion_e=9,
+                      predictors=("hold", "flow", "oracle"), spp=4, frames=5, motion_frames=6, quick=True)
 
 
-def load_or_render(overrides: list[str], renderer: Renderer, progress: bool) -> list[RenderedExposure]:
-    """The sequence's radiance (sub-frames, ROI per frame), rendered once by `renderer` (the
-    loaded scene of these overrides) and cached."""
-    key = hashlib.sha1(json.dumps([overrides, __version__, BASE.name, "radiance-mean-v2"]).encode()).hexdigest()[:16]
-    path = cache_dir("eval") / f"{key}.npz"
-    if path.is_file():
-        z = np.load(path)
-        out = []
-        for i in range(len(z["roi"])):
-            subs = tuple(z["subs"][i])
-            mean = z["mean"][i]
-            t0, dt = float(z["t"][i, 0]), float(z["t"][i, 1])
-            out.append(RenderedExposure(i, t0, dt, z["times"][i], subs,
-                                        Frame(mean, Quantity.RADIANCE, PHOTON_RADIANCE_UNIT, t0, dt, i),
-                                        z["var"][i], tuple(int(v) for v in z["roi"][i]), None, None))
-        return out
-    exps = list(render_exposures(renderer.spec, renderer, progress))
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_path(path) as tmp:
-        with open(tmp, "wb") as f:
-            np.savez(f, subs=np.stack([np.stack(e.subframes) for e in exps]).astype(np.float32),
-                     mean=np.stack([e.radiance.data for e in exps]).astype(np.float32),
-                     var=np.stack([e.variance for e in exps]).astype(np.float32),
-                     roi=np.array([e.roi for e in exps]), times=np.stack([e.subframe_times_s for e in exps]),
-                     t=np.array([[e.t_start_s, e.exposure_s] for e in exps]))
-    return exps
+def check_config(cfg: EvalConfig) -> None:
+    """One-line errors naming the flag for a bad configuration."""
+    if not cfg.texts or any(not t.strip() for t in cfg.texts):
+        raise UserError("evaluate: --texts: need at least one non-empty plate text")
+    bad = [k for k in cfg.kinds if k not in KINDS]
+    if bad:
+        raise UserError(f"evaluate: --kinds: unknown {bad}; choose from {', '.join(KINDS)}")
+    bad = [p for p in cfg.predictors if p not in PREDICTORS]
+    if bad:
+        raise UserError(f"evaluate: --predictors: unknown {bad}; choose from {', '.join(PREDICTORS)}")
+    bad = [b for b in cfg.baselines if b not in BASELINES]
+    if bad:
+        raise UserError(f"evaluate: --baselines: unknown {bad}; choose from {', '.join(BASELINES)}")
+    if any(s <= 0 for s in (*cfg.speeds_px, cfg.e_speed_px, cfg.motion_speed_px)):
+        raise UserError("evaluate: --speeds: speeds must be > 0 px/frame")
+    if any(e < 0 for e in (*cfg.e_levels, *cfg.e_sweep, cfg.motion_e)):
+        raise UserError("evaluate: --E: over-exposure rates must be >= 0")
+    if cfg.search not in ("frame", "vehicle"):
+        raise UserError(f"evaluate: --search: {cfg.search!r}; choose frame or vehicle")
+    if cfg.frames < 4 or cfg.motion_frames < 6:
+        raise UserError("evaluate: --frames: need >= 4 frames (>= 6 for motion kinds): 2 start the loop")
 
 
-def scaled(exps: list[RenderedExposure], s: float) -> list[RenderedExposure]:
+def plan(cfg: EvalConfig) -> list[tuple[SequenceSpec, tuple[float, ...]]]:
+    """(sequence, E levels to run on it): the lateral sweep (+ the E sweep at e_speed_px) and the
+    motion kinds at motion_speed_px; directions alternate with the text index."""
     out = []
-    for e in exps:
-        mean = (e.radiance.data.astype(np.float64) * s).astype(np.float32)
-        out.append(RenderedExposure(e.index, e.t_start_s, e.exposure_s, e.subframe_times_s,
-                                    tuple((x.astype(np.float64) * s).astype(np.float32) for x in e.subframes),
-                                    Frame(mean, Quantity.RADIANCE, PHOTON_RADIANCE_UNIT, e.t_start_s,
-                                          e.exposure_s, e.index),
-                                    e.variance * s * s, e.roi, e.rel_error, e.rel_error_roi))
+    for ti, text in enumerate(cfg.texts):
+        d = 1 if ti % 2 == 0 else -1
+        for v in cfg.speeds_px:
+            es = set(cfg.e_levels) | (set(cfg.e_sweep) if v == cfg.e_speed_px else set())
+            if v == cfg.motion_speed_px and "lateral" in cfg.kinds:
+                es.add(cfg.motion_e)
+            out.append((SequenceSpec(text, "lateral", float(v), cfg.frames, d), tuple(sorted(es))))
+        if cfg.e_speed_px not in cfg.speeds_px:
+            out.append((SequenceSpec(text, "lateral", float(cfg.e_speed_px), cfg.frames, d), tuple(cfg.e_sweep)))
+        for kind in cfg.kinds:
+            if kind == "lateral" and cfg.motion_speed_px in cfg.speeds_px:
+                continue
+            n = cfg.motion_frames
+            out.append((SequenceSpec(text, kind, float(cfg.motion_speed_px), n, d, change=n // 2),
+                        (cfg.motion_e,)))
     return out
 
 
@@ -113,6 +137,16 @@ def overexposure(cam: Camera, exps) -> float:
     """Peak plate signal over the sequence with the DMD white, in units of saturation."""
     k = cam.electrons_per_radiance() * cam.white_exposure_s(0) / cam.params.saturation_capacity_e
     return max(float(np.max(crop(cam.to_sensor(e.radiance.data), cam.box_to_sensor(e.roi)))) * k for e in exps)
+
+
+def scaled(exps: list[RenderedExposure], s: float) -> list[RenderedExposure]:
+    """The exposures with radiance x s (radiance is linear in the lights' intensity)."""
+    out = []
+    for e in exps:
+        subs = tuple((x.astype(np.float64) * s).astype(np.float32) for x in e.subframes)
+        rad = dataclasses.replace(e.radiance, data=(e.radiance.data.astype(np.float64) * s).astype(np.float32))
+        out.append(dataclasses.replace(e, subframes=subs, radiance=rad, variance=e.variance.astype(np.float64) * s * s))
+    return out
 
 
 def _fusion(cam, exps, t, deghost: bool, seeds: tuple[int, int]):
@@ -134,169 +168,198 @@ def _fusion(cam, exps, t, deghost: bool, seeds: tuple[int, int]):
     return np.rint(gray).astype(np.uint8), dt
 
 
-def evaluate(out: Path, quick: bool = False, progress: bool = True, log=print) -> dict:
-    texts, motions, frames = (TEXTS[:2], MOTIONS[:1], 5) if quick else (TEXTS, MOTIONS, 8)
-    out = Path(out)
-    rows, examples, shifts = [], {}, []
-    t_start = time.perf_counter()
-    for si, (text, motion) in enumerate((t, m) for t in texts for m in motions):
-        ov = sequence_overrides(text, motion, frames)
-        base_spec = load_scene(BASE, ov)
-        cam = Camera.from_scene(base_spec)
-        renderer = Renderer(base_spec, guard_px=cam.guard_px)
-        exps = load_or_render(ov, renderer, progress)
-        r0 = overexposure(cam, exps)
-        shifts += [abs(a.roi[1] - b.roi[1]) + abs(a.roi[0] - b.roi[0]) for a, b in zip(exps[1:], exps)]
-        for e_level in E_LEVELS:
-            ex = scaled(exps, (e_level + 1) / r0)
-            images = {m: {} for m in METHODS}
-            secs = {m: [] for m in METHODS}
-            for pred in POEVP:
-                spec = dataclasses.replace(base_spec, predictor=dataclasses.replace(base_spec.predictor, name=pred),
-                                           loop=dataclasses.replace(base_spec.loop, mode="open"))
-                rep, kept = run_frames(spec, out / "runs" / f"s{si}_E{e_level}_{pred}", progress=False,
-                                       renderer=renderer, exposures=ex, write_images=False,
-                                       keep_frames=tuple(range(frames)))
-                for i, k in kept.items():
-                    images[pred][i] = k["capture"]
-                    if pred == "oracle":
-                        images["ldr"][i] = k["ldr"]
-                st = rep["stages"]
-                per = (st["predict"]["seconds"] if "predict" in st else st["mask"]["seconds"] / frames)
-                secs[pred] = [per]
-            secs["ldr"] = [0.0]
-            for t in range(2, frames):
-                for deghost, name in ((False, "fusion_classic"), (True, "fusion_deghost")):
-                    images[name][t], dt = _fusion(cam, ex, t, deghost, (base_spec.sensor.seed, base_spec.render.seed))
+@dataclass
+class Runner:
+    """The loaded scene, camera and predictors of one evaluation (built once, used per cell)."""
+
+    cfg: EvalConfig
+    spec: object
+    cam: Camera
+    models: dict = field(default_factory=dict)
+    ocr_cache: dict = field(default_factory=dict)
+
+    def method_images(self, ex: list[RenderedExposure]) -> tuple[dict, dict]:
+        """{method: {t: 8-bit image}}, {method: seconds per output frame} for one (sequence, E)."""
+        spec, cam = self.spec, self.cam
+        seeds = (spec.sensor.seed, spec.render.seed)
+        init = spec.loop.init_frames
+        ldr = [cam.capture(list(e.subframes), cam.white_mask(), e.index,
+                           capture_seed(*seeds, e.index, LDR_STREAM), **e.capture_timing()) for e in ex]
+        images = {"ldr": {e.index: to_8bit(c.dn, cam.params.max_dn).astype(np.uint8) for e, c in zip(ex, ldr)}}
+        secs = {"ldr": [0.0]}
+        for deghost, name in ((False, "fusion_classic"), (True, "fusion_deghost")):
+            if name in self.cfg.baselines:
+                images[name], secs[name] = {}, []
+                for t in range(max(2, init), len(ex)):
+                    images[name][t], dt = _fusion(cam, ex, t, deghost, seeds)
                     secs[name].append(dt)
-            for m in METHODS:
-                for t in range(2, frames):
-                    img = images[m][t]
-                    box = cam.box_to_sensor(ex[t].roi)
-                    read, conf, ocr_s = read_plate(img, box)
-                    rows.append({"sequence": si, "text": text, "E": e_level, "method": m, "frame": t,
-                                 "read": read, "confidence": conf, "correct": correct(read, text),
-                                 "entropy": entropy_8bit(crop(img, box)),
-                                 "method_ms": float(np.median(secs[m])) * 1e3, "ocr_ms": ocr_s * 1e3})
-            if si == 0 and e_level == max(E_LEVELS):
-                t = frames // 2 + (frames % 2 == 0)
-                examples = {m: (images[m][t], cam.box_to_sensor(ex[t].roi)) for m in METHODS}
-        log(f"poevp evaluate: sequence {si + 1}/{len(texts) * len(motions)} ({text}) done "
-            f"({time.perf_counter() - t_start:.0f} s)")
-    summary = _summarise(rows)
-    summary["test_set"] = {"sequences": len(texts) * len(motions), "frames": frames,
-                           "plate_shift_px_per_frame": float(np.median(shifts))}
-    _write(out, rows, summary, examples, quick, time.perf_counter() - t_start)
-    return summary
+        for name in self.cfg.predictors:
+            images[name], secs[name] = self._poevp(name, ex, ldr)
+        return images, {m: float(np.median(v)) if v else 0.0 for m, v in secs.items()}
+
+    def _poevp(self, name: str, ex, ldr) -> tuple[dict, list]:
+        spec, cam = self.spec, self.cam
+        pspec = dataclasses.replace(spec.predictor, name=name)
+        if name not in self.models and not PREDICTORS[name].needs_truth:
+            self.models[name] = make_predictor(name, pspec.weights, pspec.resolution)
+        step = LoopStep(cam, spec.mask, dataclasses.replace(spec.loop, mode=self.cfg.loop_mode), pspec,
+                        model=self.models.get(name))
+        out, secs = {}, []
+        for e, c in zip(ex, ldr):
+            t0 = time.perf_counter()
+            dec = step.next_mask(e.index, e.radiance.data)
+            dt = time.perf_counter() - t0
+            enc = cam.capture(list(e.subframes), dec.levels, e.index,
+                              capture_seed(spec.sensor.seed, spec.render.seed, e.index, ENCODED_STREAM),
+                              **e.capture_timing())
+            est = flags = None
+            if self.cfg.loop_mode == "demodulated":
+                est, flags, _ = cam.reconstruct(enc, e.index)
+            step.observe(e.index, c, enc, est, flags)
+            out[e.index] = to_8bit(enc.dn, cam.params.max_dn).astype(np.uint8)
+            if not dec.init:
+                secs.append(dec.predict_seconds if dec.predict_seconds is not None else dt)
+        return out, secs
+
+    def read(self, img: np.ndarray, box, label: str) -> dict:
+        """Both readings of one frame (cached by image content); a constant plate box (0 bits)
+        carries no text and is scored unread without running the OCR."""
+        plate = crop(img, box)
+        ent = entropy_8bit(plate)
+        key = (hashlib.sha1(img.tobytes()).hexdigest(), tuple(box), label)
+        if key in self.ocr_cache:
+            return self.ocr_cache[key]
+        if ent == 0.0:
+            res = {"alpr_text": "", "alpr_ok": False, "alpr_conf": 0.0, "rec_text": "", "rec_ok": False,
+                   "rec_conf": 0.0, "entropy": 0.0, "ocr_ms": 0.0, "detections": 0}
+        else:
+            region = search_window(box, img.shape) if self.cfg.search == "vehicle" else None
+            a = alpr_read(img, box, region)
+            text, conf, rs = read_plate(img, box)
+            res = {"alpr_text": a.text, "alpr_ok": correct(a.text, label), "alpr_conf": a.confidence,
+                   "rec_text": text, "rec_ok": correct(text, label), "rec_conf": conf, "entropy": ent,
+                   "ocr_ms": (a.seconds + rs) * 1e3, "detections": a.detections}
+        self.ocr_cache[key] = res
+        return res
 
 
-def _summarise(rows) -> dict:
-    out = {}
-    for m in METHODS:
-        out[m] = {}
-        for e in (*E_LEVELS, "all"):
-            sel = [r for r in rows if r["method"] == m and (e == "all" or r["E"] == e)]
-            if not sel:
+def _shift_px(ex) -> float:
+    """Median per-frame displacement (px) of the plate box's edges, the measured image speed."""
+    d = [max(abs(a.roi[1] - b.roi[1]), abs(a.roi[3] - b.roi[3]), abs(a.roi[0] - b.roi[0]))
+         for a, b in zip(ex[1:], ex) if a.roi and b.roi]
+    return float(np.median(d)) if d else 0.0
+
+
+def evaluate_sequence(runner: Runner, seq: SequenceSpec, e_levels, exps, keep) -> list[dict]:
+    """Rows (one per method, E and scored frame) of one sequence; `keep(seq, E, images, boxes)`
+    is offered every cell's images (the report keeps a few for figures)."""
+    cam = runner.cam
+    r0 = overexposure(cam, exps)
+    shift = _shift_px(exps)
+    rows = []
+    for e_level in e_levels:
+        ex = scaled(exps, (e_level + 1) / r0)
+        images, secs = runner.method_images(ex)
+        boxes = {e.index: cam.box_to_sensor(e.roi) for e in ex}
+        keep(seq, e_level, images, boxes)
+        for m, frames in images.items():
+            if m not in runner.cfg.methods:
                 continue
-            out[m][str(e)] = {"accuracy_pct": 100.0 * float(np.mean([r["correct"] for r in sel])),
-                              "entropy_bits": float(np.mean([r["entropy"] for r in sel])),
-                              "method_ms": float(np.median([r["method_ms"] for r in sel])),
-                              "frames": len(sel)}
-    strong = str(max(E_LEVELS))
-    ldr = out["ldr"][strong]
-    for m in METHODS:
-        d = out[m][strong]
-        d["accuracy_x_ldr"] = (d["accuracy_pct"] / ldr["accuracy_pct"]) if ldr["accuracy_pct"] > 0 else None
-        # a fully clipped LDR plate has 0 bits: the gain is unbounded (reported as None + flag)
-        d["entropy_gain_pct_over_ldr"] = (100.0 * (d["entropy_bits"] / ldr["entropy_bits"] - 1)
-                                          if ldr["entropy_bits"] > 0 else None)
-        d["ldr_entropy_zero"] = ldr["entropy_bits"] == 0
-    return out
+            for t in range(runner.spec.loop.init_frames, len(ex)):
+                if t not in frames or boxes[t] is None:
+                    continue
+                rows.append({"text": seq.text, "kind": seq.kind, "speed_px": seq.speed_px,
+                             "direction": seq.direction, "change": seq.change if seq.kind == "reversal" else "",
+                             "measured_px_per_frame": shift, "E": e_level, "method": m, "frame": t,
+                             **runner.read(frames[t], boxes[t], seq.text), "method_ms": secs[m] * 1e3})
+    return rows
 
 
-def _write(out: Path, rows, summary, examples, quick, seconds):
-    strong = str(max(E_LEVELS))
-    buf = _io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=list(rows[0]))
-    w.writeheader()
-    w.writerows(rows)
-    with atomic_path(out / "frames.csv") as tmp:
-        Path(tmp).write_text(buf.getvalue())
-    paper_of = {"fusion_classic": PAPER["fusion_classic"], "fusion_deghost": PAPER["fusion_deghost"],
-                **{m: PAPER["poevp"] for m in ("dmvfn",)}}
-    header = (["method"] + [f"acc % E={e}" for e in E_LEVELS] + ["acc % all", f"entropy E={strong}",
-              f"entropy gain vs LDR E={strong}", "ms/frame", "paper acc %", "paper ms"])
-    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    csv_rows = []
-    for m in METHODS:
-        s = summary[m]
-        p = paper_of.get(m)
-        row = [m] + [f"{s[str(e)]['accuracy_pct']:.1f}" for e in E_LEVELS] + [
-            f"{s['all']['accuracy_pct']:.1f}", f"{s[strong]['entropy_bits']:.2f}",
-            (f"{s[strong]['entropy_gain_pct_over_ldr']:.0f} %" if s[strong]["entropy_gain_pct_over_ldr"] is not None
-             else ("unbounded (LDR plate 0 bits)" if m != "ldr" and s[strong]["entropy_bits"] > 0 else "-")),
-            f"{s['all']['method_ms']:.1f}", f"{p[0]}" if p else "-", f"{p[1]}" if p else "-"]
-        lines.append("| " + " | ".join(row) + " |")
-        csv_rows.append(dict(zip(header, row)))
-    lines.append(f"| deep_optics | out of scope (needs a learned optical element) | | | | | | | | "
-                 f"{PAPER['deep_optics'][0]} | {PAPER['deep_optics'][1]} |")
-    text = (f"# Plate recognition: LDR vs exposure fusion vs POE-VP\n\n"
-            f"{'Quick' if quick else 'Default'} set: {len(set(r['sequence'] for r in rows))} sequences x "
-            f"E = {', '.join(map(str, E_LEVELS))}, frames 2+ of each; RapidOCR PP-OCRv4 recognition on the "
-            f"plate box; a frame counts if every character matches (paper Eq. 4). Paper numbers: its "
-            f"Table 2 (its own data; POE-VP row = its DMVFN predictor, 16.9 ms on an RTX 3090). "
-            f"Total {seconds:.0f} s.\n\n" + "\n".join(lines) + "\n\n" + _explain(summary) + "\n")
-    with atomic_path(out / "evaluation.md") as tmp:
-        Path(tmp).write_text(text)
-    buf = _io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=header)
-    w.writeheader()
-    w.writerows(csv_rows)
-    with atomic_path(out / "evaluation.csv") as tmp:
-        Path(tmp).write_text(buf.getvalue())
-    write_json(out / "report.json", {"summary": summary, "paper": PAPER, "quick": quick, "seconds": seconds,
-                                     "explanation": _explain(summary),
-                                     "deep_optics": "out of scope: needs a learned optical element"})
-    if examples:
-        _figure(out / "examples.png", examples)
+def load_eval_scene(cfg: EvalConfig, text: str, frames: int):
+    """The scene under the evaluation's overrides for one text."""
+    return load_scene(cfg.scene, eval_overrides(cfg.resolution, cfg.spp, frames, text))
 
 
-def _explain(summary) -> str:
-    strong = str(max(E_LEVELS))
-    acc = {m: summary[m][strong]["accuracy_pct"] for m in METHODS}
-    ms = {m: summary[m]["all"]["method_ms"] for m in METHODS}
-    order = sorted(METHODS, key=lambda m: -acc[m])
-    shift = summary.get("test_set", {}).get("plate_shift_px_per_frame", float("nan"))
-    return (f"At E = {strong}, accuracy order: " + " > ".join(f"{m} {acc[m]:.0f} %" for m in order) + ". "
-            f"Fusion merges three captures taken 1/30 s apart while the plate moves ~{shift:.0f} px per "
-            "frame: the merge blends shifted characters (ghosts) and is an image of t-2 ... t, not of t; "
-            "MTB alignment (translation only, on a clipped plate) removes little of it at extra cost; "
-            "and the 1/8 ... 1 bracket spans 18 dB while E = 29 and 49 need 30 and 34 dB, so even the "
-            "shortest capture clips the plate's white. Every fused output needs three captures. POE-VP needs "
-            "one capture per output (the predictor reads the two previous ones) and dims the plate in "
-            "the frame it arrives. Run time per output frame: "
-            + ", ".join(f"{m} {ms[m]:.1f} ms" for m in METHODS if m != "ldr") + " (this 2-core CPU).")
+def run_evaluation(cfg: EvalConfig, log=print, keep=lambda *a: None) -> list[dict]:
+    """Every row of the evaluation (plan, render or load from the cache, run, read)."""
+    check_config(cfg)
+    jobs = plan(cfg)
+    rows, t_start = [], time.perf_counter()
+    runner = cal = None
+    for text in cfg.texts:
+        mine = [(s, es) for s, es in jobs if s.text == text]
+        spec = load_eval_scene(cfg, text, max(s.frames for s, _ in mine))
+        if runner is None:
+            runner = Runner(cfg, spec, Camera.from_scene(spec))
+            cal = calibrate(spec, runner.cam.guard_px)
+        runner.spec = spec
+        exps = render_sequences(spec, [s for s, _ in mine], cal, runner.cam.guard_px, log=log)
+        for (seq, es), ex in zip(mine, exps):
+            rows += evaluate_sequence(runner, seq, es, ex, keep)
+        log(f"poevp evaluate: {text!r} done ({time.perf_counter() - t_start:.0f} s)")
+    return rows
 
 
-def _figure(path: Path, examples):
-    from poevp_optics.core.runtime import pyplot
+@dataclass
+class CropKeeper:
+    """Keeps plate crops of the first text's lateral sequences (the figures' material):
+    {(speed, E): {method: {t: crop}}}, a fixed window around each frame's plate box."""
 
-    plt = pyplot()
+    cfg: EvalConfig
+    crops: dict = field(default_factory=dict)
 
-    n = len(examples)
-    fig, axes = plt.subplots(2, n, figsize=(2.6 * n, 3.2))
-    for j, (m, (img, box)) in enumerate(examples.items()):
-        y0, x0, y1, x1 = box
-        pad = 12
-        c = img[max(0, y0 - pad):y1 + pad, max(0, x0 - pad):x1 + pad]
-        axes[0, j].imshow(c, cmap="gray", vmin=0, vmax=255)
-        axes[0, j].set_title(m, fontsize=8)
-        axes[1, j].imshow(local_entropy(c), cmap="magma", vmin=0, vmax=6)
-        for a in axes[:, j]:
-            a.axis("off")
-    axes[1, 0].set_title("local entropy", fontsize=7)
-    fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=120, format="png")
-    plt.close(fig)
-    write_png(path.with_name("examples_ldr.png"), examples["ldr"][0])
+    def __call__(self, seq: SequenceSpec, e_level, images, boxes) -> None:
+        if seq.text != self.cfg.texts[0] or seq.kind != "lateral":
+            return
+        cell = self.crops.setdefault((seq.speed_px, float(e_level)), {})
+        for m, frames in images.items():
+            for t, img in frames.items():
+                b = boxes.get(t)
+                if b is None or t < 2:
+                    continue
+                cy, cx = (b[0] + b[2]) // 2, (b[1] + b[3]) // 2
+                hh, hw = int(1.6 * (b[2] - b[0])), int(0.8 * (b[3] - b[1]))
+                pad = np.pad(img, ((hh, hh), (hw, hw)), constant_values=0)
+                cell.setdefault(m, {})[t] = pad[cy:cy + 2 * hh, cx:cx + 2 * hw].copy()
+
+
+def strip_cell(report: dict, cfg: EvalConfig) -> tuple[float, float]:
+    """(speed, E) for the frame strip: the first separating speed, else the largest flow/dmvfn
+    minus hold gap in the speed sweep."""
+    for e, v in report["findings"]["separating_speed_px"].items():
+        if v is not None:
+            return float(v), float(e)
+    cells, best = report["cells"], (-1.0, float(max(cfg.speeds_px)), float(max(cfg.e_levels)))
+    for e in cfg.e_levels:
+        for v in cfg.speeds_px:
+            h = cells.get(f"lateral|{float(v):g}|{float(e):g}|hold")
+            others = [cells.get(f"lateral|{float(v):g}|{float(e):g}|{p}") for p in ("flow", "dmvfn")]
+            gap = max([c["alpr"]["pct"] for c in others if c] or [0.0]) - (h["alpr"]["pct"] if h else 0.0)
+            best = max(best, (gap, float(v), float(e)))
+    return best[1], best[2]
+
+
+def evaluate(out: Path, cfg: EvalConfig | None = None, quick: bool = False, log=print) -> dict:
+    """Run the evaluation into `out` (tables, frames.csv, report.json, figures); the report."""
+    from poevp_optics.apps.eval_plots import accuracy_plots, entropy_examples, strip_plot
+    from poevp_optics.apps.eval_report import write_tables
+
+    cfg = cfg or (quick_config() if quick else EvalConfig())
+    out = Path(out)
+    keeper = CropKeeper(cfg)
+    t0 = time.perf_counter()
+    rows = run_evaluation(cfg, log=log, keep=keeper)
+    if not rows:
+        raise UserError(f"evaluate: {cfg.scene}: no frame with the plate in view to score")
+    report = write_tables(out, rows, cfg, time.perf_counter() - t0)
+    accuracy_plots(out, report["cells"], cfg)
+    v, e = strip_cell(report, cfg)
+    if (v, e) in keeper.crops:
+        strip_plot(out / "strip.png", keeper.crops[(v, e)],
+                   f"{cfg.texts[0]}, lateral {v:g} px/frame, E = {e:g} (raw 8-bit captures)")
+    ex = keeper.crops.get((float(cfg.e_speed_px), float(max(cfg.e_sweep))))
+    if ex:
+        t = sorted(next(iter(ex.values())))[len(next(iter(ex.values()))) // 2]
+        entropy_examples(out / "examples.png", {m: f[t] for m, f in ex.items() if t in f})
+    report["strip"] = {"speed_px": v, "E": e}
+    return report

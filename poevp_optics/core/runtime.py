@@ -179,15 +179,15 @@ def cache_dir(*parts: str) -> Path:
     return root.joinpath(*parts)
 
 
-_OCR_ENGINE = None
+_OCR_ENGINES: dict = {}
 
 
-def ocr_engine():
-    """The process's one OCR engine (RapidOCR, PP-OCRv4 ONNX models inside its wheel), built on
-    first use: loading the models costs ~1 s."""
-    global _OCR_ENGINE
-    if _OCR_ENGINE is None:
+def ocr_engine(**config):
+    """The process's OCR engine for `config` (RapidOCR keyword settings, e.g. det_limit_type),
+    PP-OCRv4 ONNX models inside its wheel, built on first use: loading the models costs ~1 s."""
+    key = tuple(sorted(config.items()))
+    if key not in _OCR_ENGINES:
         from rapidocr_onnxruntime import RapidOCR
 
-        _OCR_ENGINE = RapidOCR()
-    return _OCR_ENGINE
+        _OCR_ENGINES[key] = RapidOCR(**config)
+    return _OCR_ENGINES[key]

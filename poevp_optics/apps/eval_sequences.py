@@ -1,0 +1,236 @@
+"""Test sequences for `poevp evaluate`: a scene's plate moved along a named motion at a set image
+speed (pixels per frame), rendered physically (Mitsuba, the scene's own lights and materials) and
+cached by content.
+
+Motion kinds (image-plane speed v px/frame at the plate's base distance Z0; u = time in frames,
+centred on the sequence's middle frame; the lateral path is centred on the frame):
+
+| kind        | lateral x(u) (px)                                  | range z(u)                  |
+|-------------|----------------------------------------------------|-----------------------------|
+| lateral     | d v u                                              | Z0                          |
+| approaching | d v u                                              | Z0 - 12 m/s t (closing)     |
+| receding    | d v u                                              | Z0 + 12 m/s t               |
+| swerve      | A sin(2 pi u / T), T = the sequence, peak speed v  | Z0                          |
+| reversal    | +v until frame `change`, -v two frames later (paper Sec. 8's failure case) | Z0  |
+
+d = +-1 alternates with the text index (half the plates cross each way). 12 m/s (43 km/h) is a
+closing or opening speed between two cars in traffic. Pixel to metre: measured on the scene
+itself (the plate's box at three probe poses, `calibrate`), so any scene with a plate works.
+
+Exposure: the motion within one exposure is blur, v x t_exp x fps pixels; `EXPOSURE_S` (2 ms, an
+ALPR-style short shutter) keeps it under 3.6 px at 60 px/frame, so the benchmark measures the
+mask's lag, not motion blur. K = 2 radiance nodes (both ends of the exposure) per frame.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from poevp_optics import __version__
+from poevp_optics.camera.dmd import node_time_weights_s, node_times_s
+from poevp_optics.core.exceptions import SceneError
+from poevp_optics.core.frame import Frame, Quantity
+from poevp_optics.core.io import atomic_path
+from poevp_optics.core.runtime import cache_dir
+from poevp_optics.core.seeds import render_seeds
+from poevp_optics.core.units import PHOTON_RADIANCE_UNIT
+from poevp_optics.render.exposures import RenderedExposure, rel_error, union_box
+from poevp_optics.sources.motion import MotionSpec
+
+KINDS = ("lateral", "approaching", "receding", "swerve", "reversal")
+EXPOSURE_S = 0.002
+NODES = 2
+RANGE_SPEED_M_PER_S = 12.0
+CACHE_VERSION = "eval-seq-v1"
+
+
+@dataclass(frozen=True)
+class SequenceSpec:
+    """One test sequence: plate text, motion kind, image speed (px/frame), frames, direction."""
+
+    text: str
+    kind: str
+    speed_px: float
+    frames: int
+    direction: int = 1
+    change: int = 4          # reversal: the frame in which the motion turns
+
+
+def eval_overrides(resolution, spp: int, frames: int, text: str) -> list[str]:
+    """Scene overrides shared by every test sequence (short shutter, no image outputs)."""
+    return [f"render.resolution={list(resolution)}", f"render.spp={spp}", f"render.subframes={NODES}",
+            f"timing.exposure_s={EXPOSURE_S}", f"timing.dmd_window_s={EXPOSURE_S}",
+            f"timing.frames={frames}", f"plate.text={json.dumps(text)}", "outputs.previews=false",
+            "outputs.contact_sheet=false", "outputs.radiance_exr=false"]
+
+
+def plate_motion(spec) -> tuple[str, tuple[str, ...]]:
+    """(motion id, attached ids) that carry the plate: the scene's motion entry naming the ROI
+    shape, else the ROI shape alone."""
+    roi = spec.render.roi_shape
+    if not roi:
+        raise SceneError(f"{spec.toml_path}: render.roi_shape: evaluate needs a plate (roi_shape = \"plate\")")
+    for ident, m in spec.motion.items():
+        if ident == roi or roi in m.attached:
+            return ident, tuple(m.attached)
+    return roi, ()
+
+
+def with_poses(spec, times_s, offsets_m):
+    """`spec` with its plate's motion replaced by keyframes (times_s, offsets_m)."""
+    ident, attached = plate_motion(spec)
+    motion = MotionSpec(kind="keyframes", times_s=tuple(float(t) for t in times_s),
+                        offsets_m=tuple(tuple(float(v) for v in o) for o in offsets_m), attached=attached)
+    others = {k: v for k, v in spec.motion.items() if k != ident}
+    return dataclasses.replace(spec, motion={**others, ident: motion})
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """The plate's image geometry at its base pose: box centre (px), image px per metre of
+    lateral offset, base range Z0 (m), frame width (px)."""
+
+    centre_x_px: float
+    px_per_m: float
+    range_m: float
+    width_px: int
+
+
+def calibrate(spec, guard_px: int) -> Calibration:
+    """Measure the plate's box at three probe poses (base, +1 m across, +4 m away)."""
+    from poevp_optics.render.renderer import Renderer
+
+    probe = with_poses(spec, (0.0, 1.0, 2.0), ((0, 0, 0), (1.0, 0, 0), (0, 0, 4.0)))
+    r = Renderer(probe, guard_px=guard_px)
+    boxes = []
+    for t in (0.0, 1.0, 2.0):
+        r.set_time(t)
+        boxes.append(r.roi_box())
+    if any(b is None for b in boxes):
+        raise SceneError(f"{spec.toml_path}: render.roi_shape: the plate leaves the frame at the probe poses")
+    cx = [(b[1] + b[3]) / 2.0 for b in boxes]
+    w0, wz = boxes[0][3] - boxes[0][1], boxes[2][3] - boxes[2][1]
+    z0 = 4.0 * wz / max(w0 - wz, 1e-9)           # w ~ 1/Z: w0 Z0 = wz (Z0 + 4 m)
+    return Calibration(cx[0], cx[1] - cx[0], z0, spec.render.resolution[1])
+
+
+def _lateral_px(seq: SequenceSpec, u: np.ndarray) -> np.ndarray:
+    """Lateral image offset (px) at times u (frames, centred on the middle frame)."""
+    v, d = seq.speed_px, seq.direction
+    if seq.kind in ("lateral", "approaching", "receding"):
+        return d * v * u
+    if seq.kind == "swerve":
+        period = float(seq.frames - 1)
+        return d * v * period / (2 * np.pi) * np.sin(2 * np.pi * u / period)
+    # reversal: speed +v until the change frame's start, ramping to -v over two frames
+    uc = seq.change - (seq.frames - 1) / 2.0
+    fine = np.linspace(-seq.frames, seq.frames, 4001)
+    vel = np.interp(fine, [uc, uc + 2.0], [v, -v])
+    x = np.concatenate([[0.0], np.cumsum((vel[1:] + vel[:-1]) / 2 * np.diff(fine))])
+    return d * np.interp(u, fine, x)
+
+
+def poses(seq: SequenceSpec, cal: Calibration, fps: float, t_frame_s) -> np.ndarray:
+    """Plate offsets (m, (n, 3)) at absolute times `t_frame_s` (s) of the sequence."""
+    t = np.asarray(t_frame_s, dtype=np.float64)
+    u = t * fps - (seq.frames - 1) / 2.0
+    span = _lateral_px(seq, np.linspace(-(seq.frames - 1) / 2.0, (seq.frames + 1) / 2.0, 401))
+    x_px = _lateral_px(seq, u) - (span.max() + span.min()) / 2 + (cal.width_px / 2.0 - cal.centre_x_px)
+    z = np.zeros_like(t)
+    if seq.kind in ("approaching", "receding"):
+        sign = -1.0 if seq.kind == "approaching" else 1.0
+        z = sign * RANGE_SPEED_M_PER_S * (u / fps)
+    return np.stack([x_px / cal.px_per_m, np.zeros_like(t), z], axis=1)
+
+
+def node_times(spec, frames: int) -> np.ndarray:
+    """(frames, K) absolute radiance-node times: K uniform nodes over each exposure."""
+    return np.stack([node_times_s(*spec.exposure_window_s(i), NODES) for i in range(frames)])
+
+
+def content_key(spec, seq: SequenceSpec, offsets: np.ndarray, spp: int) -> str:
+    """Cache key: the scene's files, the sequence, its poses and the render settings."""
+    files = [hashlib.sha1(Path(p).read_bytes()).hexdigest() for p in (spec.toml_path, spec.xml_path)]
+    blob = [files, dataclasses.asdict(seq), np.round(offsets, 6).tolist(), list(spec.render.resolution), spp,
+            spec.render.seed, spec.accuracy.mc_splits,
+            EXPOSURE_S, NODES, __version__, CACHE_VERSION]
+    return hashlib.sha1(json.dumps(blob, default=str).encode()).hexdigest()[:16]
+
+
+def _exposures(spec, renders: dict, times: np.ndarray) -> list[RenderedExposure]:
+    """RenderedExposure per frame from node renders {(frame, node): (mean, var, roi)}."""
+    out = []
+    for i in range(times.shape[0]):
+        t0, t1 = spec.exposure_window_s(i)
+        w = node_time_weights_s(t1 - t0, times[i] - t0)
+        w = w / w.sum()
+        subs = tuple(renders[i, k][0] for k in range(times.shape[1]))
+        mean = sum(wk * s.astype(np.float64) for wk, s in zip(w, subs))
+        var = sum(wk * wk * renders[i, k][1].astype(np.float64) for k, wk in enumerate(w))
+        roi = None
+        for k in range(times.shape[1]):
+            roi = union_box(roi, renders[i, k][2])
+        frame = Frame(mean.astype(np.float32), Quantity.RADIANCE, PHOTON_RADIANCE_UNIT, t0, t1 - t0, i)
+        out.append(RenderedExposure(i, t0, t1 - t0, times[i], subs, frame, var.astype(np.float32), roi,
+                                    rel_error(mean, var), rel_error(mean, var, roi)))
+    return out
+
+
+def _save(path: Path, renders: dict, n: int, k: int) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as f:
+            np.savez(f, mean=np.stack([np.stack([renders[i, j][0] for j in range(k)]) for i in range(n)]),
+                     var=np.stack([np.stack([renders[i, j][1] for j in range(k)]) for i in range(n)]).astype(np.float32),
+                     roi=np.array([[renders[i, j][2] or (0, 0, 0, 0) for j in range(k)] for i in range(n)]))
+
+
+def _load(path: Path, n: int, k: int) -> dict:
+    z = np.load(path)
+    out = {}
+    for i in range(n):
+        for j in range(k):
+            roi = tuple(int(v) for v in z["roi"][i, j])
+            out[i, j] = (z["mean"][i, j], z["var"][i, j], roi if roi[2] > roi[0] else None)
+    return out
+
+
+def render_sequences(spec, seqs: list[SequenceSpec], cal: Calibration, guard_px: int,
+                     log=print) -> list[list[RenderedExposure]]:
+    """Each sequence's exposures (same text: one renderer for all), rendered once and cached by
+    `content_key` under the cache folder's eval/."""
+    from poevp_optics.render.renderer import Renderer
+
+    acc = spec.accuracy
+    plan, missing = [], []
+    for j, seq in enumerate(seqs):
+        times = node_times(spec, seq.frames)
+        offs = poses(seq, cal, spec.timing.fps, times.ravel())
+        path = cache_dir("eval") / f"{content_key(spec, seq, offs, acc.spp)}.npz"
+        plan.append((seq, times, offs, path))
+        if not path.is_file():
+            missing.append(j)
+    if missing:
+        # one global keyframe timeline: pose m of the missing sequences at time m (s)
+        all_offs = np.concatenate([plan[j][2] for j in missing])
+        r = Renderer(with_poses(spec, np.arange(len(all_offs), dtype=float), all_offs), guard_px=guard_px)
+        m = 0
+        for j in missing:
+            seq, times, offs, path = plan[j]
+            renders = {}
+            for i in range(times.shape[0]):
+                for k in range(times.shape[1]):
+                    r.set_time(float(m))
+                    mean, var = r.render_with_error(render_seeds(spec.render.seed, i, k, acc.mc_splits), acc.spp)
+                    renders[i, k] = (mean, var.astype(np.float32), r.roi_box())
+                    m += 1
+            _save(path, renders, *times.shape)
+            log(f"poevp evaluate: rendered {seq.text!r} {seq.kind} {seq.speed_px:g} px/frame "
+                f"({times.size} renders)")
+    return [_exposures(spec, _load(path, *times.shape), times) for seq, times, offs, path in plan]
