@@ -36,6 +36,7 @@ import numpy as np
 
 from poevp_optics.analysis.metrics import crop, entropy_8bit, to_8bit
 from poevp_optics.analysis.recognition import alpr_read, correct, read_plate, search_window
+from poevp_optics.apps.eval_paper import PAPER_LAW, PAPER_LAWS, is_paper_scene, run_paper
 from poevp_optics.apps.eval_sequences import (KINDS, SequenceSpec, calibrate, eval_overrides,
                                               render_sequences)
 from poevp_optics.camera.camera import Camera
@@ -74,6 +75,7 @@ class EvalConfig:
     motion_frames: int = 7
     search: str = "frame"              # ALPR search region: "frame" or "vehicle"
     loop_mode: str = "open"
+    paper_law: str = PAPER_LAW         # ldr_highlight scenes (the paper's protocol): Eq. 2's reading
     quick: bool = False
 
     @property
@@ -107,6 +109,8 @@ def check_config(cfg: EvalConfig) -> None:
         raise UserError("evaluate: --E: over-exposure rates must be >= 0")
     if cfg.search not in ("frame", "vehicle"):
         raise UserError(f"evaluate: --search: {cfg.search!r}; choose frame or vehicle")
+    if cfg.paper_law not in PAPER_LAWS:
+        raise UserError(f"evaluate: paper_law: {cfg.paper_law!r}; choose from {', '.join(PAPER_LAWS)}")
     if cfg.frames < 4 or cfg.motion_frames < 6:
         raise UserError("evaluate: --frames: need >= 4 frames (>= 6 for motion kinds): 2 start the loop")
 
@@ -250,28 +254,35 @@ def _shift_px(ex) -> float:
     return float(np.median(d)) if d else 0.0
 
 
+def score_rows(runner: Runner, meta: dict, texts: dict, e_level, images, secs, boxes) -> list[dict]:
+    """Rows (one per method and scored frame) of one (sequence, E): `meta` is the sequence's
+    columns, texts {t: plate text}, boxes {t: sensor box or None}."""
+    rows = []
+    for m, frames in images.items():
+        if m not in runner.cfg.methods:
+            continue
+        for t in sorted(frames):
+            if t < runner.spec.loop.init_frames or boxes.get(t) is None or not texts.get(t):
+                continue
+            rows.append({"text": texts[t], **meta, "E": e_level, "method": m, "frame": t,
+                         **runner.read(frames[t], boxes[t], texts[t]), "method_ms": secs[m] * 1e3})
+    return rows
+
+
 def evaluate_sequence(runner: Runner, seq: SequenceSpec, e_levels, exps, keep) -> list[dict]:
     """Rows (one per method, E and scored frame) of one sequence; `keep(seq, E, images, boxes)`
     is offered every cell's images (the report keeps a few for figures)."""
     cam = runner.cam
     r0 = overexposure(cam, exps)
-    shift = _shift_px(exps)
+    meta = {"kind": seq.kind, "speed_px": seq.speed_px, "direction": seq.direction,
+            "change": seq.change if seq.kind == "reversal" else "", "measured_px_per_frame": _shift_px(exps)}
     rows = []
     for e_level in e_levels:
         ex = scaled(exps, (e_level + 1) / r0)
         images, secs = runner.method_images(ex)
         boxes = {e.index: cam.box_to_sensor(e.roi) for e in ex}
         keep(seq, e_level, images, boxes)
-        for m, frames in images.items():
-            if m not in runner.cfg.methods:
-                continue
-            for t in range(runner.spec.loop.init_frames, len(ex)):
-                if t not in frames or boxes[t] is None:
-                    continue
-                rows.append({"text": seq.text, "kind": seq.kind, "speed_px": seq.speed_px,
-                             "direction": seq.direction, "change": seq.change if seq.kind == "reversal" else "",
-                             "measured_px_per_frame": shift, "E": e_level, "method": m, "frame": t,
-                             **runner.read(frames[t], boxes[t], seq.text), "method_ms": secs[m] * 1e3})
+        rows += score_rows(runner, meta, {e.index: seq.text for e in ex}, e_level, images, secs, boxes)
     return rows
 
 
@@ -339,13 +350,28 @@ def strip_cell(report: dict, cfg: EvalConfig) -> tuple[float, float]:
     return best[1], best[2]
 
 
+def evaluate_paper(out: Path, cfg: EvalConfig, log=print) -> dict:
+    """The paper's simulation protocol (apps/eval_paper.py) on an ldr_highlight scene, into `out`."""
+    from poevp_optics.apps.eval_report import write_paper_tables
+
+    check_config(cfg)
+    t0 = time.perf_counter()
+    rows = run_paper(cfg, Runner, score_rows, _shift_px, log=log)
+    if not rows:
+        raise UserError(f"evaluate: {cfg.scene}: no frame with a plate box and text to score")
+    return write_paper_tables(out, rows, cfg, time.perf_counter() - t0)
+
+
 def evaluate(out: Path, cfg: EvalConfig | None = None, quick: bool = False, log=print) -> dict:
-    """Run the evaluation into `out` (tables, frames.csv, report.json, figures); the report."""
+    """Run the evaluation into `out` (tables, frames.csv, report.json, figures); the report. A scene
+    whose source is an LDR sequence with Eq. 3's highlight runs the paper's protocol instead."""
     from poevp_optics.apps.eval_plots import accuracy_plots, entropy_examples, strip_plot
     from poevp_optics.apps.eval_report import write_tables
 
     cfg = cfg or (quick_config() if quick else EvalConfig())
     out = Path(out)
+    if is_paper_scene(cfg.scene):
+        return evaluate_paper(out, cfg, log)
     keeper = CropKeeper(cfg)
     t0 = time.perf_counter()
     rows = run_evaluation(cfg, log=log, keep=keeper)
