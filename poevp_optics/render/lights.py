@@ -4,8 +4,8 @@ Mitsuba's path integrator picks one emitter per light sample with probability pr
 the emitters' `sampling_weight` (Mitsuba 3 docs, Plugin reference > Emitters: `sampling_weight`,
 default 1 = uniform), and divides by that probability (unbiased for any weights > 0). The
 one-sample estimator f_I / p_I has second moment sum_i E[f_i^2] / p_i, smallest for
-p_i ~ sqrt(E[f_i^2]) (Lagrange; Owen, "Monte Carlo theory, methods and examples", 2013,
-Sec. 9.5 on optimal mixture weights; Veach 1997, Sec. 9.2). `power` estimates E[f_i^2] from a
+p_i ~ sqrt(E[f_i^2]) (a Lagrange multiplier on sum p_i = 1; the discrete case of optimal
+importance sampling, Owen, "Monte Carlo theory, methods and examples", 2013, ch. 9). `power` estimates E[f_i^2] from a
 pilot: camera rays at `PILOT_GRID` film positions (x `PILOT_SPP`), each emitter's direct
 contribution at the first hit (emitter sample x BSDF x visibility), i.e. each emitter's power
 toward the camera's view. So a 0.005 cd/m2 sky no longer takes a third of the light samples from
@@ -35,8 +35,8 @@ class LightChoice:
 
 LIGHT_SELECTIONS = Registry("light selection")
 LIGHT_SELECTIONS.register("power", LightChoice(True, False),
-                          source="Owen 2013 Sec. 9.5 / Veach 1997 Sec. 9.2: p_i ~ sqrt(E[f_i^2]) "
-                                 "from a direct-lighting pilot (module docstring)",
+                          source="p_i ~ sqrt(E[f_i^2]) (optimal discrete importance sampling, Owen "
+                                 "2013 ch. 9) from a direct-lighting pilot (module docstring)",
                           doc="weights from each emitter's contribution toward the camera's view")
 LIGHT_SELECTIONS.register("uniform", LightChoice(False, False),
                           source="Mitsuba 3 docs, Emitters: sampling_weight = 1 (the default)",
