@@ -81,8 +81,9 @@ def _add_run_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", dest="overrides", action=_Override, type=int, metavar="S",
                    key=lambda v: f"render.seed={v}", help="shorthand for --set render.seed=S")
     p.add_argument("--accuracy", choices=("fast", "default", "reference"), default="default",
-                   help="spp, sub-frames and PSF support together, applied after every --set "
-                        "(fast: 1/4 spp, K/2; reference: 4x, 4x)")
+                   help="spp, MC error target, sub-frames and PSF support together, applied after "
+                        "every --set (fast: 5 %% target within the scene's spp, K/2; reference: "
+                        "0.5 %% target within 64x spp, 4x K)")
 
 
 def _add_job_options(p: argparse.ArgumentParser, out_help: str) -> None:
@@ -120,8 +121,17 @@ def cmd_render(args) -> int:
           f"{report['total_seconds']:.1f} s; MC rel. error "
           + (f"{frame:.2%} frame" if frame is not None else
              "- (black frame)" if spec.source.renders else f"- (radiance from [source] {spec.source.kind})")
-          + (f", {roi:.2%} ROI" if roi is not None else "") + f" -> {out}/report.json")
+          + (f", {roi:.2%} ROI" if roi is not None else "") + _target_line(r) + f" -> {out}/report.json")
     return 0
+
+
+def _target_line(r: dict) -> str:
+    """' (target 1.00 %: met, 16-64 spp)' for an error-targeted render, else ''."""
+    if not r.get("target"):
+        return ""
+    used = r.get("spp_used") or {}
+    met = "met" if r.get("met") else r.get("note", "not met")
+    return f" (target {r['target']:.2%}: {met}; {used.get('min')}-{used.get('max')} spp)"
 
 
 def cmd_validate(args) -> int:

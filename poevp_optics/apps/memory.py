@@ -12,6 +12,7 @@ on scenes/smoke (llvm_ad_mono, 2 cores, numpy 2, DrJit 1.x):
 | PSF             | kernel n^2 x 16 + build strips + FFT buffers (`relay.fft_bytes`) | +27 MB at 1024^2, sigma 20 |
 | objective       | `objective.memory_bytes`: PSF grid, field_convolve's float64 images, PSF and glare FFTs, K float32 DMD-plane images | bound from `objective.radius_bound_px` |
 | DMD tables      | 4 x V x S x (K + 1) x 8: V levels, S = bits + 3 segments (x2 with settle) | 2.9-3.7 copies (`transmission_table` alone, V = 256 ... 65536, K = 16 ... 4096) |
+| error target    | P x 16 K: each radiance sample's running mean and squared deviations (float64) while the frame renders to `render.target_rel_error` (render/progressive.py) | counted, not measured |
 | JIT kernels     | K x 200 KiB + K^2 x 600 B: DrJit traces one gather and one FMA per sub-frame into one kernel | +80 MB at K = 256, +780 MB at K = 1024 (8x8 px) |
 | registration    | P x 400 (area-weighted taps and their construction)    | 345 B/px at 1024^2           |
 | predictor       | `DMVFNConfig.activation_bytes` (upper bound), flow 100 B/px | dmvfn_lite 50 B/px     |
@@ -38,6 +39,7 @@ GIB = 1 << 30
 LIBRARIES_BYTES = 800 * MIB
 PIPELINE_BYTES_PER_PX = 300
 PIPELINE_BYTES_PER_PX_SUBFRAME = 16
+TARGET_BYTES_PER_PX_SUBFRAME = 16       # Replicates.mean + .m2, float64
 REGISTRATION_BYTES_PER_PX = 400
 FLOW_BYTES_PER_PX = 100
 CHART_BYTES_PER_PX_REPEAT = 40
@@ -257,6 +259,8 @@ def estimate_run(spec, job: str = "render") -> MemoryEstimate:
     parts = {"libraries": Part(LIBRARIES_BYTES, ""),
              "frame pipeline": Part(px * (PIPELINE_BYTES_PER_PX + PIPELINE_BYTES_PER_PX_SUBFRAME * k),
                                     "render.resolution")}
+    if spec.render.target_rel_error > 0:
+        parts["error target"] = Part(px * TARGET_BYTES_PER_PX_SUBFRAME * k, "render.target_rel_error")
     if k > 16:
         parts["JIT kernels"] = Part(k * JIT_BYTES_PER_SUBFRAME + k * k * JIT_BYTES_PER_SUBFRAME_SQUARED,
                                     "render.subframes")

@@ -168,6 +168,11 @@ def _kept(camera: Camera, fc: FrameCapture) -> dict:
             "oracle_mask": mask_png(fc.oracle, top) if fc.oracle is not None else None, "roi": fc.box}
 
 
+def _render_effort(ex) -> dict:
+    """The spp each radiance sample of the frame used, and whether the error target was met."""
+    return {"spp": list(ex.spp), "target_met": ex.target_met}
+
+
 def simulate(spec, camera: Camera, step: LoopStep | None, exposures, *, writer: OutputWriter | None = None,
              keep_frames: tuple[int, ...] = ()) -> RunResult:
     """The frame loop: capture, reconstruct, loop step, metrics, outputs (module docstring)."""
@@ -193,7 +198,7 @@ def simulate(spec, camera: Camera, step: LoopStep | None, exposures, *, writer: 
         truth = {"ground_truth": ex.ground_truth} if ex.ground_truth else {}
         if writer is None:
             res.per_frame.append({**fc.record, "roi": list(box) if box else None, "rel_error": ex.rel_error,
-                                  "rel_error_roi": ex.rel_error_roi, **truth})
+                                  "rel_error_roi": ex.rel_error_roi, **truth, **_render_effort(ex)})
             continue
         tw = time.perf_counter()
         writer.frame(fc)
@@ -203,7 +208,8 @@ def simulate(spec, camera: Camera, step: LoopStep | None, exposures, *, writer: 
                           "radiance_mean": float(np.mean(fc.truth_s)), "radiance_max": float(np.max(fc.truth_s)),
                           "radiance_min": float(np.min(fc.truth_s)),
                           "roi_radiance_mean": float(np.mean(crop(fc.truth_s, box))) if box else None,
-                          "rel_error": ex.rel_error, "rel_error_roi": ex.rel_error_roi, **truth})
+                          "rel_error": ex.rel_error, "rel_error_roi": ex.rel_error_roi, **truth,
+                          **_render_effort(ex)})
         res.per_frame.append(fc.record)
     return res
 

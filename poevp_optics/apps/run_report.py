@@ -19,20 +19,43 @@ def mean_of(vals):
     return float(np.mean(vals)) if vals else None
 
 
-def error_budget(camera, per_frame, stage_s, temporal, render_s) -> dict:
-    """The numerical error budget of the run (analysis/error_budget.py)."""
+def render_targets(spec, per_frame) -> dict:
+    """The MC term's target: render.target_rel_error, frames that met it, spp used."""
+    acc = spec.accuracy
+    spp = [s for f in per_frame for s in f.get("spp", [])]
+    met = [f.get("target_met") for f in per_frame if f.get("target_met") is not None]
+    out = {"target": acc.target_rel_error or None,
+           "met": (all(met) if met else None) if acc.target_rel_error > 0 else None,
+           "spp_used": {"min": min(spp), "max": max(spp), "mean": float(np.mean(spp))} if spp else None}
+    if acc.target_rel_error > 0:
+        out["frames_met"] = sum(bool(m) for m in met)
+        out["max_spp"] = acc.max_spp
+        if not all(met):
+            out["note"] = (f"{len(met) - sum(bool(m) for m in met)} frame(s) stopped at render.max_spp = "
+                           f"{acc.max_spp} above the target {acc.target_rel_error:g}")
+    return out
+
+
+def error_budget(spec, camera, per_frame, stage_s, temporal, render_s) -> dict:
+    """The numerical error budget of the run (analysis/error_budget.py): each term with the
+    target it was held to (`target`, None: no target) and whether it `met` it."""
     roi = mean_of([f["rel_error_roi"] for f in per_frame])
     frame = mean_of([f["rel_error"] for f in per_frame])
     psf = camera.psf
+    trunc = psf.truncation_error if psf is not None else 0.0
+    auto = psf is not None and spec.accuracy.psf_support_px == 0
+    psf_target = 1.0 - spec.accuracy.psf_support_energy if auto else None
     return budget({
         "render_mc": {"rel": roi if roi is not None else frame, "rel_frame": frame,
-                      "where": "ROI" if roi is not None else "frame", "seconds": render_s},
-        "temporal": temporal,
-        "psf_truncation": {"rel": psf.truncation_error if psf is not None else 0.0,
+                      "where": "ROI" if roi is not None else "frame", "seconds": render_s,
+                      **render_targets(spec, per_frame)},
+        "temporal": {"target": None, **temporal},
+        "psf_truncation": {"rel": trunc, "target": psf_target,
+                           "met": (trunc <= psf_target * (1 + 1e-9)) if psf_target is not None else None,
                            "support_px": int(psf.kernel.shape[0]) if psf is not None else 1,
                            **({"note": psf.note} if psf is not None and psf.note else {}),
                            "seconds": stage_s["relay"]},
-        "poisson_sampler": {"rel": POISSON_BOUND, "method": "exact (Knuth < 10 e-, PTRS >= 10 e-); "
+        "poisson_sampler": {"rel": POISSON_BOUND, "target": None, "method": "exact (Knuth < 10 e-, PTRS >= 10 e-); "
                             "float32 counts exact to 2^24 e-", "seconds": stage_s["sensor"]},
     })
 
@@ -142,7 +165,9 @@ def camera_sections(spec, camera, floor) -> dict:
                    "dmd_window_s": t.dmd_window_s, "dmd_window_offset_s": t.dmd_window_offset_s,
                    "outside_window": t.outside_window},
         "accuracy": {"spp": spec.render.spp, "subframes": 1 if spec.geometry_static else spec.render.subframes,
-                     "mc_splits": spec.render.mc_splits},
+                     "mc_splits": spec.render.mc_splits, "sampler": spec.render.sampler,
+                     "light_selection": spec.render.light_selection,
+                     "target_rel_error": spec.render.target_rel_error or None, "max_spp": spec.render.max_spp},
         "sensor": {"preset": p.name, "bits": p.bits, "full_well_e": p.full_well_e,
                    "read_noise_e": p.read_noise_e, "gain_dn_per_e": p.gain_dn_per_e,
                    "offset_dn": p.offset_dn, "f_number": p.f_number,
@@ -176,7 +201,8 @@ def stage_sections(spec, renderer, step, res, setup_s: float, causal: bool) -> d
                                     "(frame or ROI), from independent-seed renders; mean over frames",
             "path": renderer.plan.mode, "path_reason": renderer.plan.reason,
             "variant": renderer.variant, "variant_reason": renderer.variant_reason,
-            "static": spec.is_static},
+            "static": spec.is_static, "sampler": spec.render.sampler,
+            "light_weights": renderer.light_weights, **render_targets(spec, per_frame)},
         **{k: {"seconds": v} for k, v in res.stage_seconds.items()},
     }
     if causal:
@@ -205,7 +231,7 @@ def build_report(spec, renderer, camera, step, res, *, setup_s: float, t_run: fl
         **camera_sections(spec, camera, floor),
         "stages": stage_sections(spec, renderer, step, res, setup_s, causal),
         "metrics": metrics,
-        "errors": error_budget(camera, per_frame, res.stage_seconds, temporal or {"rel": None},
+        "errors": error_budget(spec, camera, per_frame, res.stage_seconds, temporal or {"rel": None},
                                stats.seconds + setup_s),
         "physics_noise": physics_noise(signal_dn, signal_dn / p.gain_dn_per_e if signal_dn else None, p.bits),
         "notes": run_notes(spec, renderer, camera, step, per_frame, metrics, floor),

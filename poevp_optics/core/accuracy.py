@@ -10,6 +10,10 @@ sweeps only these. Filled from the scene's stable keys (`SceneSpec.accuracy`):
 | pwm_nodes               | render.pwm_nodes         | join the DMD's switching times to the nodes |
 | mc_splits               | render.mc_splits         | independent-seed renders behind the Monte Carlo error |
 | temporal_spp            | render.temporal_spp      | spp of the temporal-error check (0: spp) |
+| sampler                 | render.sampler           | Mitsuba sampler (render/samplers.py SAMPLERS) |
+| light_selection         | render.light_selection   | emitters' sampling weights (render/lights.py LIGHT_SELECTIONS) |
+| target_rel_error        | render.target_rel_error  | MC error (ROI, or frame) to render to; 0: render spp once |
+| max_spp                 | render.max_spp           | cap of the error-targeted render per radiance sample |
 | psf_support_energy      | relay.support_energy     | energy an automatic PSF support holds |
 | psf_support_px          | relay.support_px         | explicit PSF support (0: from the energy) |
 | guard_max_px            | relay.guard_max_px       | widest guard band rendered for the PSF |
@@ -32,6 +36,10 @@ class Accuracy:
     pwm_nodes: bool = True
     mc_splits: int = 2
     temporal_spp: int = 0
+    sampler: str = "multijitter"
+    light_selection: str = "power"
+    target_rel_error: float = 0.0
+    max_spp: int = 4096
     psf_support_energy: float = 0.999
     psf_support_px: int = 0
     guard_max_px: int = 256

@@ -60,6 +60,8 @@ class RenderedExposure:
     basis: tuple[str, ...] = ()         # subframes are emitter-group images (PWM lamps), not times
     subframe_variances: tuple[np.ndarray, ...] = ()   # MC variance of each sample (temporal error)
     ground_truth: dict | None = None    # from a frame source: plate text, frames read, plate velocity
+    spp: tuple[int, ...] = ()           # spp each radiance sample (or basis image) actually used
+    target_met: bool | None = None      # render.target_rel_error reached (None: no target)
 
     def capture_timing(self) -> dict:
         """The keyword a capture of these samples takes: the basis names, or the sample times."""

@@ -17,17 +17,9 @@ from tqdm import tqdm
 from poevp_optics.core.frame import Frame, Quantity, RenderedExposure
 from poevp_optics.core.seeds import render_seeds
 from poevp_optics.core.units import PHOTON_RADIANCE_UNIT
+from poevp_optics.render.progressive import Replicates, Target, rel_error, render_to_target
 
-
-def rel_error(mean: np.ndarray, var: np.ndarray, box=None) -> float | None:
-    """RMS per-pixel MC standard error over the mean radiance of the frame (or of `box`)."""
-    if box is not None:
-        y0, x0, y1, x1 = box
-        mean, var = mean[y0:y1, x0:x1], var[y0:y1, x0:x1]
-    m = float(np.mean(mean, dtype=np.float64))
-    if m <= 0:
-        return None
-    return float(np.sqrt(np.mean(var, dtype=np.float64)) / m)
+__all__ = ["RenderedExposure", "rel_error", "render_exposures", "render_sample", "flicker_bases"]
 
 
 def union_box(a, b):
@@ -39,18 +31,32 @@ def union_box(a, b):
     return (min(a[0], b[0]), min(a[1], b[1]), max(a[2], b[2]), max(a[3], b[3]))
 
 
+def render_sample(spec, renderer, frame: int, sample: int, rel_target: float = 0.0,
+                  reps: Replicates | None = None):
+    """One radiance sample at the renderer's pose: (mean, variance of the mean, spp used, target
+    met or None, replicates or None). rel_target 0: `render.spp` in `mc_splits` renders."""
+    acc = spec.accuracy
+    if not rel_target > 0:
+        m, v = renderer.render_with_error(render_seeds(spec.render.seed, frame, sample, acc.mc_splits), acc.spp)
+        return m, v, renderer.last_used_spp, None, None
+    target = Target(rel_target, acc.max_spp, renderer.roi_box())
+    reps, met = render_to_target(renderer, lambda n: render_seeds(spec.render.seed, frame, sample, n),
+                                 acc.spp, acc.mc_splits, target, reps)
+    return reps.mean.astype(np.float32), reps.variance_of_mean(), reps.spp, met, reps
+
+
 def flicker_bases(spec, renderer):
     """Static geometry with PWM lamps: the image without the flickering lamps and one image per
-    flickering lamp (radiance is linear in each lamp's drive), each rendered once."""
+    flickering lamp (radiance is linear in each lamp's drive), each rendered once (to the
+    target, when one is set). Returns ({name: (mean, var, spp, met)}, roi)."""
     from poevp_optics.render.renderer import Renderer
 
-    acc = spec.accuracy
     emissive = {n for n, e in spec.spectra.items() if e.kind != "reflectance"}
     groups = [("rest", frozenset(spec.flicker))] + [(p, frozenset(emissive - {p})) for p in spec.flicker]
     out = {}
     for j, (name, zero) in enumerate(groups):
         r = Renderer(spec, zero_params=zero, guard_px=renderer.guard_px)
-        out[name] = r.render_with_error(render_seeds(spec.render.seed, 0, 1000 + j, acc.mc_splits), acc.spp)
+        out[name] = render_sample(spec, r, 0, 1000 + j, spec.accuracy.target_rel_error)[:4]
         renderer.stats.calls += r.stats.calls
         renderer.stats.seconds += r.stats.seconds
     return out, renderer.roi_box()
@@ -62,35 +68,56 @@ def _exposure(i, t0, t1, times, subs, mean, var, roi, **extra) -> RenderedExposu
                             rel_error(mean, var, roi), **extra)
 
 
+def _met(flags) -> bool | None:
+    flags = [f for f in flags if f is not None]
+    return all(flags) if flags else None
+
+
 def _lamp_exposure(spec, i, t0, t1, bases, roi):
     from poevp_optics.sources.flicker import drive_mean
 
-    rest_m, rest_v = bases["rest"]
+    rest_m, rest_v = bases["rest"][:2]
     mean, var = rest_m.astype(np.float64), rest_v.astype(np.float64)
     for p, fl in spec.flicker.items():
         d = float(drive_mean(np.array([t0]), np.array([t1]), fl)[0])
         mean, var = mean + d * bases[p][0], var + d * d * bases[p][1]
-    subs = (rest_m, *[bases[p][0] for p in spec.flicker])
+    names = ("rest", *spec.flicker)
+    subs = tuple(bases[n][0] for n in names)
     return _exposure(i, t0, t1, np.array([(t0 + t1) / 2]), subs, mean.astype(np.float32), var, roi,
-                     basis=("rest", *spec.flicker))
+                     basis=names, spp=tuple(bases[n][2] for n in names), target_met=_met(bases[n][3] for n in names))
+
+
+def _combine(samples, weights):
+    """Time average and its MC variance of the samples [(mean, var, ...)] with `weights`."""
+    mean = sum(w * s[0].astype(np.float64) for w, s in zip(weights, samples))
+    var = sum(w * w * s[1] for w, s in zip(weights, samples))
+    return mean, var
 
 
 def _moving_exposure(spec, renderer, i, t0, t1):
-    acc = spec.accuracy
     times = spec.subframe_times_s(i)
     weights = spec.subframe_weights(i)              # time average of the piecewise-linear L(t)
-    subs, variances, roi = [], [], None
-    mean = var = 0.0
+    target = spec.accuracy.target_rel_error
+    share = target / float(np.sqrt(np.sum(weights ** 2))) if target > 0 else 0.0
+    samples, roi = [], None
     for k, t in enumerate(times):
         renderer.set_time(float(t))
-        m, v = renderer.render_with_error(render_seeds(spec.render.seed, i, k, acc.mc_splits), acc.spp)
-        subs.append(m)
-        variances.append(v)
-        mean = mean + weights[k] * m.astype(np.float64)
-        var = var + weights[k] ** 2 * v
+        samples.append(render_sample(spec, renderer, i, k, share))
         roi = union_box(roi, renderer.roi_box())
-    return _exposure(i, t0, t1, times, tuple(subs), mean.astype(np.float32), var, roi,
-                     subframe_variances=tuple(variances))
+    mean, var = _combine(samples, weights)
+    for _ in range(3):                              # tighten while the frame misses the target
+        err = rel_error(mean, var, roi)
+        if not target > 0 or err is None or err <= target or all(s[3] is False for s in samples):
+            break
+        share *= target / err
+        for k, t in enumerate(times):
+            renderer.set_time(float(t))
+            samples[k] = render_sample(spec, renderer, i, k, share, samples[k][4])
+        mean, var = _combine(samples, weights)
+    met = None if not target > 0 else bool(rel_error(mean, var, roi) is not None and rel_error(mean, var, roi) <= target)
+    return _exposure(i, t0, t1, times, tuple(s[0] for s in samples), mean.astype(np.float32), var, roi,
+                     subframe_variances=tuple(s[1] for s in samples), spp=tuple(s[2] for s in samples),
+                     target_met=met)
 
 
 def render_exposures(spec, renderer, progress: bool = True):
@@ -102,10 +129,10 @@ def render_exposures(spec, renderer, progress: bool = True):
         t0, t1 = spec.exposure_window_s(i)
         if spec.is_static:
             if static is None:
-                mean, var = renderer.render_with_error(render_seeds(spec.render.seed, 0, 0, acc.mc_splits), acc.spp)
-                static = (mean, var, renderer.roi_box())
-            mean, var, roi = static
-            yield _exposure(i, t0, t1, np.array([(t0 + t1) / 2]), (mean,), mean, var, roi)
+                static = (*render_sample(spec, renderer, 0, 0, acc.target_rel_error)[:4], renderer.roi_box())
+            mean, var, spp, met, roi = static
+            yield _exposure(i, t0, t1, np.array([(t0 + t1) / 2]), (mean,), mean, var, roi,
+                            spp=(spp,), target_met=met)
         elif spec.geometry_static:                   # flickering lamps, nothing moves
             if bases is None:
                 bases, roi0 = flicker_bases(spec, renderer)

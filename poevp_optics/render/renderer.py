@@ -32,15 +32,22 @@ from poevp_optics.camera.sensor import resolve_sensor
 from poevp_optics.core import runtime
 from poevp_optics.core.exceptions import SceneError
 from poevp_optics.core.params import param
+from poevp_optics.render.lights import LIGHT_SELECTIONS
+from poevp_optics.render.samplers import SAMPLERS, sample_count
 from poevp_optics.sources import spectra
+
+#: Default `render.sampler`, chosen from benchmarks/results/render_error_vs_time.md (time to 1 %
+#: plate error): see README.
+DEFAULT_SAMPLER = "multijitter"
 
 _EMISSIVE_KINDS = ("intensity", "radiance", "irradiance")
 
 
 @dataclass(frozen=True)
 class RenderSpec:
-    """[render]: the Mitsuba scene and its sampling; spp, subframes, pwm_nodes, temporal_spp and
-    mc_splits are accuracy settings (core/accuracy.py)."""
+    """[render]: the Mitsuba scene and its sampling; spp, subframes, pwm_nodes, temporal_spp,
+    mc_splits, sampler, light_selection, target_rel_error and max_spp are accuracy settings
+    (core/accuracy.py)."""
 
     xml: str = param("scene.xml")
     spp: int = param(16, min=1, max=1 << 20)
@@ -53,6 +60,11 @@ class RenderSpec:
     spectral_mode: str = param("auto", choices=("auto", "spectral", "mono"))
     mc_splits: int = param(2, min=2, max=64)            # independent-seed renders for MC error
     roi_shape: str = param("")                          # shape id whose image box is the ROI
+    sampler: str = param(DEFAULT_SAMPLER, choices=SAMPLERS)             # render/samplers.py
+    light_selection: str = param("power", choices=LIGHT_SELECTIONS)    # render/lights.py
+    target_rel_error: float = param(0.0, min=0.0, max=1.0,              # 0: off; else render/progressive.py
+                                    why="a relative MC error (ROI, or frame) between 0 and 1")
+    max_spp: int = param(4096, min=1, max=1 << 20)      # cap of the error-targeted render per radiance sample
 
 
 @dataclass(frozen=True)
@@ -285,6 +297,7 @@ class Renderer:
             self._roi_shape = found[0]
         self.stats = RenderStats(variant=variant)
         self._time = None
+        self.light_weights: dict[str, float] | None = None   # set before the first render
 
     def _make_sensor(self):
         mi = self.mi
@@ -324,7 +337,7 @@ class Renderer:
             # offsets are in units of the film size: keep them fixed in pixels
             "principal_point_offset_x": get("principal_point_offset_x", 0.0) * w0 / w,
             "principal_point_offset_y": get("principal_point_offset_y", 0.0) * h0 / h,
-            "film": film, "sampler": {"type": "independent", "sample_count": 1}})
+            "film": film, "sampler": SAMPLERS[self.spec.render.sampler].mitsuba_dict(1)})
 
     # ------------------------------------------------------------------ posing
     def set_time(self, t_s: float) -> None:
@@ -369,13 +382,42 @@ class Renderer:
         return y0, x0, y1, x1
 
     # ------------------------------------------------------------------ rendering
+    def select_lights(self) -> dict[str, float]:
+        """Set the emitters' sampling weights by `render.light_selection` (render/lights.py) at
+        the current pose; returns {emitter id: weight} (the report's `light_weights`)."""
+        from poevp_optics.render.lights import pilot_second_moments, weights_from_moments
+
+        choice = LIGHT_SELECTIONS[self.spec.render.light_selection]
+        keys = {em.id(): f"{em.id()}.sampling_weight" for em in self.scene.emitters()}
+        keys = {k: v for k, v in keys.items() if v in self.params}
+        if choice.keep_xml:
+            weights = {k: float(self.params[v]) for k, v in keys.items()}
+        else:
+            weights = (weights_from_moments(pilot_second_moments(self.mi, self.scene, self.sensor,
+                                                                 self.spec.render.seed))
+                       if choice.from_pilot else {k: 1.0 for k in keys})
+            for k, v in keys.items():
+                self.params[v] = float(weights.get(k, 1.0))
+            self.params.update()
+        self.light_weights = {k: weights[k] for k in keys if k in weights}
+        self.stats.extra["light_weights"] = self.light_weights
+        return self.light_weights
+
+    def sample_count(self, spp: int) -> int:
+        """The spp Mitsuba renders for a request of `spp` with this run's sampler."""
+        return sample_count(self.spec.render.sampler, spp)
+
     def render_once(self, seed: int, spp: int) -> np.ndarray:
-        """One mi.render call: (H, W) float32 photon radiance."""
+        """One mi.render call: (H, W) float32 photon radiance. `self.last_spp` is the spp the
+        sampler used (some round the count: render/samplers.py)."""
+        if self.light_weights is None:
+            self.select_lights()
         t0 = time.perf_counter()
         img = self.mi.render(self.scene, sensor=self.sensor, seed=int(seed) & 0x7FFFFFFF, spp=int(spp))
         arr = np.array(img, dtype=np.float32)
         self.stats.seconds += time.perf_counter() - t0
         self.stats.calls += 1
+        self.last_spp = int(self.sensor.sampler().sample_count())
         arr = arr[..., 0] if arr.ndim == 3 else arr
         if not np.all(np.isfinite(arr)):
             bad = int(np.count_nonzero(~np.isfinite(arr)))
@@ -387,13 +429,21 @@ class Renderer:
 
         Returns (mean radiance, variance of that mean) per pixel. With split sizes n_i and split
         means m_i: sigma^2 = sum n_i (m_i - m)^2 / (n - 1) estimates the per-sample variance,
-        and var(m) = sigma^2 / N.
+        and var(m) = sigma^2 / N. With equal sizes this is sum (m_i - m)^2 / (n (n - 1)), the
+        variance of the mean of n independent replicates, which also holds for a randomised
+        QMC sampler (render/samplers.py). Sizes are the spp each render actually used
+        (`last_used_spp`: the total).
         """
         n = len(seeds)
         if spp < n:
             raise ValueError(f"spp={spp} must be >= mc_splits={n}")
         sizes = [spp // n + (1 if i < spp % n else 0) for i in range(n)]
-        means = [self.render_once(s, k).astype(np.float64) for s, k in zip(seeds, sizes)]
+        means = []
+        for i, (s, k) in enumerate(zip(seeds, sizes)):
+            means.append(self.render_once(s, k).astype(np.float64))
+            sizes[i] = self.last_spp
+        spp = sum(sizes)
+        self.last_used_spp = spp
         w = np.asarray(sizes, dtype=np.float64) / spp
         mean = sum(wi * m for wi, m in zip(w, means))
         sigma2 = sum(k * (m - mean) ** 2 for k, m in zip(sizes, means)) / (n - 1)

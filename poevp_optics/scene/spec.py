@@ -88,7 +88,8 @@ class SceneSpec:
         """The run's numerical settings, from the stable [render] and [relay] keys."""
         r, rel = self.render, self.relay
         return Accuracy(spp=r.spp, subframes=r.subframes, pwm_nodes=r.pwm_nodes, mc_splits=r.mc_splits,
-                        temporal_spp=r.temporal_spp, psf_support_energy=rel.support_energy,
+                        temporal_spp=r.temporal_spp, sampler=r.sampler, light_selection=r.light_selection,
+                        target_rel_error=r.target_rel_error, max_spp=r.max_spp, psf_support_energy=rel.support_energy,
                         psf_support_px=rel.support_px, guard_max_px=rel.guard_max_px,
                         poisson_sampler=self.sensor.poisson_sampler)
 

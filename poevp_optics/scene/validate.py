@@ -70,6 +70,9 @@ def check_accuracy(ctx, r: RenderSpec):
         raise ctx.fail("render.spp", f"must be >= render.mc_splits = {r.mc_splits} (the Monte Carlo "
                        f"error comes from {r.mc_splits} independent-seed renders, each needs a "
                        f"sample), got {r.spp}")
+    if r.target_rel_error > 0 and r.max_spp < r.spp:
+        raise ctx.fail("render.max_spp", f"must be >= render.spp = {r.spp} (the first pass of the "
+                       f"error-targeted render), got {r.max_spp}")
 
 
 def check_dmd_use(ctx, dmd: DMDSpec, t: TimingSpec, mask: MaskSpec):

@@ -16,7 +16,11 @@ def _smoke(*overrides):
 
 
 def test_rel_error_falls_as_inverse_sqrt_spp():
-    spec = _smoke("render.mc_splits=8", "render.spp=8", "render.spectral_mode='spectral'")
+    # the 1/sqrt(spp) law is the independent sampler's (iid MC); randomised QMC samplers fall
+    # faster (multijitter: slope -0.83 on this scene); tests/physics/test_sampler_error.py checks
+    # their estimate's honesty
+    spec = _smoke("render.mc_splits=8", "render.spp=8", "render.spectral_mode='spectral'",
+                  "render.sampler='independent'")
     r = Renderer(spec)
     spps = [8, 32, 128, 512]
     errs = []

@@ -55,10 +55,14 @@ def _closed_form(spec) -> np.ndarray:
     rho = absolute_spectrum(spec.spectra["rho"])
     weighted = spectra.integrate(response * lamp * rho)          # = rho_eff * I_S
     half = math.tan(math.radians(FOV_DEG) / 2)
-    c = (np.arange(RES) + 0.5) / RES * 2 - 1
+    # the box-filtered pixel: cos^3 averaged over the pixel's square on the film (tan plane),
+    # 16 x 16 points per pixel (midpoint rule, error ~1e-7: below a QMC sampler's noise too)
+    sub = 16
+    c = (np.arange(RES * sub) + 0.5) / (RES * sub) * 2 - 1
     x, y = np.meshgrid(c * half, c * half)
-    cos_t = 1 / np.sqrt(1 + x**2 + y**2)
-    return weighted * cos_t**3 / (math.pi * D_M**2)
+    cos3 = (1 / np.sqrt(1 + x**2 + y**2)) ** 3
+    cos3 = cos3.reshape(RES, sub, RES, sub).mean(axis=(1, 3))
+    return weighted * cos3 / (math.pi * D_M**2)
 
 
 @pytest.mark.parametrize("mode,rho_source", [

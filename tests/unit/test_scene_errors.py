@@ -38,6 +38,15 @@ BAD = [
                                         'kind = "keyframes"\ntimes_s = [0.0, 0.1]\noffsets_m = [[0.0, 0.0, 0.0]]'),
      "motion.plate.offsets_m: keyframes need as many"),
     ("unbound emitter spectrum", BASE.replace("[spectra.lamp]", "[spectra.lampx]"), "spectra.lamp"),
+    ("unknown sampler", BASE.replace("spp = 4", 'spp = 4\nsampler = "sobol"'), "render.sampler: must be one of"),
+    ("unknown light selection", BASE.replace("spp = 4", 'spp = 4\nlight_selection = "flux"'),
+     "render.light_selection: must be one of"),
+    ("negative error target", BASE.replace("spp = 4", "spp = 4\ntarget_rel_error = -0.01"),
+     "render.target_rel_error: must be >= 0"),
+    ("error target above 1", BASE.replace("spp = 4", "spp = 4\ntarget_rel_error = 1.5"),
+     "render.target_rel_error: must be <= 1"),
+    ("max_spp below spp", BASE.replace("spp = 4", "spp = 4\ntarget_rel_error = 0.01\nmax_spp = 2"),
+     "render.max_spp: must be >= render.spp = 4"),
 ]
 
 

@@ -1,0 +1,98 @@
+"""Light selection: the probability with which next-event estimation picks each emitter.
+
+Mitsuba's path integrator picks one emitter per light sample with probability proportional to
+the emitters' `sampling_weight` (Mitsuba 3 docs, Plugin reference > Emitters: `sampling_weight`,
+default 1 = uniform), and divides by that probability (unbiased for any weights > 0). The
+one-sample estimator f_I / p_I has second moment sum_i E[f_i^2] / p_i, smallest for
+p_i ~ sqrt(E[f_i^2]) (a Lagrange multiplier on sum p_i = 1; the discrete case of optimal
+importance sampling, Owen, "Monte Carlo theory, methods and examples", 2013, ch. 9). `power` estimates E[f_i^2] from a
+pilot: camera rays at `PILOT_GRID` film positions (x `PILOT_SPP`), each emitter's direct
+contribution at the first hit (emitter sample x BSDF x visibility), i.e. each emitter's power
+toward the camera's view. So a 0.005 cd/m2 sky no longer takes a third of the light samples from
+two 120 kcd beams. Weights are floored at `FLOOR` x the largest so no emitter is starved.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from poevp_optics.core.registry import Registry
+
+PILOT_GRID = 64        # film positions per side of the pilot (normalised film coordinates)
+PILOT_SPP = 4          # jittered samples per pilot position
+FLOOR = 1e-3           # smallest weight relative to the largest
+
+
+@dataclass(frozen=True)
+class LightChoice:
+    """How `render.light_selection` sets the emitters' sampling weights."""
+
+    from_pilot: bool       # weights from the pilot estimate (else fixed)
+    keep_xml: bool         # keep the XML's own `sampling_weight` values
+
+
+LIGHT_SELECTIONS = Registry("light selection")
+LIGHT_SELECTIONS.register("power", LightChoice(True, False),
+                          source="p_i ~ sqrt(E[f_i^2]) (optimal discrete importance sampling, Owen "
+                                 "2013 ch. 9) from a direct-lighting pilot (module docstring)",
+                          doc="weights from each emitter's contribution toward the camera's view")
+LIGHT_SELECTIONS.register("uniform", LightChoice(False, False),
+                          source="Mitsuba 3 docs, Emitters: sampling_weight = 1 (the default)",
+                          doc="every emitter picked equally often")
+LIGHT_SELECTIONS.register("xml", LightChoice(False, True),
+                          source="Mitsuba 3 docs, Emitters: `sampling_weight` set in the scene XML",
+                          doc="the user's own weights: each emitter's `sampling_weight` in the XML")
+
+
+def _film_positions(seed: int) -> np.ndarray:
+    """(2, N) jittered positions on [0, 1)^2: PILOT_GRID^2 cells x PILOT_SPP."""
+    rng = np.random.default_rng(seed)
+    g = (np.arange(PILOT_GRID) + 0.5) / PILOT_GRID
+    x, y = np.meshgrid(g, g)
+    base = np.stack([x.ravel(), y.ravel()])
+    pos = np.repeat(base, PILOT_SPP, axis=1) + (rng.random((2, base.shape[1] * PILOT_SPP)) - 0.5) / PILOT_GRID
+    return np.clip(pos, 0.0, np.nextafter(1.0, 0.0))
+
+
+def pilot_second_moments(mi, scene, sensor, seed: int = 0) -> dict[str, float]:
+    """Per emitter id: mean over pilot samples of its squared direct contribution at the first
+    hit (channels averaged; units of the film's radiance squared)."""
+    import drjit as dr
+
+    pos = _film_positions(seed)
+    n = pos.shape[1]
+    rng = np.random.default_rng(seed + 1)
+    u = lambda k: mi.Float(rng.random(n).astype(np.float32)) if k == 1 else \
+        mi.Point2f(*[mi.Float(rng.random(n).astype(np.float32)) for _ in range(k)])
+    ray, ray_w = sensor.sample_ray(mi.Float(0.0), u(1), mi.Point2f(mi.Float(pos[0]), mi.Float(pos[1])), u(2))
+    si = scene.ray_intersect(ray)
+    bsdf = si.bsdf(ray)
+    ctx = mi.BSDFContext()
+    contrib = {}
+    for em in scene.emitters():
+        ds, w = em.sample_direction(si, u(2))
+        shadow = si.spawn_ray_to(ds.p)
+        finite = dr.isfinite(ds.dist)
+        shadow.d = dr.select(finite, shadow.d, ds.d)
+        shadow.maxt = dr.select(finite, shadow.maxt, dr.inf)
+        visible = si.is_valid() & (ds.pdf > 0) & ~scene.ray_test(shadow)
+        f = bsdf.eval(ctx, si, si.to_local(ds.d))
+        contrib[em.id()] = dr.select(visible, ray_w * w * f, 0.0)
+    dr.eval(*contrib.values())                            # one kernel for all emitters
+    out = {}
+    for k, c in contrib.items():
+        arr = np.array(c, dtype=np.float64)               # (channels, n) or (n,)
+        arr = arr.mean(axis=0) if arr.ndim > 1 else arr
+        out[k] = float(np.mean(np.nan_to_num(arr) ** 2))
+    return out
+
+
+def weights_from_moments(moments: dict[str, float]) -> dict[str, float]:
+    """Sampling weights p_i ~ sqrt(E[f_i^2]), normalised to a largest of 1, floored at FLOOR."""
+    root = {k: float(np.sqrt(max(v, 0.0))) for k, v in moments.items()}
+    top = max(root.values(), default=0.0)
+    if not top > 0:
+        return {k: 1.0 for k in moments}
+    return {k: max(v / top, FLOOR) for k, v in root.items()}
