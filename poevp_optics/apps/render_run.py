@@ -67,6 +67,16 @@ class RunResult:
     write_seconds: float = 0.0
 
 
+def _shown_mask(clock, decision, i: int, rec: dict):
+    """The mask the DMD shows in frame i's window (timing_budget.MaskClock) and the capture's
+    switch argument for a late mask; the frame's budget record goes into `rec`."""
+    shown = clock.show(i, decision.levels, decision.init, decision.predict_seconds)
+    if shown.record and not shown.record.get("init"):
+        rec["timing_budget"] = {k: v for k, v in shown.record.items() if k != "frame"}
+    switch = (shown.late, shown.switch_s) if shown.late is not None else None
+    return shown.levels, switch
+
+
 def _capture(spec, camera: Camera, step: LoopStep | None, ex: RenderedExposure, res: RunResult) -> FrameCapture:
     """LDR twin (DMD all white), the loop's mask, the encoded capture and its reconstruction."""
     i = ex.index
@@ -91,8 +101,9 @@ def _capture(spec, camera: Camera, step: LoopStep | None, ex: RenderedExposure, 
         if decision.predict_seconds is not None:
             res.predict_seconds.append(decision.predict_seconds)
             rec["predict_seconds"] = decision.predict_seconds
+        mask, switch = _shown_mask(step.clock, decision, i, rec)
         enc = camera.capture(subs, mask, i, capture_seed(spec.sensor.seed, spec.render.seed, i, ENCODED_STREAM),
-                             **timing)
+                             **timing, **({"switch": switch} if switch else {}))
     for k in ("dmd", "relay", "sensor"):
         res.stage_seconds[k] += enc.seconds[k]
     tr = time.perf_counter()
@@ -176,6 +187,8 @@ def simulate(spec, camera: Camera, step: LoopStep | None, exposures, *, writer: 
         _metrics(camera, fc)
         if causal:
             step.observe(ex.index, fc.ldr, fc.enc, fc.est, fc.flags)
+            if spec.mask.law == "exposure_controller":
+                fc.record["exposure_controller"] = step.controller.summary()
             _against_oracle(spec, camera, fc)
         if camera.dmd:
             _law_comparison(spec, camera, fc, res, causal)
@@ -206,7 +219,7 @@ def loop_step_of(spec, camera: Camera) -> LoopStep | None:
     from poevp_optics.control.predictors.dmvfn import WeightsError
 
     try:
-        return LoopStep(camera, spec.mask, spec.loop, spec.predictor)
+        return LoopStep(camera, spec.mask, spec.loop, spec.predictor, budget=spec.budget)
     except WeightsError as e:
         raise SceneError(f"{spec.toml_path}: predictor.weights: {e}") from None
 

@@ -35,6 +35,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import math
+
 import numpy as np
 
 from poevp_optics.camera.registration import RegistrationSpec
@@ -70,6 +72,8 @@ class Schedule:
     bits: int
     msb_first: bool
     settle_s: float
+    planes_from_s: float = -math.inf      # planes starting in [from, until) show the level's bit,
+    planes_until_s: float = math.inf      # the others are off (a late mask: late_exposure_weights)
 
     @classmethod
     def for_frame(cls, dmd: DMDSpec, timing: TimingSpec, frame_start_s: float) -> "Schedule":
@@ -98,7 +102,8 @@ def _segments(levels: np.ndarray, sched: Schedule):
     outside = 1.0 if sched.outside_on else 0.0
     events = [(t_lo, np.full(v.shape, outside))]
     for b, t0, _ in sched.plane_intervals():
-        events.append((t0, ((v >> b) & 1).astype(np.float64)))
+        shown = sched.planes_from_s <= t0 < sched.planes_until_s
+        events.append((t0, ((v >> b) & 1).astype(np.float64) if shown else np.zeros(v.shape)))
     events.append((sched.window_start_s + sched.window_s, np.full(v.shape, outside)))
     events.append((max(t_hi, sched.window_start_s + sched.window_s), np.full(v.shape, outside)))
     t0s, t1s, m0s, m1s = [], [], [], []
@@ -308,6 +313,20 @@ def attenuation_parts(dmd_spec, sched, min_level: int) -> dict:
             "parts": parts, "binding": max(parts, key=parts.get)}
 
 
+def late_schedules(sched: Schedule, switch_s: float) -> tuple[Schedule, Schedule]:
+    """A window in which a late mask takes over at `switch_s` (absolute, s): the DLPC900 latches
+    a pattern per bit-plane, so planes starting before the switch show the previous mask, planes
+    starting at or after it the new one (TI DLPC900 programmer's guide, pattern sequences).
+    Returns (old: its planes and the white/dark fill outside the window, new: its planes only);
+    a mirror's on-time is the sum of its old level's on-time in the first and its new level's in
+    the second (exact for settle_s = 0; with settle_s > 0 the one ramp at the switch is taken from
+    the off state, an error below settle_s per mirror)."""
+    import dataclasses
+
+    return (dataclasses.replace(sched, planes_until_s=switch_s),
+            dataclasses.replace(sched, planes_from_s=switch_s, outside_on=False))
+
+
 class DMD:
     """Per-mirror effective exposure of a mask (DrJit gather from the exact level table)."""
 
@@ -329,7 +348,9 @@ class DMD:
 
         key = (round(sched.exposure_start_s - sched.window_start_s, 15), sched.exposure_s,
                sched.window_s, sched.outside_on, sched.bits, sched.msb_first, sched.settle_s,
-               tuple(np.round(rel / sched.exposure_s, 12)))
+               tuple(np.round(rel / sched.exposure_s, 12)),
+               round(sched.planes_from_s - sched.window_start_s, 15),
+               round(sched.planes_until_s - sched.window_start_s, 15))
         if key not in self._cache:
             table = transmission_table(np.arange(self.levels + 1), self.spec, sched, rel)
             self._cache = {key: (Float(table.T.astype(np.float32).ravel()), table)}
@@ -372,3 +393,23 @@ class DMD:
         flat = Float(table.T.astype(np.float32).ravel())               # K blocks of U
         u = len(uniq)
         return [dr.gather(Float, flat, idx + j * u) for j in range(k)], table
+
+    def late_exposure_weights(self, old_levels: np.ndarray, new_levels: np.ndarray, sched: Schedule,
+                              nodes, switch_s: float):
+        """Effective exposure (s) per mirror and radiance node when the mask changes from
+        `old_levels` to `new_levels` at `switch_s` inside the window (`late_schedules`):
+        throughput ((W_old + W_new)(1 - 1/CR) + w_j / CR), W the on-time tables of the two parts.
+        List of K DrJit Floats and the two per-level tables (float64)."""
+        import drjit as dr
+        from drjit.auto import Float, UInt32
+
+        sa, sb = late_schedules(sched, switch_s)
+        rel = _nodes_rel(sched, nodes)
+        levels = np.arange(self.levels + 1)
+        ta = transmission_table(levels, self.spec, sa, rel)                     # with leakage
+        tb = throughput_on(self.spec) * (1 - 1 / self.spec.contrast_ratio) * on_time_table(levels, sb, rel)
+        ia, ib = UInt32(self._level_index(old_levels)), UInt32(self._level_index(new_levels))
+        u = self.levels + 1
+        fa, fb = Float(ta.T.astype(np.float32).ravel()), Float(tb.T.astype(np.float32).ravel())
+        w = [dr.gather(Float, fa, ia + j * u) + dr.gather(Float, fb, ib + j * u) for j in range(rel.size)]
+        return w, (ta, tb)

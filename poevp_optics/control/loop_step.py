@@ -28,6 +28,7 @@ import numpy as np
 from poevp_optics.analysis.metrics import to_8bit
 from poevp_optics.control.exposure_control import ExposureController
 from poevp_optics.control.masks import MaskSpec, mask_levels, predicted_electrons
+from poevp_optics.control.timing_budget import BudgetSpec, MaskClock
 from poevp_optics.control.predictors import PREDICTORS, PredictorSpec, checked_prediction, make_predictor
 from poevp_optics.core.params import param
 from poevp_optics.core.registry import Registry
@@ -142,14 +143,18 @@ class LoopStep:
     HISTORY = 4
 
     def __init__(self, camera, mask: MaskSpec, loop: LoopSpec, predictor: PredictorSpec,
-                 model=None):
-        """model: an already built predictor (else built from `predictor`); none for the oracle."""
+                 model=None, budget: BudgetSpec = BudgetSpec()):
+        """model: an already built predictor (else built from `predictor`); none for the oracle.
+        budget: the real-time budget; `clock` (timing_budget.MaskClock) says when each mask
+        reaches the DMD and what each window shows."""
         self.camera, self.mask, self.loop, self.predictor_spec = camera, mask, loop, predictor
         self.needs_truth = PREDICTORS[predictor.name].needs_truth
         self.model = None if self.needs_truth else (model or make_predictor(
             predictor.name, predictor.weights, predictor.resolution))
         self.history: list[np.ndarray] = []
         p = camera.params
+        self.clock = MaskClock(budget, camera.timing, camera.shape, p.bits, camera.mirror_shape,
+                               camera.dmd.spec.bits) if camera.dmd else None
         self.controller = ExposureController(mask.clipped_gain, int(np.ceil(3 * mask.smooth_px)),
                                              p.saturation_capacity_e) if camera.dmd else None
 
