@@ -10,6 +10,7 @@ Parameter table (`[dmd]`, `[timing]`):
 | fill_factor          | float | -    | 0.92      | yes | mirror area fraction (DLP6500 ~0.92) |
 | reflectance          | float | -    | 0.88      | yes | aluminium mirror reflectance x window transmission |
 | settle_s             | float | s    | 0         | yes | mirror transition time per switch (linear ramp) |
+| controller           | str   | -    | ideal     | no  | device limits (DMD_CONTROLLERS): `ideal` none; `dlpc900_dlp6500`, `dlpc900_dlp9000` |
 | dmd_window_s         | float | s    | 1/60      | yes | t_D, display window |
 | dmd_window_offset_s  | float | s    | 0         | yes | window start from the frame start |
 | outside_window       | str   | -    | white     | yes | mirrors all on ("white") or off ("dark") outside the window |
@@ -17,6 +18,16 @@ Parameter table (`[dmd]`, `[timing]`):
 Sources: bit-plane PWM with binary-weighted durations and white fill outside t_D (paper Sec. 7,
 Fig. 7; TI DLPC900 programmer's guide, pattern sequences); mirror reset + motion ~4.5 + 8 us
 (DLP9500 data, FACTS.md); contrast ratio 1000:1-2000:1 typical (TI application notes).
+
+Device limits (`controller`, FACTS.md; TI DLPC900 datasheet DLPS037 and programmer's guide
+DLPU018; TI E2E thread 953168): a bit-plane is shown for at least 105 us (the load-and-flip time
+of one 1-bit pattern); TI reaches an 8-bit pattern in 4.046 ms only by gating the *illumination*
+during the three shortest planes (dark time after each). A POE-VP camera modulates the scene's
+own light, which it cannot gate, so its shortest plane t_D / (2^B - 1) must itself last 105 us:
+an 8-bit window needs t_D >= 255 x 105 us = 26.775 ms. The controller stores 400 1-bit patterns
+(DLP6500; 480 on the DLP9000); a mask of B planes is shown while the next one loads, so
+2 B <= storage. A scene whose timing breaks a limit is a one-line error naming the keys
+(`timing_problem`, scene validation); `ideal` (the default) has none, for studies of the optics.
 
 Model: a mirror's on-state level m(t) in [0, 1] is piecewise linear: constant within a plane,
 ramping at slope 1/settle_s toward the new state after each plane boundary (a ramp cut short by
@@ -41,7 +52,26 @@ import numpy as np
 
 from poevp_optics.camera.registration import RegistrationSpec
 from poevp_optics.core.params import param
+from poevp_optics.core.registry import Registry
 from poevp_optics.core.timing import TimingSpec
+
+
+@dataclass(frozen=True)
+class DMDController:
+    """Limits of a DMD controller: shortest bit-plane the camera can use (s), 1-bit pattern
+    storage, and the vendor's shortest B-bit pattern with illumination gating (s, by B)."""
+
+    min_plane_s: float
+    storage_patterns: int
+    gated_min_pattern_s: dict
+
+
+DMD_CONTROLLERS = Registry("DMD controller")
+DMD_CONTROLLERS.register("ideal", DMDController(0.0, 1 << 30, {}), source="no device limits")
+DMD_CONTROLLERS.register("dlpc900_dlp6500", DMDController(105e-6, 400, {1: 105e-6, 8: 4046e-6}),
+                         source="TI DLPC900 (DLPS037, DLPU018), DLP6500: 105 us 1-bit, 4.046 ms gated 8-bit, 400 patterns")
+DMD_CONTROLLERS.register("dlpc900_dlp9000", DMDController(105e-6, 480, {1: 105e-6, 8: 4046e-6}),
+                         source="TI DLPC900 (DLPS037, DLPU018), DLP9000: 105 us 1-bit, 4.046 ms gated 8-bit, 480 patterns")
 
 
 @dataclass(frozen=True)
@@ -57,6 +87,7 @@ class DMDSpec:
     reflectance: float = param(0.88, gt=0, max=1.0)
     settle_s: float = param(0.0, min=0, max=1.0)
     pitch_m: float = param(7.56e-6, gt=0, max=1e-3)
+    controller: str = param("ideal", choices=DMD_CONTROLLERS)
     registration: RegistrationSpec = param(RegistrationSpec())
 
 
@@ -92,6 +123,27 @@ class Schedule:
             out.append((b, t, t + d))
             t += d
         return out
+
+
+def timing_problem(dmd: DMDSpec, timing: TimingSpec) -> tuple[str, str] | None:
+    """(key, message) when the controller cannot show this PWM timing (module docstring), else
+    None."""
+    c = DMD_CONTROLLERS[dmd.controller]
+    n = (1 << dmd.bits) - 1
+    shortest = timing.dmd_window_s / n
+    if shortest < c.min_plane_s * (1 - 1e-12):
+        gated = c.gated_min_pattern_s.get(dmd.bits)
+        why = (f"; the vendor's {dmd.bits}-bit {gated * 1e3:.3f} ms pattern gates the illumination during "
+               "the short planes, which a camera modulating the scene's own light cannot do") if gated else ""
+        return ("timing.dmd_window_s",
+                f"{dmd.controller} shows a bit-plane for >= {c.min_plane_s * 1e6:.0f} us, but a {dmd.bits}-bit "
+                f"window of {timing.dmd_window_s * 1e3:.3f} ms has a shortest plane of {shortest * 1e6:.1f} us "
+                f"(t_D / {n}){why}: lengthen timing.dmd_window_s to >= {n * c.min_plane_s * 1e3:.3f} ms or "
+                f"lower dmd.bits")
+    if 2 * dmd.bits > c.storage_patterns:
+        return ("dmd.bits", f"{dmd.controller} stores {c.storage_patterns} 1-bit patterns; showing one "
+                f"{dmd.bits}-plane mask while loading the next needs {2 * dmd.bits}")
+    return None
 
 
 def _segments(levels: np.ndarray, sched: Schedule):

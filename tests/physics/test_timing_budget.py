@@ -103,3 +103,30 @@ def test_late_mask_exposure_is_the_duty_integral(switch_ms):
     # with radiance nodes the per-node weights still sum to the same total
     w3, _ = DMD(dmd).late_exposure_weights(old, new, sched, 5, switch_ms * 1e-3)
     np.testing.assert_allclose(sum(np.array(x, dtype=np.float64) for x in w3), expect, rtol=1e-6)
+
+
+def _scene_error(*overrides):
+    from poevp_optics.core.exceptions import SceneError
+    from poevp_optics.scene.load import load_scene
+    from tests.conftest import SCENES
+
+    with pytest.raises(SceneError) as e:
+        load_scene(SCENES / "smoke", list(overrides))
+    return str(e.value)
+
+
+def test_dlpc900_limits_are_one_line_errors_naming_the_keys():
+    """Paper Fig. 7's 20 ms 8-bit window: shortest plane 20 ms / 255 = 78.4 us < 105 us."""
+    msg = _scene_error('dmd.controller="dlpc900_dlp6500"', "dmd.bits=8", "timing.dmd_window_s=0.020")
+    assert "timing.dmd_window_s" in msg and "78.4 us" in msg and "26.775 ms" in msg and "dmd.bits" in msg
+    assert "\n" not in msg
+    msg = _scene_error('dmd.controller="dlpc900_dlp6500"', "dmd.bits=16", "timing.dmd_window_s=0.030",
+                       "timing.fps=0.1", "timing.exposure_s=0.03")
+    assert "timing.dmd_window_s" in msg          # 16 bits: 0.46 us planes
+    # 255 x 105 us = 26.775 ms: the shortest window an 8-bit camera mask can use on a DLPC900
+    from poevp_optics.camera.dmd import DMDSpec, timing_problem
+    ok = TimingSpec(fps=30.0, exposure_s=0.03, dmd_window_s=0.026775)
+    assert timing_problem(DMDSpec(controller="dlpc900_dlp6500"), ok) is None
+    short = TimingSpec(fps=30.0, exposure_s=0.03, dmd_window_s=0.0267)
+    assert timing_problem(DMDSpec(controller="dlpc900_dlp6500"), short)[0] == "timing.dmd_window_s"
+    assert timing_problem(DMDSpec(controller="ideal"), short) is None
