@@ -65,6 +65,7 @@ class RunResult:
         name: {"saturated": [], "entropy": []} for name in ["scene_law", *PAPER_LAWS]})
     mid_frame: tuple | None = None
     write_seconds: float = 0.0
+    timeline: str | None = None          # the timeline figure's file name (apps/timeline.py)
 
 
 def _shown_mask(clock, decision, i: int, rec: dict):
@@ -245,6 +246,11 @@ def run_frames(spec, out_dir: Path, progress: bool = True, *, renderer: Renderer
                    render_exposures(spec, renderer, progress), writer=writer, keep_frames=keep_frames)
     if writer is not None:
         writer.finish()
+        if step is not None and step.clock is not None and step.clock.records:
+            from poevp_optics.apps.timeline import write_timeline
+
+            res.timeline = write_timeline(out_dir, spec.timing, step.clock, camera.schedule,
+                                          spec.loop.init_frames, spec.timing.frames).name
     if exposures is not None:
         temporal = {"rel": None, "method": "not estimated: this run reuses a shared render", "seconds": 0.0}
     else:

@@ -202,7 +202,8 @@ def build_report(spec, renderer, camera, step, res, *, setup_s: float, t_run: fl
         "frames": spec.timing.frames, "unit": PHOTON_RADIANCE_UNIT,
         **camera_sections(spec, camera, floor),
         "stages": stage_sections(spec, renderer, step, res, setup_s, causal),
-        **({"timing_budget": step.clock.summary()} if step is not None and step.clock is not None else {}),
+        **({"timing_budget": step.clock.summary({"timeline_png": res.timeline})}
+           if step is not None and step.clock is not None else {}),
         "metrics": metrics,
         "errors": error_budget(camera, per_frame, res.stage_seconds, temporal or {"rel": None},
                                stats.seconds + setup_s),
