@@ -12,7 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from poevp_optics.analysis.metrics import crop, entropy_8bit, mask_iou, relative_error, saturated_fraction, to_8bit
+from poevp_optics.analysis.metrics import (crop, entropy_8bit, mask_iou, plate_white_fraction, relative_error,
+                                          saturated_fraction, to_8bit)
 from poevp_optics.apps.outputs import OutputWriter, mask_png
 from poevp_optics.apps.run_report import build_report
 from poevp_optics.apps.temporal_check import temporal_error
@@ -130,6 +131,9 @@ def _metrics(camera: Camera, fc: FrameCapture) -> None:
                                 if box else None),
         "valid_fraction": float(np.mean(valid)),
     })
+    if box:
+        fc.record["plate_white_fraction"] = {"ldr": plate_white_fraction(to_8bit(ldr, max_dn), box),
+                                             "encoded": plate_white_fraction(to_8bit(enc, max_dn), box)}
 
 
 def _against_oracle(spec, camera: Camera, fc: FrameCapture) -> None:
