@@ -67,3 +67,13 @@ def mask_iou(mask_a: np.ndarray, mask_b: np.ndarray, top: float, threshold: floa
     b = np.asarray(mask_b) < threshold * top
     union = np.logical_or(a, b).sum()
     return float(np.logical_and(a, b).sum() / union) if union else 1.0
+
+
+def plate_white_fraction(img_8bit: np.ndarray, box, percentile: float = 90.0) -> float | None:
+    """The plate's white as a fraction of full scale: the `percentile`-th percentile of the
+    8-bit values inside `box` (the white sheeting covers most of a plate, its characters the
+    rest), / 255. None without a box. Issue 18's measure (band 40-90 %)."""
+    if box is None:
+        return None
+    c = crop(img_8bit, box)
+    return float(np.percentile(c, percentile) / 255.0) if c.size else None

@@ -114,3 +114,26 @@ def alpr_read(img_8bit: np.ndarray, box, region=None) -> AlprRead:
 def correct(read: str, label: str) -> bool:
     """Paper Eq. 4: a plate counts only when every character matches."""
     return normalise(read) == normalise(label) and normalise(label) != ""
+
+
+def read_frame(img_8bit: np.ndarray) -> list[tuple[str, float, float]]:
+    """Detection + recognition on a whole 8-bit frame (no crop from a known box): the texts
+    RapidOCR finds, each as (text, confidence, x of its box centre), left to right."""
+    import cv2
+
+    from poevp_optics.core.runtime import ocr_engine
+
+    img = np.ascontiguousarray(img_8bit).astype(np.uint8)
+    bgr = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR) if img.ndim == 2 else img
+    res, _ = ocr_engine()(bgr, use_det=True, use_cls=False, use_rec=True)
+    out = [(str(text), float(conf), float(np.mean([p[0] for p in box]))) for box, text, conf in (res or [])]
+    return sorted(out, key=lambda r: r[2])
+
+
+def frame_reads(img_8bit: np.ndarray, label: str) -> tuple[bool, str]:
+    """Whether a whole frame reads the plate: some run of consecutive texts found in it (left
+    to right) joins to exactly the label (paper Eq. 4: every character). (read?, texts)."""
+    texts = [normalise(t) for t, _, _ in read_frame(img_8bit)]
+    want = normalise(label)
+    ok = any("".join(texts[i:j]) == want for i in range(len(texts)) for j in range(i + 1, len(texts) + 1))
+    return ok and want != "", " | ".join(texts)

@@ -13,7 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from poevp_optics.analysis.metrics import crop, entropy_8bit, mask_iou, relative_error, saturated_fraction, to_8bit
+from poevp_optics.analysis.metrics import (crop, entropy_8bit, mask_iou, plate_white_fraction, relative_error,
+                                          saturated_fraction, to_8bit)
 from poevp_optics.apps import night_road
 from poevp_optics.apps.outputs import OutputWriter, mask_png
 from poevp_optics.apps.run_report import build_report
@@ -67,6 +68,17 @@ class RunResult:
         name: {"saturated": [], "entropy": []} for name in ["scene_law", *PAPER_LAWS]})
     mid_frame: tuple | None = None
     write_seconds: float = 0.0
+    timeline: str | None = None          # the timeline figure's file name (apps/timeline.py)
+
+
+def _shown_mask(clock, decision, i: int, rec: dict):
+    """The mask the DMD shows in frame i's window (timing_budget.MaskClock) and the capture's
+    switch argument for a late mask; the frame's budget record goes into `rec`."""
+    shown = clock.show(i, decision.levels, decision.init, decision.predict_seconds)
+    if shown.record and not shown.record.get("init"):
+        rec["timing_budget"] = {k: v for k, v in shown.record.items() if k != "frame"}
+    switch = (shown.late, shown.switch_s) if shown.late is not None else None
+    return shown.levels, switch
 
 
 def _capture(spec, camera: Camera, step: LoopStep | None, ex: RenderedExposure, res: RunResult) -> FrameCapture:
@@ -93,8 +105,9 @@ def _capture(spec, camera: Camera, step: LoopStep | None, ex: RenderedExposure, 
         if decision.predict_seconds is not None:
             res.predict_seconds.append(decision.predict_seconds)
             rec["predict_seconds"] = decision.predict_seconds
+        mask, switch = _shown_mask(step.clock, decision, i, rec)
         enc = camera.capture(subs, mask, i, capture_seed(spec.sensor.seed, spec.render.seed, i, ENCODED_STREAM),
-                             **timing)
+                             **timing, **({"switch": switch} if switch else {}))
     for k in ("dmd", "relay", "sensor"):
         res.stage_seconds[k] += enc.seconds[k]
     if camera.objective is not None:         # the LDR twin formed the image; the encoded capture reuses it
@@ -123,6 +136,9 @@ def _metrics(camera: Camera, fc: FrameCapture) -> None:
                                 if box else None),
         "valid_fraction": float(np.mean(valid)),
     })
+    if box:
+        fc.record["plate_white_fraction"] = {"ldr": plate_white_fraction(to_8bit(ldr, max_dn), box),
+                                             "encoded": plate_white_fraction(to_8bit(enc, max_dn), box)}
 
 
 def _against_oracle(spec, camera: Camera, fc: FrameCapture) -> None:
@@ -189,6 +205,8 @@ def simulate(spec, camera: Camera, step: LoopStep | None, exposures, *, writer: 
             fc.record["plate"] = night_road.frame_record(spec, camera, fc, road_laws)
         if causal:
             step.observe(ex.index, fc.ldr, fc.enc, fc.est, fc.flags)
+            if spec.mask.law == "exposure_controller":
+                fc.record["exposure_controller"] = step.controller.summary()
             _against_oracle(spec, camera, fc)
         if camera.dmd:
             _law_comparison(spec, camera, fc, res, causal)
@@ -221,7 +239,7 @@ def loop_step_of(spec, camera: Camera) -> LoopStep | None:
     from poevp_optics.control.predictors.dmvfn import WeightsError
 
     try:
-        return LoopStep(camera, spec.mask, spec.loop, spec.predictor)
+        return LoopStep(camera, spec.mask, spec.loop, spec.predictor, budget=spec.budget)
     except WeightsError as e:
         raise SceneError(f"{spec.toml_path}: predictor.weights: {e}") from None
 
@@ -248,6 +266,11 @@ def run_frames(spec, out_dir: Path, progress: bool = True, *, renderer=None,
                    writer=writer, keep_frames=keep_frames)
     if writer is not None:
         writer.finish()
+        if step is not None and step.clock is not None and step.clock.records:
+            from poevp_optics.apps.timeline import write_timeline
+
+            res.timeline = write_timeline(out_dir, spec.timing, step.clock, camera.schedule,
+                                          spec.loop.init_frames, spec.timing.frames).name
     if exposures is not None:
         temporal = {"rel": None, "method": "not estimated: this run reuses a shared render", "seconds": 0.0}
     elif renderer.temporal_skip:

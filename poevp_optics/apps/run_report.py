@@ -109,6 +109,12 @@ def run_metrics(spec, camera, per_frame, law_cmp, causal: bool) -> dict:
             if not causal:
                 metrics[key]["oracle_after_init"] = metrics[key]["encoded_after_init"]
         metrics["init_frames"] = len(per_frame) - len(loop_frames)
+    whites = [f["plate_white_fraction"]["encoded"] for f in loop_frames if f.get("plate_white_fraction")]
+    if camera.dmd is not None and whites:
+        lo, hi = spec.mask.band_low, spec.mask.band_high
+        metrics["plate_white_after_init"] = {
+            "in_band_fraction": float(np.mean([lo <= w <= hi for w in whites])), "band": [lo, hi],
+            "per_frame": whites, "definition": "90th percentile of the plate box in the 8-bit capture / 255"}
     if causal:
         for key in ("saturated_fraction_roi", "entropy_roi"):
             metrics[key]["oracle"] = mean_of([f[key]["oracle"] for f in per_frame])
@@ -230,6 +236,8 @@ def build_report(spec, renderer, camera, step, res, *, setup_s: float, t_run: fl
         "frames": spec.timing.frames, "unit": PHOTON_RADIANCE_UNIT,
         **camera_sections(spec, camera, floor),
         "stages": stage_sections(spec, renderer, step, res, setup_s, causal),
+        **({"timing_budget": step.clock.summary({"timeline_png": res.timeline})}
+           if step is not None and step.clock is not None else {}),
         "metrics": metrics,
         "errors": error_budget(spec, camera, per_frame, res.stage_seconds, temporal or {"rel": None},
                                stats.seconds + setup_s),

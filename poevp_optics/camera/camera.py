@@ -278,13 +278,15 @@ class Camera:
         return rel
 
     def capture(self, subframes, mask_levels, frame_index: int, seed: int,
-                basis: tuple[str, ...] = (), times_s=None) -> Capture:
+                basis: tuple[str, ...] = (), times_s=None, switch=None) -> Capture:
         """Expose the sensor to K radiance samples (mirror grid) through `mask_levels` (mirror grid;
         None: no DMD or all white without one). times_s: the samples' absolute times (the
         scene's `subframe_times_s`); None: K uniform nodes over the exposure (`node_times_s`).
 
         basis: when given, `subframes` are emitter-group images named by it (flickering lamps,
-        `Camera.basis_tables`) rather than time samples: their exposures are exact integrals."""
+        `Camera.basis_tables`) rather than time samples: their exposures are exact integrals.
+        switch: (new_levels, switch_s): a late mask that replaces `mask_levels` for the bit-planes
+        starting at or after switch_s (absolute, s; dmd.late_schedules)."""
         import drjit as dr
         from drjit.auto import Float
 
@@ -298,7 +300,13 @@ class Camera:
         secs["objective"] = time.perf_counter() - t_obj
         t0 = time.perf_counter()
         subs = [Float(np.ascontiguousarray(s, dtype=np.float32).ravel()) for s in subframes]
-        if basis:
+        if switch is not None and (basis or self.dmd is None):
+            raise ValueError(f"frame {frame_index}: a late mask needs a DMD and time samples, not "
+                             "emitter-group images (flickering lamps)")
+        if switch is not None:
+            weights, _ = self.dmd.late_exposure_weights(mask_levels, switch[0], self.schedule(frame_index),
+                                                        self.nodes_rel(frame_index, k, times_s), switch[1])
+        elif basis:
             lit = self.dmd is not None and mask_levels is not None
             tables = self.basis_tables(frame_index, tuple(basis), lit)
             if lit:

@@ -10,6 +10,7 @@ Parameter table (`[dmd]`, `[timing]`):
 | fill_factor          | float | -    | 0.92      | yes | mirror area fraction (DLP6500 ~0.92) |
 | reflectance          | float | -    | 0.88      | yes | aluminium mirror reflectance x window transmission |
 | settle_s             | float | s    | 0         | yes | mirror transition time per switch (linear ramp) |
+| controller           | str   | -    | ideal     | no  | device limits (DMD_CONTROLLERS): `ideal` none; `dlpc900_dlp6500`, `dlpc900_dlp9000` |
 | dmd_window_s         | float | s    | 1/60      | yes | t_D, display window |
 | dmd_window_offset_s  | float | s    | 0         | yes | window start from the frame start |
 | outside_window       | str   | -    | white     | yes | mirrors all on ("white") or off ("dark") outside the window |
@@ -17,6 +18,16 @@ Parameter table (`[dmd]`, `[timing]`):
 Sources: bit-plane PWM with binary-weighted durations and white fill outside t_D (paper Sec. 7,
 Fig. 7; TI DLPC900 programmer's guide, pattern sequences); mirror reset + motion ~4.5 + 8 us
 (DLP9500 data, FACTS.md); contrast ratio 1000:1-2000:1 typical (TI application notes).
+
+Device limits (`controller`, FACTS.md; TI DLPC900 datasheet DLPS037 and programmer's guide
+DLPU018; TI E2E thread 953168): a bit-plane is shown for at least 105 us (the load-and-flip time
+of one 1-bit pattern); TI reaches an 8-bit pattern in 4.046 ms only by gating the *illumination*
+during the three shortest planes (dark time after each). A POE-VP camera modulates the scene's
+own light, which it cannot gate, so its shortest plane t_D / (2^B - 1) must itself last 105 us:
+an 8-bit window needs t_D >= 255 x 105 us = 26.775 ms. The controller stores 400 1-bit patterns
+(DLP6500; 480 on the DLP9000); a mask of B planes is shown while the next one loads, so
+2 B <= storage. A scene whose timing breaks a limit is a one-line error naming the keys
+(`timing_problem`, scene validation); `ideal` (the default) has none, for studies of the optics.
 
 Model: a mirror's on-state level m(t) in [0, 1] is piecewise linear: constant within a plane,
 ramping at slope 1/settle_s toward the new state after each plane boundary (a ramp cut short by
@@ -35,11 +46,32 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import math
+
 import numpy as np
 
 from poevp_optics.camera.registration import RegistrationSpec
 from poevp_optics.core.params import param
+from poevp_optics.core.registry import Registry
 from poevp_optics.core.timing import TimingSpec
+
+
+@dataclass(frozen=True)
+class DMDController:
+    """Limits of a DMD controller: shortest bit-plane the camera can use (s), 1-bit pattern
+    storage, and the vendor's shortest B-bit pattern with illumination gating (s, by B)."""
+
+    min_plane_s: float
+    storage_patterns: int
+    gated_min_pattern_s: dict
+
+
+DMD_CONTROLLERS = Registry("DMD controller")
+DMD_CONTROLLERS.register("ideal", DMDController(0.0, 1 << 30, {}), source="no device limits")
+DMD_CONTROLLERS.register("dlpc900_dlp6500", DMDController(105e-6, 400, {1: 105e-6, 8: 4046e-6}),
+                         source="TI DLPC900 (DLPS037, DLPU018), DLP6500: 105 us 1-bit, 4.046 ms gated 8-bit, 400 patterns")
+DMD_CONTROLLERS.register("dlpc900_dlp9000", DMDController(105e-6, 480, {1: 105e-6, 8: 4046e-6}),
+                         source="TI DLPC900 (DLPS037, DLPU018), DLP9000: 105 us 1-bit, 4.046 ms gated 8-bit, 480 patterns")
 
 
 @dataclass(frozen=True)
@@ -55,6 +87,7 @@ class DMDSpec:
     reflectance: float = param(0.88, gt=0, max=1.0)
     settle_s: float = param(0.0, min=0, max=1.0)
     pitch_m: float = param(7.56e-6, gt=0, max=1e-3)
+    controller: str = param("ideal", choices=DMD_CONTROLLERS)
     registration: RegistrationSpec = param(RegistrationSpec())
 
 
@@ -70,6 +103,8 @@ class Schedule:
     bits: int
     msb_first: bool
     settle_s: float
+    planes_from_s: float = -math.inf      # planes starting in [from, until) show the level's bit,
+    planes_until_s: float = math.inf      # the others are off (a late mask: late_exposure_weights)
 
     @classmethod
     def for_frame(cls, dmd: DMDSpec, timing: TimingSpec, frame_start_s: float) -> "Schedule":
@@ -90,6 +125,27 @@ class Schedule:
         return out
 
 
+def timing_problem(dmd: DMDSpec, timing: TimingSpec) -> tuple[str, str] | None:
+    """(key, message) when the controller cannot show this PWM timing (module docstring), else
+    None."""
+    c = DMD_CONTROLLERS[dmd.controller]
+    n = (1 << dmd.bits) - 1
+    shortest = timing.dmd_window_s / n
+    if shortest < c.min_plane_s * (1 - 1e-12):
+        gated = c.gated_min_pattern_s.get(dmd.bits)
+        why = (f"; the vendor's {dmd.bits}-bit {gated * 1e3:.3f} ms pattern gates the illumination during "
+               "the short planes, which a camera modulating the scene's own light cannot do") if gated else ""
+        return ("timing.dmd_window_s",
+                f"{dmd.controller} shows a bit-plane for >= {c.min_plane_s * 1e6:.0f} us, but a {dmd.bits}-bit "
+                f"window of {timing.dmd_window_s * 1e3:.3f} ms has a shortest plane of {shortest * 1e6:.1f} us "
+                f"(t_D / {n}){why}: lengthen timing.dmd_window_s to >= {n * c.min_plane_s * 1e3:.3f} ms or "
+                f"lower dmd.bits")
+    if 2 * dmd.bits > c.storage_patterns:
+        return ("dmd.bits", f"{dmd.controller} stores {c.storage_patterns} 1-bit patterns; showing one "
+                f"{dmd.bits}-plane mask while loading the next needs {2 * dmd.bits}")
+    return None
+
+
 def _segments(levels: np.ndarray, sched: Schedule):
     """Piecewise-linear m(t) for each grey level: arrays (V, S) of t0, t1, m0, m1."""
     v = levels.astype(np.int64)
@@ -98,7 +154,8 @@ def _segments(levels: np.ndarray, sched: Schedule):
     outside = 1.0 if sched.outside_on else 0.0
     events = [(t_lo, np.full(v.shape, outside))]
     for b, t0, _ in sched.plane_intervals():
-        events.append((t0, ((v >> b) & 1).astype(np.float64)))
+        shown = sched.planes_from_s <= t0 < sched.planes_until_s
+        events.append((t0, ((v >> b) & 1).astype(np.float64) if shown else np.zeros(v.shape)))
     events.append((sched.window_start_s + sched.window_s, np.full(v.shape, outside)))
     events.append((max(t_hi, sched.window_start_s + sched.window_s), np.full(v.shape, outside)))
     t0s, t1s, m0s, m1s = [], [], [], []
@@ -308,6 +365,20 @@ def attenuation_parts(dmd_spec, sched, min_level: int) -> dict:
             "parts": parts, "binding": max(parts, key=parts.get)}
 
 
+def late_schedules(sched: Schedule, switch_s: float) -> tuple[Schedule, Schedule]:
+    """A window in which a late mask takes over at `switch_s` (absolute, s): the DLPC900 latches
+    a pattern per bit-plane, so planes starting before the switch show the previous mask, planes
+    starting at or after it the new one (TI DLPC900 programmer's guide, pattern sequences).
+    Returns (old: its planes and the white/dark fill outside the window, new: its planes only);
+    a mirror's on-time is the sum of its old level's on-time in the first and its new level's in
+    the second (exact for settle_s = 0; with settle_s > 0 the one ramp at the switch is taken from
+    the off state, an error below settle_s per mirror)."""
+    import dataclasses
+
+    return (dataclasses.replace(sched, planes_until_s=switch_s),
+            dataclasses.replace(sched, planes_from_s=switch_s, outside_on=False))
+
+
 class DMD:
     """Per-mirror effective exposure of a mask (DrJit gather from the exact level table)."""
 
@@ -329,7 +400,9 @@ class DMD:
 
         key = (round(sched.exposure_start_s - sched.window_start_s, 15), sched.exposure_s,
                sched.window_s, sched.outside_on, sched.bits, sched.msb_first, sched.settle_s,
-               tuple(np.round(rel / sched.exposure_s, 12)))
+               tuple(np.round(rel / sched.exposure_s, 12)),
+               round(sched.planes_from_s - sched.window_start_s, 15),
+               round(sched.planes_until_s - sched.window_start_s, 15))
         if key not in self._cache:
             table = transmission_table(np.arange(self.levels + 1), self.spec, sched, rel)
             self._cache = {key: (Float(table.T.astype(np.float32).ravel()), table)}
@@ -372,3 +445,23 @@ class DMD:
         flat = Float(table.T.astype(np.float32).ravel())               # K blocks of U
         u = len(uniq)
         return [dr.gather(Float, flat, idx + j * u) for j in range(k)], table
+
+    def late_exposure_weights(self, old_levels: np.ndarray, new_levels: np.ndarray, sched: Schedule,
+                              nodes, switch_s: float):
+        """Effective exposure (s) per mirror and radiance node when the mask changes from
+        `old_levels` to `new_levels` at `switch_s` inside the window (`late_schedules`):
+        throughput ((W_old + W_new)(1 - 1/CR) + w_j / CR), W the on-time tables of the two parts.
+        List of K DrJit Floats and the two per-level tables (float64)."""
+        import drjit as dr
+        from drjit.auto import Float, UInt32
+
+        sa, sb = late_schedules(sched, switch_s)
+        rel = _nodes_rel(sched, nodes)
+        levels = np.arange(self.levels + 1)
+        ta = transmission_table(levels, self.spec, sa, rel)                     # with leakage
+        tb = throughput_on(self.spec) * (1 - 1 / self.spec.contrast_ratio) * on_time_table(levels, sb, rel)
+        ia, ib = UInt32(self._level_index(old_levels)), UInt32(self._level_index(new_levels))
+        u = self.levels + 1
+        fa, fb = Float(ta.T.astype(np.float32).ravel()), Float(tb.T.astype(np.float32).ravel())
+        w = [dr.gather(Float, fa, ia + j * u) + dr.gather(Float, fb, ib + j * u) for j in range(rel.size)]
+        return w, (ta, tb)

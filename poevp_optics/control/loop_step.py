@@ -26,7 +26,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from poevp_optics.analysis.metrics import to_8bit
+from poevp_optics.control.exposure_control import ExposureController
 from poevp_optics.control.masks import MaskSpec, mask_levels, predicted_electrons
+from poevp_optics.control.timing_budget import BudgetSpec, MaskClock
 from poevp_optics.control.predictors import PREDICTORS, PredictorSpec, checked_prediction, make_predictor
 from poevp_optics.core.params import param
 from poevp_optics.core.registry import Registry
@@ -66,6 +68,9 @@ def _demodulated_input(camera, ldr, enc, est, flags, index, clipped_gain):
     return x.astype(np.float32)
 
 
+#: Loop modes whose predictor sees masked captures (the exposure controller demodulates them).
+MASKED_MODES = frozenset({"raw"})
+
 LOOP_MODES = Registry("loop mode")
 LOOP_MODES.register("open", _open_input, source="paper Fig. 3: the predictor sees unmasked LDR frames")
 LOOP_MODES.register("raw", _raw_input, source="paper Fig. 7: the predictor sees the masked captures")
@@ -91,17 +96,34 @@ def oracle_mask(camera, mask: MaskSpec, radiance_mean: np.ndarray, index: int) -
     white_e = radiance_mean.astype(np.float64) * camera.electrons_per_radiance() * camera.white_exposure_s(index)
     ldr8 = to_8bit(camera.noise_free_dn(white_e), camera.params.max_dn)
     return mask_levels(mask, camera.dmd.spec.bits, pred_8bit=ldr8, pred_electrons=white_e,
-                       full_well_e=camera.params.full_well_e, level_exposure=camera.level_exposure_s(index))
+                       full_well_e=camera.params.full_well_e, level_exposure=camera.level_exposure_s(index),
+                       sensor=camera.params)
 
 
-def predicted_mask(camera, mask: MaskSpec, pred_8bit: np.ndarray, index: int) -> np.ndarray:
+def predicted_mask(camera, mask: MaskSpec, pred_8bit: np.ndarray, index: int, controller=None,
+                   pred_masked: bool = False) -> np.ndarray:
     """The mask law applied to a predicted frame on the 8-bit scale (sensor grid), placed on the
-    mirror grid through the inverse registration first (camera.to_mirror)."""
+    mirror grid through the inverse registration first (camera.to_mirror). controller: the
+    loop's ExposureController (past masks and captures); pred_masked: the prediction is of
+    masked captures (MASKED_MODES)."""
     pred = camera.to_mirror(pred_8bit).astype(np.float64)
     e = predicted_electrons(pred, camera.params, mask.clipped_gain)
     return mask_levels(mask, camera.dmd.spec.bits, pred_8bit=np.clip(pred, 0, 255),
                        pred_electrons=e, full_well_e=camera.params.full_well_e,
-                       level_exposure=camera.level_exposure_s(index))
+                       level_exposure=camera.level_exposure_s(index), sensor=camera.params,
+                       controller=controller, pred_masked=pred_masked)
+
+
+def controller_view(camera, enc, est, flags, index: int):
+    """What the exposure controller takes from a capture, on the mirror grid: the all-white
+    electrons the reconstruction implies (a lower bound where clipped), the clipped pixels and
+    the exposure each pixel had relative to white (its displayed mask, through the relay)."""
+    white_s = camera.white_exposure_s(index)
+    e_white = est.astype(np.float64) * camera.electrons_per_radiance() * white_s
+    clipped = ((flags.astype(np.int64) & 1) > 0).astype(np.float32)
+    rel = np.asarray(enc.exposure_s, dtype=np.float64) / white_s
+    return (camera.to_mirror(e_white.astype(np.float32)), camera.to_mirror(clipped) > 0.5,
+            camera.to_mirror(rel.astype(np.float32)))
 
 
 @dataclass(frozen=True)
@@ -121,13 +143,20 @@ class LoopStep:
     HISTORY = 4
 
     def __init__(self, camera, mask: MaskSpec, loop: LoopSpec, predictor: PredictorSpec,
-                 model=None):
-        """model: an already built predictor (else built from `predictor`); none for the oracle."""
+                 model=None, budget: BudgetSpec = BudgetSpec()):
+        """model: an already built predictor (else built from `predictor`); none for the oracle.
+        budget: the real-time budget; `clock` (timing_budget.MaskClock) says when each mask
+        reaches the DMD and what each window shows."""
         self.camera, self.mask, self.loop, self.predictor_spec = camera, mask, loop, predictor
         self.needs_truth = PREDICTORS[predictor.name].needs_truth
         self.model = None if self.needs_truth else (model or make_predictor(
             predictor.name, predictor.weights, predictor.resolution))
         self.history: list[np.ndarray] = []
+        p = camera.params
+        self.clock = MaskClock(budget, camera.timing, camera.shape, p.bits, camera.mirror_shape,
+                               camera.dmd.spec.bits) if camera.dmd else None
+        self.controller = ExposureController(mask.clipped_gain, int(np.ceil(3 * mask.smooth_px)),
+                                             p.saturation_capacity_e) if camera.dmd else None
 
     def next_mask(self, index: int, truth: np.ndarray | None = None) -> MaskDecision:
         """The mask for frame `index`; `truth` (mirror grid, time-averaged radiance) for the oracle."""
@@ -138,11 +167,15 @@ class LoopStep:
             return MaskDecision(oracle_mask(self.camera, self.mask, truth, index), False, None)
         t0 = time.perf_counter()
         pred, n_bad = checked_prediction(self.model, self.history[-2:])
-        levels = predicted_mask(self.camera, self.mask, resize_to(pred, self.camera.shape), index)
+        levels = predicted_mask(self.camera, self.mask, resize_to(pred, self.camera.shape), index,
+                                self.controller, self.loop.mode in MASKED_MODES)
         return MaskDecision(levels, False, time.perf_counter() - t0, n_bad)
 
     def observe(self, index: int, ldr, enc, est, flags) -> None:
-        """Take what the camera saw of frame `index` into the predictor's history."""
+        """Take what the camera saw of frame `index` into the predictor's history and the
+        exposure controller's state."""
+        if self.controller is not None:
+            self.controller.observe(*controller_view(self.camera, enc, est, flags, index))
         if self.model is None:
             return
         x = predictor_input(self.loop.mode, self.camera, ldr, enc, est, flags, index, self.mask.clipped_gain)

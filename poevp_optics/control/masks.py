@@ -5,6 +5,7 @@
 | threshold_exp    | M = 255 if x < Vs, else 255 a^((x - b Vs) / (255 - x))          | paper Eq. 2, reading 1 |
 | threshold_ratio  | M = 255 if x < Vs, else 255 (a Vs / x + b)                      | paper Eq. 2, reading 2 |
 | target           | the largest level whose exposure brings the predicted signal to `target` x full well | ours |
+| exposure_controller | per-region controller: where from the prediction, how bright from past masks and captures; signal into [band_low, band_high] of full scale | ours (exposure_control.py) |
 | white            | M = 255 everywhere (the LDR twin)                               | - |
 
 The paper's Eq. 2 is garbled in our copy (its second branch's symbols read, in order,
@@ -113,6 +114,20 @@ def target_levels(pred_electrons: np.ndarray, full_well_e: float, target: float,
     return order[pos].astype(np.float64)
 
 
+def band_levels(e_white: np.ndarray, level_exposure: np.ndarray, e_low: float, e_aim: float,
+                e_high: float, min_level: int = 0) -> np.ndarray:
+    """DMD level per mirror that puts `e_white` x rel(level) in the band [e_low, e_high] (e-):
+    the largest-exposure level at or below `e_aim`; where that lands below `e_low`, the
+    largest-exposure level at or below `e_high` (the band is wider than one PWM step except
+    between level 0 and 1, so this lands in the band wherever a level can). Float64 levels."""
+    e = np.asarray(e_white, dtype=np.float64)
+    rel = np.asarray(level_exposure, dtype=np.float64) / float(level_exposure[-1])
+    v_aim = target_levels(e, e_aim, 1.0, level_exposure, min_level)
+    v_high = target_levels(e, e_high, 1.0, level_exposure, min_level)
+    got = e * rel[v_aim.astype(np.int64)]
+    return np.where(got >= e_low, v_aim, v_high)
+
+
 def predicted_electrons(pred_8bit: np.ndarray, params, clipped_gain: float) -> np.ndarray:
     """Photo-electrons implied by a predicted frame on the 8-bit scale (values above 255 allowed,
     as in the demodulated loop): the sensor transfer inverted, e = (x max_dn / 255 - offset_dn)
@@ -128,12 +143,17 @@ def predicted_electrons(pred_8bit: np.ndarray, params, clipped_gain: float) -> n
 @dataclass(frozen=True)
 class MaskInput:
     """What a law may look at: the predicted frame on the 8-bit scale (mirror grid), the electrons
-    it implies with the all-white mask, the full well, and the exposure of every DMD level."""
+    it implies with the all-white mask, the full well, and the exposure of every DMD level; for
+    the exposure controller also the sensor (SensorParams), the controller's state (past masks
+    and captures) and whether the prediction is of masked captures (the `raw` loop mode)."""
 
     pred_8bit: np.ndarray | None = None
     pred_electrons: np.ndarray | None = None
     full_well_e: float | None = None
     level_exposure: np.ndarray | None = None
+    sensor: object | None = None
+    controller: object | None = None
+    pred_masked: bool = False
 
     @property
     def shape(self):
@@ -150,6 +170,31 @@ def _target_law(spec, top: int, x: MaskInput) -> np.ndarray:
     e = np.nan_to_num(np.asarray(x.pred_electrons, dtype=np.float64), nan=1e30, posinf=1e30)
     env = smooth_envelope(e, spec.smooth_px)
     return target_levels(env, x.full_well_e, spec.target, x.level_exposure, min(spec.min_level, top))
+
+
+def _controller_law(spec, top: int, x: MaskInput) -> np.ndarray:
+    """exposure_control.py: bright where the prediction clips, as bright as the controller's
+    demand there (its first guess, clipped_gain x saturation, where the region is new), the
+    prediction's own value elsewhere; smooth envelope; then the level putting the signal in the
+    band [band_low, band_high] x full scale, aiming at `target`."""
+    from poevp_optics.control.exposure_control import full_scale_electrons
+
+    if x.pred_electrons is None or x.level_exposure is None or x.sensor is None:
+        raise ValueError("mask law 'exposure_controller' needs predicted electrons, the level table "
+                         "and the sensor")
+    p = x.sensor
+    e = np.nan_to_num(np.asarray(x.pred_electrons, dtype=np.float64), nan=1e30, posinf=1e30)
+    c = x.controller
+    if c is not None and c.demand_e is not None:
+        bright = (_as_8bit(x.pred_8bit) >= 254.5 if x.pred_8bit is not None
+                  else e >= p.saturation_capacity_e)
+        if x.pred_masked:                       # a prediction of masked captures: demodulate it
+            e = np.where(bright, e, e / np.maximum(c.rel.astype(np.float64), 1e-9))
+        held = c.held_e()
+        e = np.where(bright & (held >= p.saturation_capacity_e), held, e)
+    env = smooth_envelope(e, spec.smooth_px)
+    e_low, e_aim, e_high = full_scale_electrons(p, [spec.band_low, spec.target, spec.band_high])
+    return band_levels(env, x.level_exposure, e_low, e_aim, e_high, min(spec.min_level, top))
 
 
 def _paper_law(formula):
@@ -169,6 +214,9 @@ MASK_LAWS.register("threshold_ratio", _paper_law(threshold_ratio),
                    source="paper Eq. 2, ratio reading (module docstring)")
 MASK_LAWS.register("target", _target_law, source="ours: the largest level bringing the predicted "
                    "signal to `target` x full well")
+MASK_LAWS.register("exposure_controller", _controller_law,
+                   source="ours: per-region exposure controller from past masks and captures "
+                   "(control/exposure_control.py), target band of full scale")
 MASK_LAWS.register("white", _white_law, source="all mirrors on: the LDR twin")
 
 
@@ -182,13 +230,16 @@ class MaskSpec:
     b: float = param(0.0, min=0, max=1)
     target: float = param(0.5, gt=0, max=1)
     smooth_px: float = param(4.0, min=0, max=1000)
-    clipped_gain: float = param(32.0, min=1, max=1e9)   # target law: assumed x saturation where clipped
+    clipped_gain: float = param(32.0, min=1, max=1e9)   # assumed x saturation (x lower bound) where clipped
+    band_low: float = param(0.4, gt=0, lt=1)            # exposure_controller: band, fraction of full scale
+    band_high: float = param(0.9, gt=0, max=1)
     min_level: int = param(0, min=0, max=65535)         # lowest DMD level a law may use
 
 
 def mask_levels(spec: MaskSpec, bits: int, *, pred_8bit: np.ndarray | None = None,
                 pred_electrons: np.ndarray | None = None, full_well_e: float | None = None,
-                level_exposure: np.ndarray | None = None) -> np.ndarray:
+                level_exposure: np.ndarray | None = None, sensor=None, controller=None,
+                pred_masked: bool = False) -> np.ndarray:
     """Apply the scene's mask law (MASK_LAWS); integer-valued float64 levels in [0, 2^bits - 1]."""
-    x = MaskInput(pred_8bit, pred_electrons, full_well_e, level_exposure)
+    x = MaskInput(pred_8bit, pred_electrons, full_well_e, level_exposure, sensor, controller, pred_masked)
     return MASK_LAWS[spec.law](spec, (1 << bits) - 1, x)

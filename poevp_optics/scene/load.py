@@ -166,6 +166,9 @@ def build_spec(raw: dict, path: Path, ctx: Where | None = None, *, cross_checks:
         entry = tables["spectra"].get(ident)
         if entry is None or entry.kind == "reflectance":
             raise ctx.fail(f"flicker.{ident}", "must name an emissive [spectra] entry (a lamp)")
+    if tables["flicker"] and sec["budget"].late_mask == "partial":
+        raise ctx.fail("budget.late_mask", "'partial' (a mask switching inside the window) is not "
+                       "modelled for flickering lamps' emitter-group images; use 'next' or 'ideal'")
     if tables["flicker"] and not all(m.is_static for m in tables["motion"].values()):
         raise ctx.fail("flicker", "flickering lamps need static geometry (no moving [motion] entry)")
     spectra_ = tables["spectra"]

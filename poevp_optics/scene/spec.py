@@ -18,6 +18,7 @@
 | [mask]               | MaskSpec         | control/masks.py |
 | [predictor]          | PredictorSpec    | control/predictors |
 | [loop]               | LoopSpec         | control/loop_step.py |
+| [budget]             | BudgetSpec       | control/timing_budget.py |
 | [chart]              | ChartSpec        | analysis/charts.py |
 | [outputs]            | OutputsSpec      | apps/outputs.py |
 
@@ -42,6 +43,7 @@ from poevp_optics.camera.sensor import SensorSpec
 from poevp_optics.control.loop_step import LoopSpec
 from poevp_optics.control.masks import MaskSpec
 from poevp_optics.control.predictors import PredictorSpec
+from poevp_optics.control.timing_budget import BudgetSpec
 from poevp_optics.core.accuracy import Accuracy
 from poevp_optics.core.timing import TimingSpec
 from poevp_optics.render.materials.retroreflective import SheetingSpec
@@ -75,6 +77,7 @@ class SceneSpec:
     mask: MaskSpec
     predictor: PredictorSpec
     loop: LoopSpec
+    budget: BudgetSpec
     outputs: OutputsSpec
     plate: PlateSpec
     chart: ChartSpec
@@ -142,7 +145,7 @@ class SceneSpec:
 SECTIONS = {
     "render": RenderSpec, "timing": TimingSpec, "dmd": DMDSpec, "objective": ObjectiveSpec,
     "relay": RelaySpec, "sensor": SensorSpec, "mask": MaskSpec, "predictor": PredictorSpec,
-    "loop": LoopSpec, "outputs": OutputsSpec, "plate": PlateSpec, "chart": ChartSpec,
+    "loop": LoopSpec, "budget": BudgetSpec, "outputs": OutputsSpec, "plate": PlateSpec, "chart": ChartSpec,
     "source": SourceSpec, "road": RoadSpec,
 }
 TABLE_SECTIONS = {"motion": MotionSpec, "spectra": SpectrumSpec, "flicker": FlickerSpec,

@@ -84,6 +84,14 @@ def check_dmd_use(ctx, dmd: DMDSpec, t: TimingSpec, mask: MaskSpec):
         raise ctx.fail("timing.dmd_window_offset_s",
                        f"the DMD window [{d0:.6g}, {d1:.6g}] s misses the exposure [{e0:.6g}, "
                        f"{e1:.6g}] s (from the frame start): no mask could act on the capture")
+    from poevp_optics.camera.dmd import timing_problem
+
+    problem = timing_problem(dmd, t)
+    if problem:
+        raise ctx.fail(*problem)
+    if mask.law == "exposure_controller" and not mask.band_low < mask.target < mask.band_high:
+        raise ctx.fail("mask.target", f"the exposure controller aims inside its band: need band_low < "
+                       f"target < band_high, got {mask.band_low:g} < {mask.target:g} < {mask.band_high:g}")
     top = (1 << dmd.bits) - 1
     if mask.law != "white" and mask.min_level >= top:
         raise ctx.fail("mask.min_level", f"must be < {top}, the white level of a {dmd.bits}-bit DMD "

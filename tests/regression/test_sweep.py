@@ -22,7 +22,8 @@ from ..conftest import ROOT, SCENES
 
 # the default scene made small through the same overrides a user would give
 SMALL = ["render.resolution=[46,80]", "timing.frames=3", "render.spp=4", "render.subframes=2",
-         "mask.law='threshold_exp'", "outputs.previews=false", "outputs.contact_sheet=false"]
+         "mask.law='threshold_exp'", "predictor.name='oracle'", "outputs.previews=false",
+         "outputs.contact_sheet=false"]
 GRID = ["timing.exposure_s=0.01,0.02", "mask.a=0.5,0.7,0.9", "mask.b=0.0,0.2"]
 
 

@@ -1,0 +1,127 @@
+"""The default loop on six plate texts at the default and 10x high beams (issue 18): the plate's
+white per frame (90th percentile of the plate box in the raw 8-bit capture / 255) against the
+40-90 % band, and whole-frame PP-OCRv4 detection + recognition (no crop from the known box).
+
+    python -m benchmarks.plate_band [--texts "JN F9H28,..."] [--gains 1,10] [--frames 16]
+
+Writes results/plate_band.md. One render per text at the scene's beams; a beam gain g reuses it
+with the radiance scaled by g (exact for all light from the beams, which is all the plate gets;
+the 0.005 cd/m^2 sky glow on the road is scaled too). The camera loop runs once per (text, g).
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+from benchmarks.common import machine_line, markdown_table, save_text
+
+TEXTS = ["JN F9H28", "KA 7731", "B4 713X", "MU 55RT", "HZ 2048", "TX 96QW"]
+
+
+def render_once(scene: str, overrides: list[str]):
+    """(spec, renderer, exposures) of a scene with overrides, rendered once."""
+    from poevp_optics.camera.camera import Camera
+    from poevp_optics.render.exposures import render_exposures
+    from poevp_optics.render.renderer import Renderer
+    from poevp_optics.scene.load import load_scene
+
+    spec = load_scene(scene, overrides)
+    renderer = Renderer(spec, guard_px=Camera.from_scene(spec).guard_px)
+    return spec, renderer, list(render_exposures(spec, renderer, progress=False))
+
+
+def scaled(exposures, gain: float):
+    """Rendered exposures with every radiance sample x gain (variances x gain^2)."""
+    import dataclasses
+
+    if gain == 1.0:
+        return exposures
+    return [dataclasses.replace(
+        ex, subframes=tuple(s * gain for s in ex.subframes),
+        radiance=dataclasses.replace(ex.radiance, data=ex.radiance.data * gain),
+        variance=ex.variance * gain ** 2,
+        subframe_variances=tuple(v * gain ** 2 for v in ex.subframe_variances)) for ex in exposures]
+
+
+def loop_frames(spec, renderer, exposures, label: str, ocr: bool = True) -> list[dict]:
+    """Run the camera loop of `spec` on rendered exposures; per frame: init flag, plate white
+    (LDR twin and encoded), saturated plate fraction, whole-frame OCR read of the capture."""
+    import tempfile
+
+    from poevp_optics.analysis.metrics import plate_white_fraction
+    from poevp_optics.analysis.recognition import frame_reads
+    from poevp_optics.apps.render_run import run_frames
+
+    frames = tuple(range(spec.timing.frames))
+    with tempfile.TemporaryDirectory() as tmp:
+        report, kept = run_frames(spec, tmp, False, renderer=renderer, exposures=exposures,
+                                  write_images=False, keep_frames=frames)
+    out = []
+    for f in report["per_frame"]:
+        k = kept[f["index"]]
+        read, texts = frame_reads(k["capture"], label) if ocr else (None, "")
+        out.append({"index": f["index"], "init": bool(f.get("init")),
+                    "white_ldr": plate_white_fraction(k["ldr"], k["roi"]),
+                    "white": plate_white_fraction(k["capture"], k["roi"]),
+                    "saturated": f["saturated_fraction_roi"]["encoded"], "read": read, "texts": texts,
+                    "late": bool(f.get("timing_budget", {}).get("late"))})
+    return out
+
+
+def summarise(rows: list[dict], lo=0.4, hi=0.9) -> dict:
+    loop = [r for r in rows if not r["init"]]
+    whites = np.array([r["white"] for r in loop])
+    return {"frames": len(loop), "read": float(np.mean([bool(r["read"]) for r in loop])),
+            "in_band": float(np.mean((whites >= lo) & (whites <= hi))),
+            "white_p10": float(np.percentile(whites, 10)), "white_median": float(np.median(whites)),
+            "white_p90": float(np.percentile(whites, 90)),
+            "saturated": float(np.mean([r["saturated"] for r in loop]))}
+
+
+def main(argv=None):
+    from poevp_optics.core import runtime
+
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--scene", default="scenes/highbeam_plate")
+    ap.add_argument("--texts", default=",".join(TEXTS))
+    ap.add_argument("--gains", default="1,10")       # x the scene's high beams (120 kcd each)
+    ap.add_argument("--frames", type=int, default=16)
+    ap.add_argument("--set", action="append", default=[])
+    args = ap.parse_args(argv)
+    runtime.set_threads(2)
+    rows, per_frame = [], []
+    gains = [float(g) for g in args.gains.split(",")]
+    for text in args.texts.split(","):
+        t0 = time.perf_counter()
+        ov = [f'plate.text="{text}"', f"timing.frames={args.frames}", *args.set]
+        spec, renderer, ex = render_once(args.scene, ov)
+        for gain in gains:
+            fr = loop_frames(spec, renderer, scaled(ex, gain), text)
+            s = summarise(fr, spec.mask.band_low, spec.mask.band_high)
+            rows.append([gain, text, s["frames"], s["read"], s["in_band"], s["white_p10"], s["white_median"],
+                         s["white_p90"], s["saturated"], time.perf_counter() - t0])
+            per_frame.append((gain, text, fr))
+            print(rows[-1], flush=True)
+            t0 = time.perf_counter()
+    rows.sort(key=lambda r: r[0])
+    header = ["beam gain", "plate", "loop frames", "read (whole frame)", "white in 40-90 %",
+              "white p10", "white median", "white p90", "saturated plate", "seconds"]
+    detail = "\n".join(
+        f"- {g:g}x `{t}`: white per frame " + ", ".join(
+            f"{r['white']:.2f}{'*' if r['init'] else ''}{'' if r['read'] or r['init'] else ' (miss)'}" for r in fr)
+        for g, t, fr in per_frame)
+    text = (f"# Plate white and whole-frame OCR on the default loop\n\nScene `{args.scene}` with "
+            f"{' '.join(args.set) or 'its defaults'}, {args.frames} frames (the first "
+            f"init_frames white, marked *). White = 90th percentile of the plate box in the raw "
+            f"8-bit capture / 255. Read = RapidOCR PP-OCRv4 detection + recognition on the whole "
+            f"frame, every character (paper Eq. 4). Machine: {machine_line()}.\n\n"
+            f"{markdown_table(header, rows)}\n\n## Per frame\n\n{detail}\n")
+    print(text)
+    save_text("plate_band.md", text)
+
+
+if __name__ == "__main__":
+    main()
