@@ -217,7 +217,8 @@ class Runner:
                               capture_seed(spec.sensor.seed, spec.render.seed, e.index, ENCODED_STREAM),
                               **e.capture_timing())
             est = flags = None
-            if self.cfg.loop_mode == "demodulated":
+            if self.cfg.loop_mode == "demodulated" or step.controller is not None:
+                # the exposure controller (mask law) reads the demodulated estimate in every mode
                 est, flags, _ = cam.reconstruct(enc, e.index)
             step.observe(e.index, c, enc, est, flags)
             out[e.index] = to_8bit(enc.dn, cam.params.max_dn).astype(np.uint8)

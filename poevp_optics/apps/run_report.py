@@ -207,8 +207,10 @@ def stage_sections(spec, renderer, step, res, setup_s: float, causal: bool) -> d
                                     "(frame or ROI), from independent-seed renders; mean over frames",
             "path": renderer.plan.mode, "path_reason": renderer.plan.reason,
             "variant": renderer.variant, "variant_reason": renderer.variant_reason,
-            "static": spec.is_static, "sampler": spec.render.sampler,
-            "light_weights": renderer.light_weights, **render_targets(spec, per_frame)},
+            "static": spec.is_static,
+            # a frame source ([source] exr_sequence / ldr_highlight) draws no samples and lights nothing
+            "sampler": spec.render.sampler if spec.source.renders else None,
+            "light_weights": getattr(renderer, "light_weights", None), **render_targets(spec, per_frame)},
         **{k: {"seconds": v} for k, v in res.stage_seconds.items()},
     }
     if causal:
