@@ -47,6 +47,22 @@ def client_scene(tmp_path):
     return scenes / "mine" / "scene.toml", lamp
 
 
+def _assert_worker_renders_like_the_client(tmp_path, client_spec, worker_spec, path_map):
+    """The client's and the worker's specs render the same outputs once the worker's report has
+    its paths mapped back to the client's (as run_point does)."""
+    from poevp_optics.apps.render_run import run_render
+    from tests.regression.bit_identical import hash_outputs
+
+    outs = {}
+    for name, sp in (("client", client_spec), ("worker", worker_spec)):
+        outs[name] = tmp_path / "out" / name
+        outs[name].mkdir(parents=True)
+        run_render(sp, outs[name], progress=False)
+    report = json.loads((outs["worker"] / "report.json").read_text())
+    (outs["worker"] / "report.json").write_text(json.dumps(map_paths(report, path_map)))
+    assert hash_outputs(outs["client"]) == hash_outputs(outs["worker"])
+
+
 def test_inputs_are_listed_with_how_a_worker_finds_them(client_scene):
     toml, lamp = client_scene
     refs = {r.key: r for r in with_hashes(scene_inputs(load_scene(toml)))}
@@ -85,17 +101,7 @@ def test_bundle_unpacks_into_a_mirror_that_loads_with_the_same_inputs(client_sce
     assert map_paths(str(spec.toml_path), m.path_map) == str(toml)
     assert map_paths({"a": [f"see {spec.xml_path}"]}, m.path_map) == {"a": [f"see {toml.parent.parent}/shared/scene.xml"]}
     # the mirror with its placed asset and overridden key renders what the client renders
-    from poevp_optics.apps.render_run import run_render
-    from tests.regression.bit_identical import hash_outputs
-
-    outs = {}
-    for name, sp in (("client", load_scene(toml)), ("worker", spec)):
-        outs[name] = tmp_path / "out" / name
-        outs[name].mkdir(parents=True)
-        run_render(sp, outs[name], progress=False)
-    report = json.loads((outs["worker"] / "report.json").read_text())
-    (outs["worker"] / "report.json").write_text(json.dumps(map_paths(report, m.path_map)))   # as run_point does
-    assert hash_outputs(outs["client"]) == hash_outputs(outs["worker"])
+    _assert_worker_renders_like_the_client(tmp_path, load_scene(toml), spec, m.path_map)
     # a worker with the same package assets reads its own copies: nothing placed, no override
     work2 = tmp_path / "worker" / "point2"
     work2.mkdir()
@@ -322,9 +328,7 @@ def test_a_frame_source_scene_sends_its_frames_and_csvs(tmp_path):
     """exr_highbeam (issue 19: radiance from an EXR sequence, no XML): the bundle lists the files
     its kind reads (sources/kinds.py source_files: every frame of the glob, the boxes CSV), and a
     worker's mirror renders what the client renders."""
-    from poevp_optics.apps.render_run import run_render
     from poevp_optics.sources.kinds import source_files
-    from tests.regression.bit_identical import hash_outputs
 
     client = tmp_path / "client"
     shutil.copytree(SCENES / "exr_highbeam", client / "exr_highbeam")
@@ -343,11 +347,4 @@ def test_a_frame_source_scene_sends_its_frames_and_csvs(tmp_path):
     m = materialize(plan, refs, make_bundle(plan, refs).data, work)
     worker_spec = load_scene(m.scene, ["timing.frames=2", *m.overrides])
     check_same_inputs(refs, worker_spec, m.path_map)
-    outs = {}
-    for name, sp in (("client", spec), ("worker", worker_spec)):
-        outs[name] = tmp_path / "out" / name
-        outs[name].mkdir(parents=True)
-        run_render(sp, outs[name], progress=False)
-    report = json.loads((outs["worker"] / "report.json").read_text())
-    (outs["worker"] / "report.json").write_text(json.dumps(map_paths(report, m.path_map)))   # as run_point does
-    assert hash_outputs(outs["client"]) == hash_outputs(outs["worker"])
+    _assert_worker_renders_like_the_client(tmp_path, spec, worker_spec, m.path_map)
