@@ -16,6 +16,7 @@ full-resolution frames. Torch code pairs functions with thin modules (STYLE.md 3
 
 from __future__ import annotations
 
+import hashlib
 import json
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -280,8 +281,21 @@ class DMVFNPredictor(Predictor):
         return pred.astype(np.float32)
 
     def describe(self):
-        return {"name": self.name, "weights": str(self.weights_path) if self.weights_path else None,
+        return {"name": self.name, **_weights_identity(self.weights_path),
                 "parameters": count_parameters(self.model), **{k: v for k, v in self.meta.items() if k in ("validation",)}}
+
+
+def _weights_identity(path: Path | None) -> dict:
+    """The weights file as the report names it: shipped weights relative to the assets folder
+    (the same on every clone), others absolute; plus the first 16 hex of its SHA-256."""
+    if path is None:
+        return {"weights": None}
+    path = Path(path).resolve()
+    try:
+        shown = f"assets/predictor/{path.relative_to(ASSETS.resolve())}"
+    except ValueError:
+        shown = str(path)
+    return {"weights": shown, "weights_sha256": hashlib.sha256(path.read_bytes()).hexdigest()[:16]}
 
 
 def default_weights(name: str) -> Path:
