@@ -298,6 +298,7 @@ class Renderer:
         self.stats = RenderStats(variant=variant)
         self._time = None
         self.light_weights: dict[str, float] | None = None   # set before the first render
+        self._pilot_area = 0                                  # ROI box area (px) at the last pilot
 
     def _make_sensor(self):
         mi = self.mi
@@ -357,7 +358,10 @@ class Renderer:
         self.params.update()
         self._time = t_s
         if self._roi_shape is not None and LIGHT_SELECTIONS[self.spec.render.light_selection].from_pilot:
-            self.light_weights = None      # the ROI moved: re-select at this pose (render/lights.py)
+            box = self.roi_box()           # the ROI grew/shrank > 25 % since the pilot: re-select
+            area = (box[2] - box[0]) * (box[3] - box[1]) if box else 0
+            if self._pilot_area and area and not 0.8 <= area / self._pilot_area <= 1.25:
+                self.light_weights = None  # (a pilot costs ~ a render: JIT; not at every pose)
 
     def roi_box(self) -> tuple[int, int, int, int] | None:
         """Image box (y0, x0, y1, x1), end-exclusive, of the ROI shape at the current pose, in
@@ -415,6 +419,7 @@ class Renderer:
             return frame[0]
         h, w = (n + 2 * self.guard_px for n in self.spec.render.resolution)
         y0, x0, y1, x1 = box
+        self._pilot_area = (y1 - y0) * (x1 - x0)
         roi = pilot_moments(self.mi, self.scene, self.sensor, self.spec.render.seed,
                             (x0 / w, y0 / h, x1 / w, y1 / h))
         return roi_weighted_moments([frame, roi])
