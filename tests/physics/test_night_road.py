@@ -27,14 +27,14 @@ def test_per_frame_angles_follow_the_law_of_cosines(spec):
     """Camera 0.5 m straight above the left lamp, plate centre P: the triangle lamp-camera-plate
     has sides h = 0.5, d_l, d_c, so cos(alpha) = (d_l^2 + d_c^2 - h^2) / (2 d_l d_c) (law of
     cosines); the entrance angle is acos((z_P - z_L) / d_l) (normal along -z); the distances
-    follow [motion.plate] at each exposure's mid-time: 60 m -> 10 m."""
+    follow [motion.plate] (25 m/s) at each exposure's mid-time: 60 m -> 10 m."""
     laws = scene_laws(spec)
     lamp = np.array([0.7, 0.65, 0.0])
     cam = lamp + np.array([0.0, 0.5, 0.0])
     for i in range(spec.timing.frames):
         t0, t1 = spec.timing.exposure_window_s(i)
         tm = 0.5 * (t0 + t1)
-        p = np.array([0.0, 0.5, 60.0 - 20.0 * tm])
+        p = np.array([0.0, 0.5, 60.0 - 25.0 * tm])
         np.testing.assert_allclose(plate_centre_m(spec, tm), p, atol=1e-12)
         g = plate_geometry(spec.road, p, *laws)
         d_l, d_c = np.linalg.norm(p - lamp), np.linalg.norm(p - cam)
@@ -45,8 +45,8 @@ def test_per_frame_angles_follow_the_law_of_cosines(spec):
         assert g["camera_distance_m"] == pytest.approx(d_c, rel=1e-12)
         # small-angle check: alpha ~ h cos(elevation) / d between 0.47 deg (60 m) and 2.9 deg (10 m)
         assert 0.4 < left["observation_deg"] < 3.0
-    first = plate_geometry(spec.road, plate_centre_m(spec, 0.015), *laws)["lamps"]["left"]["observation_deg"]
-    last = plate_geometry(spec.road, plate_centre_m(spec, 2.515), *laws)["lamps"]["left"]["observation_deg"]
+    first = plate_geometry(spec.road, plate_centre_m(spec, 0.014), *laws)["lamps"]["left"]["observation_deg"]
+    last = plate_geometry(spec.road, plate_centre_m(spec, 2.014), *laws)["lamps"]["left"]["observation_deg"]
     assert first < 0.5 < 2.5 < last
 
 
