@@ -121,3 +121,22 @@ def test_night_road_run_reports_the_plate_over_saturation_and_the_floors(tmp_pat
         20 * math.log10(max(f["peak_over_saturation"] for f in night["per_frame"])))
     assert (out / "night_road.png").is_file()
     assert "night road:" in " ".join(r["notes"])
+
+
+def test_light_selection_weighs_the_beams_by_what_the_plate_returns(spec):
+    """render/lights.py with an ROI: the high beams are photometric (Python) emitters whose
+    `sampling_weight` the pilot must reach, and p_i ~ sqrt(sum_g E_g[f_i^2] / M_g^2) is dominated
+    by the plate (0.1 % of the pixels, but its relative variance weighs as much as the frame's):
+    on the plate both beams give the same E_perp, so f_right / f_left = R_A(alpha_right) /
+    R_A(alpha_left) (the camera sits above the left lamp). The pilot's weight ratio must lie
+    within -3 % (pilot noise: 16 K samples) and +10 % (the road's symmetric share) of it."""
+    from poevp_optics.render.renderer import Renderer
+
+    r = Renderer(spec)
+    r.set_time(0.0)
+    w = r.select_lights()
+    assert {"highbeam_left", "highbeam_right"} <= set(w)
+    lamps = plate_geometry(spec.road, plate_centre_m(spec, 0.0), *scene_laws(spec))["lamps"]
+    ratio = lamps["right"]["r_a"] / lamps["left"]["r_a"]
+    assert 0.25 < ratio < 0.45                     # Type I at 1.43 vs 0.48 deg: about 1/3
+    assert ratio * 0.97 < w["highbeam_right"] / w["highbeam_left"] < ratio * 1.10
