@@ -17,7 +17,8 @@ the same Lagrange argument gives p_i ~ sqrt(sum_g E_g[f_i^2] / M_g^2) (`roi_weig
 A frame-wide pilot alone hardly sees a plate of 0.1 % of the pixels: on night_road its two high
 beams got equal weights while the retroreflective plate returns 3x more of the left beam (the
 camera sits above it: smaller observation angle), so the plate kept a 0.5 relative error per
-light sample (20 % at 8 spp, from light selection alone). Renderer re-selects at each pose.
+light sample (20 % at 8 spp, from light selection alone). Renderer re-selects whenever the
+ROI's area changes by more than 25 %; the report's `light_weights` are the last selection.
 """
 
 from __future__ import annotations
