@@ -9,7 +9,7 @@ install:
 	bash scripts/setup.sh
 
 demo: install
-	$(POEVP) render scenes/highbeam_plate --out out/highbeam_plate
+	$(POEVP) render scenes/night_road --out out/night_road
 
 test: install
 	$(PYTEST) -q -ra tests

@@ -298,6 +298,7 @@ class Renderer:
         self.stats = RenderStats(variant=variant)
         self._time = None
         self.light_weights: dict[str, float] | None = None   # set before the first render
+        self._pilot_area = 0                                  # ROI box area (px) at the last pilot
 
     def _make_sensor(self):
         mi = self.mi
@@ -356,6 +357,11 @@ class Renderer:
                     self.params[f"{target}.vertex_positions"] = mi.Float(verts.astype(np.float32).ravel())
         self.params.update()
         self._time = t_s
+        if self._roi_shape is not None and LIGHT_SELECTIONS[self.spec.render.light_selection].from_pilot:
+            box = self.roi_box()           # the ROI grew/shrank > 25 % since the pilot: re-select
+            area = (box[2] - box[0]) * (box[3] - box[1]) if box else 0
+            if self._pilot_area and area and not 0.8 <= area / self._pilot_area <= 1.25:
+                self.light_weights = None  # (a pilot costs ~ a render: JIT; not at every pose)
 
     def roi_box(self) -> tuple[int, int, int, int] | None:
         """Image box (y0, x0, y1, x1), end-exclusive, of the ROI shape at the current pose, in
@@ -385,7 +391,7 @@ class Renderer:
     def select_lights(self) -> dict[str, float]:
         """Set the emitters' sampling weights by `render.light_selection` (render/lights.py) at
         the current pose; returns {emitter id: weight} (the report's `light_weights`)."""
-        from poevp_optics.render.lights import pilot_second_moments, weights_from_moments
+        from poevp_optics.render.lights import weights_from_moments
 
         choice = LIGHT_SELECTIONS[self.spec.render.light_selection]
         keys = {em.id(): f"{em.id()}.sampling_weight" for em in self.scene.emitters()}
@@ -393,8 +399,7 @@ class Renderer:
         if choice.keep_xml:
             weights = {k: float(self.params[v]) for k, v in keys.items()}
         else:
-            weights = (weights_from_moments(pilot_second_moments(self.mi, self.scene, self.sensor,
-                                                                 self.spec.render.seed))
+            weights = (weights_from_moments(self._pilot_moments())
                        if choice.from_pilot else {k: 1.0 for k in keys})
             for k, v in keys.items():
                 self.params[v] = float(weights.get(k, 1.0))
@@ -402,6 +407,22 @@ class Renderer:
         self.light_weights = {k: weights[k] for k in keys if k in weights}
         self.stats.extra["light_weights"] = self.light_weights
         return self.light_weights
+
+    def _pilot_moments(self) -> dict[str, float]:
+        """The pilot's per-emitter second moments over the frame, combined with those over the
+        ROI box at the current pose when there is one (render/lights.py roi_weighted_moments)."""
+        from poevp_optics.render.lights import pilot_moments, roi_weighted_moments
+
+        frame = pilot_moments(self.mi, self.scene, self.sensor, self.spec.render.seed)
+        box = self.roi_box() if self._roi_shape is not None else None
+        if box is None:
+            return frame[0]
+        h, w = (n + 2 * self.guard_px for n in self.spec.render.resolution)
+        y0, x0, y1, x1 = box
+        self._pilot_area = (y1 - y0) * (x1 - x0)
+        roi = pilot_moments(self.mi, self.scene, self.sensor, self.spec.render.seed,
+                            (x0 / w, y0 / h, x1 / w, y1 / h))
+        return roi_weighted_moments([frame, roi])
 
     def sample_count(self, spp: int) -> int:
         """The spp Mitsuba renders for a request of `spp` with this run's sampler."""

@@ -1,16 +1,28 @@
 """The default scene's headline numbers at reduced size (issue 3 "What it must show").
 
-Provenance: full-size run (368x640, 16 frames, spp 16) on 2026-11-22 gave LDR plate saturation
-92 %, encoded 0 %, plate entropy 0.91 -> 6.07 bits (README; then with the oracle). Here 4 frames
-at 184x320 / 8 spp: the asserted bounds are the physics claims, not those exact numbers.
+The default scene is the one `make demo` renders (the Makefile's `demo` rule): night_road since
+issue 17. Provenance of highbeam_plate's bounds: full-size run (368x640, 16 frames, spp 16) on
+2026-11-22 gave LDR plate saturation 92 %, encoded 0 %, plate entropy 0.91 -> 6.07 bits (README;
+then with the oracle). Here 4 frames at 184x320 and few spp: the asserted bounds are the physics
+claims, not those exact numbers.
 """
 
 from __future__ import annotations
 
 import json
+import re
 
 from poevp_optics.cli import main
-from tests.conftest import SCENES
+from tests.conftest import ROOT, SCENES
+
+
+def _demo_scene() -> str:
+    """The scene the Makefile's `demo` rule renders."""
+    rule = re.search(r"^demo:.*\n((?:\t.*\n)+)", (ROOT / "Makefile").read_text(), re.M)
+    assert rule, "Makefile has no demo rule"
+    found = re.search(r"render\s+scenes/(\w+)", rule.group(1))
+    assert found, "the demo rule renders no scene"
+    return found.group(1)
 
 
 def _run(tmp_path, scene, *sets):
@@ -52,6 +64,35 @@ def test_highbeam_plate_runs_the_causal_loop_and_its_mask_fixes_saturation(tmp_p
     for sub in ("capture", "ldr", "mask", "exposure", "reconstruction", "preview"):
         assert (out / sub / "frame_0002.png").exists() or (out / sub / "frame_0002.exr").exists()
     assert (out / "contact_sheet.png").exists()
+
+
+def test_default_scene_is_night_road_and_runs_the_causal_loop(tmp_path):
+    """`make demo`'s scene (issue 17): night_road with highbeam_plate's causal loop settings;
+    its report carries the per-frame plate geometry and the DR statement."""
+    scene = _demo_scene()
+    assert scene == "night_road"
+    r, out = _run(tmp_path, scene, "timing.frames=4", "render.spp=2")
+    m = r["metrics"]
+    assert m["init_frames"] == 2
+    assert all(f.get("init") for f in r["per_frame"][:2]) and not r["per_frame"][2].get("init")
+    pred = r["stages"]["predict"]["predictor"]
+    assert pred["name"] == "dmvfn_lite" and pred["weights"].endswith("dmvfn_lite.safetensors")
+    assert r["mask"]["law"] == "exposure_controller" and r["mask"]["predictor"] == "dmvfn_lite"
+    assert "relay" not in r["skipped_stages"] and "objective" not in r["skipped_stages"]
+    tb = r["timing_budget"]
+    assert tb["compute"] == "fpga_zynq" and tb["late_frames"] == []
+    # 10 fps, 28 ms exposure: 72 ms from exposure end to the next window, far above the budget
+    assert abs(tb["gap_s"] - (0.1 - 0.028)) < 1e-9 and tb["slack_s"] > 0.06
+    # retroreflective plate tens of times over saturation; the LDR twin clips it, the loop's
+    # mask (frames 2-3) brings it back under saturation
+    for f in r["per_frame"]:
+        assert 10.0 < f["plate"]["peak_over_saturation"] < 1000.0
+    assert 55.0 < r["per_frame"][0]["plate"]["distance_m"] < 60.0
+    assert m["saturated_fraction_roi"]["ldr_after_init"] > 0.5
+    assert m["saturated_fraction_roi"]["encoded_after_init"] < 0.05
+    nr = r["night_road"]
+    assert nr["binding"] in ("glare", "dmd", "none") and nr["plate_demand_db"] > 20.0
+    assert (out / "night_road.png").exists() and (out / "timeline_plot.png").exists()
 
 
 def test_lab_rail_reports_the_white_fill_floor(tmp_path):

@@ -28,3 +28,27 @@ def test_sqrt_weights_minimise_the_second_moment():
     for _ in range(200):                      # any other selection does no better
         assert second_moment(w * np.exp(rng.normal(0, 0.3, 3))) >= best * (1 - 1e-12)
     assert best < second_moment(np.ones(3))   # and uniform selection is worse
+
+
+def test_roi_weighted_moments_minimise_the_sum_of_relative_variances():
+    """Two regions (frame, ROI): p_i ~ sqrt(sum_g E_g[f_i^2] / M_g^2) minimises
+    sum_g (sum_i E_g[f_i^2] / p_i - M_g^2) / M_g^2; a region without signal is left out."""
+    from poevp_optics.render.lights import roi_weighted_moments
+
+    frame = ({"left": 1.0, "right": 1.0, "sky": 0.01}, 1.5)
+    roi = ({"left": 9.0, "right": 1.0, "sky": 1e-6}, 4.0)   # a plate returning 3x more of the left beam
+    comb = roi_weighted_moments([frame, roi, ({"left": 0.0, "right": 0.0, "sky": 0.0}, 0.0)])
+    for k in ("left", "right", "sky"):
+        assert abs(comb[k] - (frame[0][k] / 1.5 ** 2 + roi[0][k] / 4.0 ** 2)) < 1e-12
+    w = np.array([weights_from_moments(comb)[k] for k in ("left", "right", "sky")])
+
+    def objective(p):
+        p = p / p.sum()
+        return sum(sum(m[k] / q for k, q in zip(("left", "right", "sky"), p)) / mean ** 2 - 1.0
+                   for m, mean in (frame, roi))
+
+    best = objective(w)
+    rng = np.random.default_rng(1)
+    for _ in range(200):
+        assert objective(w * np.exp(rng.normal(0, 0.3, 3))) >= best * (1 - 1e-12)
+    assert best < objective(np.array([1.0, 1.0, 1.0]))

@@ -361,10 +361,12 @@ class _PhotometricEmitterMethods:
         return mi.ScalarBoundingBox3f(mi.ScalarPoint3f(*map(float, p[:3])))
 
     def traverse(self, callback):
+        mi.Emitter.traverse(self, callback)      # `sampling_weight` (light selection: render/lights.py)
         callback.put("to_world", self.to_world, mi.ParamFlags.NonDifferentiable)
         callback.put("intensity", self.intensity, mi.ParamFlags.Differentiable)
 
     def parameters_changed(self, keys):
+        mi.Emitter.parameters_changed(self, keys)
         self._to_local = self.to_world.inverse()
         dr.make_opaque(self._to_local)
 
