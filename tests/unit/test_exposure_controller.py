@@ -48,7 +48,7 @@ def run_loop(over, mode, frames=10, init=2):
     the true next LDR frame; raw: it holds the last encoded capture (masked)."""
     table = level_table()
     rel = table / table[-1]
-    ctl = ExposureController(SPEC.clipped_gain, int(np.ceil(3 * SPEC.smooth_px)), SAT_E)
+    ctl = ExposureController(SPEC.first_guess, SPEC.clip_step, int(np.ceil(3 * SPEC.smooth_px)), SAT_E)
     mask = np.full((H, W), 255.0)
     whites = []
     enc8 = None
@@ -86,19 +86,48 @@ def test_moving_highlight_settles_in_band(over, mode):
     np.testing.assert_allclose(whites[2 + 4:], expect, rtol=1e-5)
 
 
-def test_first_guess_and_escalation_after_clipping():
-    """A region clipped behind a white mask is first taken as clipped_gain x saturation; clipped
-    again behind the mask that guess gave, as clipped_gain x its new lower bound."""
-    ctl = ExposureController(32.0, 0, SAT_E)
+def test_first_guess_and_bracketed_escalation_after_clipping():
+    """A region clipped behind a white mask is first taken as first_guess x saturation (and kept
+    at that through the second white init frame); clipped again behind the mask that guess gave,
+    as clip_step x its new lower bound (not clipped_gain x, the old 53x overshoot)."""
+    ctl = ExposureController(100.0, 4.0, 0, SAT_E)
     e = np.full((4, 4), SAT_E)
     ctl.observe(e, np.ones((4, 4), bool), np.ones((4, 4)))
-    np.testing.assert_allclose(ctl.demand_e, 32 * SAT_E)
-    ctl.observe(e / 0.02, np.ones((4, 4), bool), np.full((4, 4), 0.02))   # lower bound 50 x sat
-    np.testing.assert_allclose(ctl.demand_e, 32 * 50 * SAT_E, rtol=1e-6)
-    assert ctl.summary()["max_clip_frames"] == 2
+    np.testing.assert_allclose(ctl.demand_e, 100 * SAT_E)
+    ctl.observe(e, np.ones((4, 4), bool), np.ones((4, 4)))               # second white frame
+    np.testing.assert_allclose(ctl.demand_e, 100 * SAT_E)
+    ctl.observe(e / 0.005, np.ones((4, 4), bool), np.full((4, 4), 0.005))   # lower bound 200 x sat
+    np.testing.assert_allclose(ctl.demand_e, 4 * 200 * SAT_E, rtol=1e-6)
+    assert ctl.summary()["max_clip_frames"] == 3
     ctl.observe(np.full((4, 4), 300 * SAT_E), np.zeros((4, 4), bool), np.full((4, 4), 0.002))
     np.testing.assert_allclose(ctl.demand_e, 300 * SAT_E, rtol=1e-6)        # measured: exact
     assert ctl.summary()["clipped_mirrors"] == 0
+
+
+@pytest.mark.parametrize("over", [2.0, 5.0, 12.0, 40.0, 75.0, 150.0])
+def test_first_loop_frame_does_not_clip_up_to_first_guess_over_target(over):
+    """First loop frame after the white init frames (open mode, exact prediction): a highlight
+    X <= first_guess / target x saturation is not clipped, and its white is the closed form for
+    a demand of first_guess: the largest level with first_guess x rel <= target, i.e. X x rel
+    (or, if that level is below the band for the guess, the largest with first_guess x rel <=
+    band_high). Above first_guess / target = 167x it clips (a lost frame, found on the next)."""
+    whites, rel = run_loop(over, "open", frames=3)
+    guess = SPEC.first_guess
+    assert over <= guess / SPEC.target
+    expect = over / guess * closed_form_white(guess, rel)
+    np.testing.assert_allclose(whites[2], expect, rtol=1e-5)
+    assert whites[2] < 1.0
+    # a clipped region is not dimmed further than the prior says (0.6 X / 100 >= 0.6 % per x)
+    assert whites[2] >= over / guess * SPEC.band_low
+
+
+def test_first_loop_frame_clips_above_the_prior_then_brackets():
+    """X = 300 > first_guess / target: the first loop frame clips; the next guess is clip_step x
+    the lower bound it gave (not 53x), so the second loop frame reads X at >= 0.6 / clip_step / 2
+    of full scale (not dimmed to a few % as with the old 32 x bound), inside or below the band."""
+    whites, rel = run_loop(300.0, "open", frames=5)
+    assert whites[2] == pytest.approx(1.0)
+    assert 0.6 / SPEC.clip_step / 2 <= whites[3] < 1.0
 
 
 def test_band_levels_unreachable_band_stays_below():
