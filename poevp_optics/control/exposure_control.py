@@ -10,21 +10,24 @@ the camera has: its previous masks and captures.
 | D_t (e-)        | demodulated estimate e / rel(mask) (exact up to noise) | new region: max(P x saturation, k x lower bound); clipped before: max(k x lower bound, carried D_t-1) |
 
 - lower bound: saturation / rel(mask), the reconstruction's value of a clipped pixel;
-- P = `mask.first_guess` (default 100 x saturation): the prior for a region never measured,
-  i.e. clipped behind the white initialisation frames. The mask law aims at `target` (0.6), so
-  the first loop frame clips only above P / target = 167x saturation and puts a region X times
-  over saturation at 0.6 X / P of full scale: 0.03 at 5x, 0.3 at 50x, 1.0 at 167x. The choice
-  weighs a clipped frame (a lost read: the plate is gone) against a dim one (white 0.05-0.3
-  still reads, results/plate_band.md): plates under high beams are about 5-300x over a
-  camera's saturation (issue 18: 10-20x at 120 kcd and 20 m; x10 for stronger beams or nearer,
-  retroreflective sheeting, EN 12899-1 class RA2 ~ 100-250 cd/(lx m^2) vs ~ 0.3 for a diffuse
-  white), and P covers the lower two decades of that range in one frame without a clip.
-- k = `mask.clip_step` (default 4): the bracket after a clip. A clipped measurement says only
+- P = `mask.first_guess` (default 40 x saturation): the prior for a region never measured,
+  i.e. clipped behind the white initialisation frames. The law aims at `target` (0.6), so the
+  first loop frame puts a region X times over saturation at about 0.6 X / P of full scale and
+  clips it only above P / target = 67x (the 8-bit DMD's coarse low levels round the level
+  down: 1/255 steps are 25-33 % apart at levels 3-4). One 8-bit frame reads a plate from about
+  0.1 of full scale (PP-OCRv4 here: white 0.106 read, 0.078 misread, 0.047 missed) to 1.0, an
+  11x window; plates under high beams are ~5-300x over saturation (60x), so no prior avoids
+  every lost first frame. A clipped frame loses the read, a dim one only the band, so P puts the
+  window on the lower decade, where the default scene's plate is (p90 white 7x over at its
+  120 kcd beams, 57x at 10x the beams): both read on the first loop frame (0.11 and 0.96).
+  Brighter plates clip once and are bracketed (below).
+- k = `mask.clip_step` (default 2): the bracket after a clip. A clipped measurement says only
   X > lower bound L, so the next guess is k L: the next frame puts X at target X / (k L), i.e.
-  0.6 / k = 0.15 of full scale if X was just above L (dim, still read), and clips again only if
-  X > k L / target (the bracket then grows 6.7x per clipped frame: 2x..1000x is found within
-  two clipped frames from P = 100). The old rule (guess 32 L) put X = 1.4 L at 0.03 of full
-  scale after one clip (issue 18: 0.09 at 10x beams), a 53x overshoot.
+  0.3 of full scale if X was just above L (still read), and clips again only if X > k L /
+  target (the bracket grows 3.3x per clipped frame: 1000x is found after three clipped frames
+  from P = 40). The old rule (guess 32 L) put X just above L at 0.6 / 32 = 0.02 of full scale,
+  and with the 8-bit levels' rounding a 12x-beam plate came out at 0.1 after one clip with
+  k = 4 (issue 18: 0.09 at 10x with 32), a lost read.
 - carried D_t-1: the region's history. The previous demand, grey-dilated by the mask's motion
   radius R = ceil(3 smooth_px), so a region known to be 500x stays 500x where the highlight
   moved onto mirrors that were white (their own lower bound is only 1x);
