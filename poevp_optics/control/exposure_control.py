@@ -7,25 +7,41 @@ the camera has: its previous masks and captures.
 
 | quantity        | where the pixel was not clipped            | where it was clipped |
 |-----------------|--------------------------------------------|----------------------|
-| D_t (e-)        | demodulated estimate e / rel(mask) (exact up to noise) | max(g x lower bound, carried D_t-1) |
+| D_t (e-)        | demodulated estimate e / rel(mask) (exact up to noise) | new region: max(P x saturation, k x lower bound); clipped before: max(k x lower bound, carried D_t-1) |
 
 - lower bound: saturation / rel(mask), the reconstruction's value of a clipped pixel;
-- g = `mask.clipped_gain` (default 32): a clipped region is first assumed g times its lower
-  bound; if it clips again behind the mask that assumption gave, its lower bound has grown by
-  g / aim and the next guess grows with it (a geometric search: 2x..1000x is bracketed in two
-  clipped frames with g = 32); the first unclipped capture then gives the exact value;
+- P = `mask.first_guess` (default 40 x saturation): the prior for a region never measured,
+  i.e. clipped behind the white initialisation frames. The law aims at `target` (0.6), so the
+  first loop frame puts a region X times over saturation at about 0.6 X / P of full scale and
+  clips it only above P / target = 67x (the 8-bit DMD's coarse low levels round the level
+  down: 1/255 steps are 25-33 % apart at levels 3-4). One 8-bit frame reads a plate from about
+  0.1 of full scale (PP-OCRv4 here: white 0.106 read, 0.078 misread, 0.047 missed) to 1.0, an
+  11x window; plates under high beams are ~5-300x over saturation (60x), so no prior avoids
+  every lost first frame. A clipped frame loses the read, a dim one only the band, so P puts the
+  window on the lower decade, where the default scene's plate is (p90 white 7x over at its
+  120 kcd beams, 57x at 10x the beams): both read on the first loop frame (0.11 and 0.96).
+  Brighter plates clip once and are bracketed (below).
+- k = `mask.clip_step` (default 2): the bracket after a clip. A clipped measurement says only
+  X > lower bound L, so the next guess is k L: the next frame puts X at target X / (k L), i.e.
+  0.3 of full scale if X was just above L (still read), and clips again only if X > k L /
+  target (the bracket grows 3.3x per clipped frame: 1000x is found after three clipped frames
+  from P = 40). The old rule (guess 32 L) put X just above L at 0.6 / 32 = 0.02 of full scale,
+  and with the 8-bit levels' rounding a 12x-beam plate came out at 0.1 after one clip with
+  k = 4 (issue 18: 0.09 at 10x with 32), a lost read.
 - carried D_t-1: the region's history. The previous demand, grey-dilated by the mask's motion
   radius R = ceil(3 smooth_px), so a region known to be 500x stays 500x where the highlight
   moved onto mirrors that were white (their own lower bound is only 1x);
 - `clip_frames`: consecutive frames each region has been clipped (dilated with the region),
-  reported per frame.
+  reported per frame; a clipped pixel with clip_frames = 0 before is a new region.
 
 The `exposure_controller` mask law (masks.py) takes where the highlight will be from the
 prediction and how bright it is from D, then picks per mirror the DMD level that puts the
 signal in the target band (`mask.band_low` .. `mask.band_high` of the sensor's full scale, aim
 at `mask.target`). The band and the search are ours; the demodulated estimate is the paper's
 "modulated capture divided by the mask" (Sec. 3); the search after a clipped measurement is the
-bracketing used by auto-exposure controllers (e.g. Nourani-Vatani & Roberts, ACRA 2007).
+bracketing used by auto-exposure controllers (e.g. Nourani-Vatani & Roberts, ACRA 2007: a
+saturated image gives only a bound, so the exposure is stepped by a bounded factor, not
+jumped).
 """
 
 from __future__ import annotations
@@ -54,11 +70,13 @@ class ExposureController:
     """The demand map D and the clip history of each region (module docstring). State is real:
     it is the camera's memory of past captures."""
 
-    def __init__(self, clipped_gain: float, radius_px: int, saturation_e: float):
-        """clipped_gain: first assumed over-exposure of a clipped region (x its lower bound);
+    def __init__(self, first_guess: float, clip_step: float, radius_px: int, saturation_e: float):
+        """first_guess: assumed over-exposure of a never-measured clipped region (x saturation);
+        clip_step: the guess after a repeated clip (x the new lower bound);
         radius_px: motion radius over which a region's history is carried (mirrors);
         saturation_e: electrons at which the sensor clips."""
-        self.clipped_gain = float(clipped_gain)
+        self.first_guess = float(first_guess)
+        self.clip_step = float(clip_step)
         self.radius_px = int(radius_px)
         self.saturation_e = float(saturation_e)
         self.demand_e: np.ndarray | None = None
@@ -71,15 +89,17 @@ class ExposureController:
         had relative to white (the displayed mask)."""
         e = np.maximum(np.nan_to_num(np.asarray(e_white, dtype=np.float64), nan=0.0, posinf=1e30), 0.0)
         clip = np.asarray(clipped, dtype=bool)
-        lower = np.maximum(e, self.saturation_e)
-        guess = lower * self.clipped_gain
+        step = np.maximum(e, self.saturation_e) * self.clip_step      # k x lower bound
         if self.demand_e is not None:
-            guess = np.maximum(guess, grey_dilate(self.demand_e, self.radius_px).astype(np.float64))
-            frames = grey_dilate(self.clip_frames, self.radius_px) + 1
+            frames = grey_dilate(self.clip_frames, self.radius_px)
+            carried = grey_dilate(self.demand_e, self.radius_px).astype(np.float64)
         else:
-            frames = np.ones(clip.shape, np.float32)
+            frames = np.zeros(clip.shape, np.float32)
+            carried = np.zeros(clip.shape, np.float64)
+        new = frames <= 0                                              # never clipped here before
+        guess = np.maximum(np.maximum(step, carried), np.where(new, self.first_guess * self.saturation_e, 0.0))
         self.demand_e = np.where(clip, guess, e).astype(np.float32)
-        self.clip_frames = np.where(clip, frames, 0).astype(np.float32)
+        self.clip_frames = np.where(clip, frames + 1, 0).astype(np.float32)
         self.rel = np.asarray(rel, dtype=np.float32)
 
     def held_e(self) -> np.ndarray | None:

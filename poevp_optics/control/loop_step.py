@@ -155,7 +155,7 @@ class LoopStep:
         p = camera.params
         self.clock = MaskClock(budget, camera.timing, camera.shape, p.bits, camera.mirror_shape,
                                camera.dmd.spec.bits) if camera.dmd else None
-        self.controller = ExposureController(mask.clipped_gain, int(np.ceil(3 * mask.smooth_px)),
+        self.controller = ExposureController(mask.first_guess, mask.clip_step, int(np.ceil(3 * mask.smooth_px)),
                                              p.saturation_capacity_e) if camera.dmd else None
 
     def next_mask(self, index: int, truth: np.ndarray | None = None) -> MaskDecision:

@@ -174,8 +174,9 @@ def _target_law(spec, top: int, x: MaskInput) -> np.ndarray:
 
 def _controller_law(spec, top: int, x: MaskInput) -> np.ndarray:
     """exposure_control.py: bright where the prediction clips, as bright as the controller's
-    demand there (its first guess, clipped_gain x saturation, where the region is new), the
-    prediction's own value elsewhere; smooth envelope; then the level putting the signal in the
+    demand there (first_guess x saturation where the controller has no clipped history: the
+    prediction moved the highlight beyond the carried region), the prediction's own value
+    elsewhere; smooth envelope; then the level putting the signal in the
     band [band_low, band_high] x full scale, aiming at `target`."""
     from poevp_optics.control.exposure_control import full_scale_electrons
 
@@ -191,7 +192,8 @@ def _controller_law(spec, top: int, x: MaskInput) -> np.ndarray:
         if x.pred_masked:                       # a prediction of masked captures: demodulate it
             e = np.where(bright, e, e / np.maximum(c.rel.astype(np.float64), 1e-9))
         held = c.held_e()
-        e = np.where(bright & (held >= p.saturation_capacity_e), held, e)
+        known = held >= p.saturation_capacity_e
+        e = np.where(bright, np.where(known, held, spec.first_guess * p.saturation_capacity_e), e)
     env = smooth_envelope(e, spec.smooth_px)
     e_low, e_aim, e_high = full_scale_electrons(p, [spec.band_low, spec.target, spec.band_high])
     return band_levels(env, x.level_exposure, e_low, e_aim, e_high, min(spec.min_level, top))
@@ -231,6 +233,8 @@ class MaskSpec:
     target: float = param(0.5, gt=0, max=1)
     smooth_px: float = param(4.0, min=0, max=1000)
     clipped_gain: float = param(32.0, min=1, max=1e9)   # assumed x saturation (x lower bound) where clipped
+    first_guess: float = param(40.0, min=1, max=1e9)    # exposure_controller: never-measured clipped region, x saturation
+    clip_step: float = param(2.0, min=1, max=1e9)       # exposure_controller: guess after a repeated clip, x lower bound
     band_low: float = param(0.4, gt=0, lt=1)            # exposure_controller: band, fraction of full scale
     band_high: float = param(0.9, gt=0, max=1)
     min_level: int = param(0, min=0, max=65535)         # lowest DMD level a law may use

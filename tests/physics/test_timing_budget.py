@@ -130,3 +130,13 @@ def test_dlpc900_limits_are_one_line_errors_naming_the_keys():
     short = TimingSpec(fps=30.0, exposure_s=0.03, dmd_window_s=0.0267)
     assert timing_problem(DMDSpec(controller="dlpc900_dlp6500"), short)[0] == "timing.dmd_window_s"
     assert timing_problem(DMDSpec(controller="ideal"), short) is None
+
+
+def test_given_and_measured_compute_are_valid_choices():
+    """`given` takes budget.compute_s and `measured` the run's time (the registry once dropped
+    both: registering None returned a decorator instead of an entry)."""
+    timing = TimingSpec(fps=30.0, exposure_s=0.028, dmd_window_s=0.028)
+    given = MaskClock(BudgetSpec(compute="given", compute_s=0.012), timing, (368, 640), 8, (368, 640), 8)
+    assert given.compute_seconds(0.5) == 0.012
+    measured = MaskClock(BudgetSpec(compute="measured", compute_s=0.012), timing, (368, 640), 8, (368, 640), 8)
+    assert measured.compute_seconds(0.048) == 0.048

@@ -48,7 +48,7 @@ def run_loop(over, mode, frames=10, init=2):
     the true next LDR frame; raw: it holds the last encoded capture (masked)."""
     table = level_table()
     rel = table / table[-1]
-    ctl = ExposureController(SPEC.clipped_gain, int(np.ceil(3 * SPEC.smooth_px)), SAT_E)
+    ctl = ExposureController(SPEC.first_guess, SPEC.clip_step, int(np.ceil(3 * SPEC.smooth_px)), SAT_E)
     mask = np.full((H, W), 255.0)
     whites = []
     enc8 = None
@@ -86,19 +86,65 @@ def test_moving_highlight_settles_in_band(over, mode):
     np.testing.assert_allclose(whites[2 + 4:], expect, rtol=1e-5)
 
 
-def test_first_guess_and_escalation_after_clipping():
-    """A region clipped behind a white mask is first taken as clipped_gain x saturation; clipped
-    again behind the mask that guess gave, as clipped_gain x its new lower bound."""
-    ctl = ExposureController(32.0, 0, SAT_E)
+def test_first_guess_and_bracketed_escalation_after_clipping():
+    """A region clipped behind a white mask is first taken as first_guess x saturation (and kept
+    at that through the second white init frame); clipped again behind the mask that guess gave,
+    as clip_step x its new lower bound (not clipped_gain x, the old 53x overshoot)."""
+    ctl = ExposureController(100.0, 4.0, 0, SAT_E)
     e = np.full((4, 4), SAT_E)
     ctl.observe(e, np.ones((4, 4), bool), np.ones((4, 4)))
-    np.testing.assert_allclose(ctl.demand_e, 32 * SAT_E)
-    ctl.observe(e / 0.02, np.ones((4, 4), bool), np.full((4, 4), 0.02))   # lower bound 50 x sat
-    np.testing.assert_allclose(ctl.demand_e, 32 * 50 * SAT_E, rtol=1e-6)
-    assert ctl.summary()["max_clip_frames"] == 2
+    np.testing.assert_allclose(ctl.demand_e, 100 * SAT_E)
+    ctl.observe(e, np.ones((4, 4), bool), np.ones((4, 4)))               # second white frame
+    np.testing.assert_allclose(ctl.demand_e, 100 * SAT_E)
+    ctl.observe(e / 0.005, np.ones((4, 4), bool), np.full((4, 4), 0.005))   # lower bound 200 x sat
+    np.testing.assert_allclose(ctl.demand_e, 4 * 200 * SAT_E, rtol=1e-6)
+    assert ctl.summary()["max_clip_frames"] == 3
     ctl.observe(np.full((4, 4), 300 * SAT_E), np.zeros((4, 4), bool), np.full((4, 4), 0.002))
     np.testing.assert_allclose(ctl.demand_e, 300 * SAT_E, rtol=1e-6)        # measured: exact
     assert ctl.summary()["clipped_mirrors"] == 0
+
+
+@pytest.mark.parametrize("over", [2.0, 5.0, 12.0, 40.0, 60.0])
+def test_first_loop_frame_does_not_clip_up_to_first_guess_over_target(over):
+    """First loop frame after the white init frames (open mode, exact prediction): a highlight
+    X <= first_guess / target x saturation is not clipped, and its white is the closed form for
+    a demand of first_guess: the largest level with first_guess x rel <= target, i.e. X x rel
+    (or, if that level is below the band for the guess, the largest with first_guess x rel <=
+    band_high). Above first_guess / target = 167x it clips (a lost frame, found on the next)."""
+    whites, rel = run_loop(over, "open", frames=3)
+    guess = SPEC.first_guess
+    assert over <= guess / SPEC.target
+    expect = over / guess * closed_form_white(guess, rel)
+    np.testing.assert_allclose(whites[2], expect, rtol=1e-5)
+    assert whites[2] < 1.0
+    # a clipped region is not dimmed further than the prior says (0.6 X / 100 >= 0.6 % per x)
+    assert whites[2] >= over / guess * SPEC.band_low
+
+
+def level_for(demand, rel):
+    """Closed form of the band law for a known demand (x saturation): the largest level with
+    demand x rel <= target, or, if that is below the band, the largest with <= band_high."""
+    v = np.flatnonzero(demand * rel <= SPEC.target).max(initial=0)
+    if demand * rel[v] >= SPEC.band_low:
+        return v
+    return np.flatnonzero(demand * rel <= SPEC.band_high).max(initial=0)
+
+
+@pytest.mark.parametrize("over", [100.0, 300.0])
+def test_first_loop_frame_clips_above_the_prior_then_brackets(over):
+    """X > first_guess / target: the first loop frame clips at the level the prior gave (v0);
+    the lower bound is then 1 / rel(v0) and the next demand clip_step / rel(v0) (not 32x, the
+    old 53x overshoot): the second loop frame shows X x rel(level for that demand), clipped
+    only if that is >= 1 (300x: a second clip, bracket grown again by clip_step / target)."""
+    whites, rel = run_loop(over, "open", frames=5)
+    v0 = level_for(SPEC.first_guess, rel)
+    assert over * rel[v0] >= 1.0 and whites[2] == pytest.approx(1.0)
+    v1 = level_for(SPEC.clip_step / rel[v0], rel)
+    np.testing.assert_allclose(whites[3], min(over * rel[v1], 1.0), rtol=1e-5)
+    if over * rel[v1] < 1.0:   # 100x: found after one clip, at >= 10 % of full scale (still read)
+        assert whites[3] >= 0.1
+    else:                      # 300x: clipped again, the bracket then grows by clip_step / target
+        assert over == 300.0
 
 
 def test_band_levels_unreachable_band_stays_below():
