@@ -258,7 +258,7 @@ def _eval_config(args):
            "kinds": tuple(args.kinds.split(",")) if args.kinds else None,
            "predictors": tuple(args.predictors.split(",")) if args.predictors else None,
            "baselines": tuple(b for b in args.baselines.split(",") if b) if args.baselines is not None else None,
-           "search": args.search, "loop_mode": args.loop_mode}
+           "search": args.search, "loop_mode": args.loop_mode, "e_reading": args.e_reading}
     return dataclasses.replace(cfg, **{k: v for k, v in new.items() if v is not None})
 
 
@@ -359,6 +359,8 @@ def _add_evaluate_parser(sub) -> None:
     p.add_argument("--predictors", help="hold,flow,dmvfn,dmvfn_lite,oracle (default hold,flow,dmvfn,oracle)")
     p.add_argument("--baselines", help="ldr,fusion_classic,fusion_deghost (default all; '' for none)")
     p.add_argument("--search", choices=("frame", "vehicle"), help="ALPR search region (default frame)")
+    p.add_argument("--e-reading", dest="e_reading", choices=("display", "linear"),
+                   help="E -> plate peak: display (paper Sec. 4.A, 8-bit values x (E+1), default) or linear")
     p.add_argument("--loop-mode", dest="loop_mode", choices=("open", "raw", "demodulated"),
                    help="what the predictor sees (default open, paper Fig. 3)")
     _add_job_options(p, "default out/evaluate")

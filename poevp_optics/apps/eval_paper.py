@@ -4,7 +4,9 @@ can be compared like for like.
 
 Protocol (paper Sec. 6A): the LDR sequence as it is (its own plate, motion and text: the source's
 boxes CSV gives the plate box and text per frame), the artificial highlight of Eq. 3,
-H = O (E G + 1), at E = 9, 29, 49 and R = 50 px at 720x1280 (scaled to the frame by
+H = O (E G + 1), formed on the stored 8-bit values as the paper does (Sec. 4.A: the product
+"makes some pixel values of the original LDR frames increase beyond 255"; source e_domain =
+"display", then sRGB-decoded), at E = 9, 29, 49 and R = 50 px at 720x1280 (scaled to the frame by
 sources/ldr_highlight.py), the mask law of Eq. 2 with (Vs, a, b) = (200, 0.9, 0) ("In the
 simulation experiment, the mask coefficients (a, b) are set to (0.9, 0)", Fig. 3 caption; Vs = 200,
 Sec. 3): a and b are Eq. 2's light-suppression coefficients. Eq. 2 is garbled in our copy
@@ -42,6 +44,8 @@ PAPER_R_PX = 50.0
 #: Paper Sec. 3 (Vs = 200) and Fig. 3 caption ((a, b) = (0.9, 0) in simulation).
 PAPER_VS, PAPER_A, PAPER_B = 200.0, 0.9, 0.0
 PAPER_LAW = "threshold_ratio"
+#: Paper Sec. 4.A: Eq. 3 multiplies the stored 8-bit values ("pixel values ... beyond 255").
+PAPER_E_DOMAIN = "display"
 PAPER_LAWS = ("threshold_ratio", "threshold_exp")
 KIND = "paper"
 
@@ -53,7 +57,7 @@ def is_paper_scene(scene: Path) -> bool:
 
 def paper_overrides(e: float, law: str = PAPER_LAW) -> list[str]:
     """Scene overrides of the paper's protocol at over-exposure rate `e`."""
-    return [f"source.e={e!r}", f"source.r_px={PAPER_R_PX!r}", f"mask.law={json.dumps(law)}",
+    return [f"source.e={e!r}", f"source.r_px={PAPER_R_PX!r}", f"source.e_domain={json.dumps(PAPER_E_DOMAIN)}", f"mask.law={json.dumps(law)}",
             f"mask.vs={PAPER_VS!r}", f"mask.a={PAPER_A!r}", f"mask.b={PAPER_B!r}", "loop.mode=\"open\""]
 
 

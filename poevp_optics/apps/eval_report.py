@@ -184,7 +184,7 @@ def write_tables(out: Path, rows: list[dict], cfg, seconds: float, extra_text: s
              "measured_px_per_frame": c["measured_px_per_frame"]} for c in cells.values()]
     _write_csv(out / "evaluation.csv", flat)
     text = "\n".join([f"# Plate recognition over speed, over-exposure and motion: LDR vs fusion vs POE-VP\n",
-                      _intro(cfg, rows, seconds), *markdown_tables(cells, lag, cfg), "\n## Findings\n",
+                      _intro(cfg, rows, seconds, _scene_law(cfg)), *markdown_tables(cells, lag, cfg), "\n## Findings\n",
                       _findings_text(find, cfg), extra_text, *paper_tables(cells, cfg)]) + "\n"
     with atomic_path(out / "evaluation.md") as tmp:
         Path(tmp).write_text(text)
@@ -204,9 +204,29 @@ def _write_csv(path: Path, rows: list[dict]) -> None:
         Path(tmp).write_text(buf.getvalue())
 
 
-def _intro(cfg, rows, seconds) -> str:
+def _scene_law(cfg) -> str:
+    """The scene's mask law and relay PSF, for the header."""
+    from poevp_optics.scene.load import load_scene
+
+    spec = load_scene(cfg.scene)
+    return f"{spec.mask.law}`, relay `{spec.relay.psf}"
+
+
+def _e_text(cfg) -> str:
+    """How E sets the plate's peak (apps/evaluate.py peak_gain)."""
+    from poevp_optics.apps.evaluate import peak_gain
+
+    reading = getattr(cfg, "e_reading", "display")
+    if reading == "linear":
+        return "E read in linear radiance: the plate's peak is (E + 1) x the LDR saturation level. "
+    return ("E read as the paper's Eq. 3 does, on 8-bit display values (Sec. 4.A, 'pixel values ... beyond "
+            "255'): the plate's peak code value is 255 (E + 1), decoded by extended sRGB, so its linear "
+            f"radiance is {peak_gain(9):.0f}x / {peak_gain(49):.0f}x the LDR saturation level at E = 9 / 49. ")
+
+
+def _intro(cfg, rows, seconds, law: str = "") -> str:
     n_seq = len({(r["text"], r["kind"], r["speed_px"]) for r in rows})
-    return (f"{'Quick' if cfg.quick else 'Default'} set: scene `{Path(cfg.scene).name}`, {len(cfg.texts)} texts "
+    return (_e_text(cfg) + (f"Mask law `{law}` (the scene's). " if law else "") + f"{'Quick' if cfg.quick else 'Default'} set: scene `{Path(cfg.scene).name}`, {len(cfg.texts)} texts "
             f"({', '.join(cfg.texts)}), {n_seq} rendered sequences at {cfg.resolution[0]}x{cfg.resolution[1]}, "
             f"{cfg.spp} spp, 2 ms exposure; loop mode `{cfg.loop_mode}`; frames < 2 (the loop's white start) "
             f"not scored. Each cell: **full ALPR % [Wilson 95 %] / recognition-only %** (PP-OCRv4 detection + "

@@ -5,8 +5,13 @@ Test set: the scene's plate carrying each test text along each motion (eval_sequ
 at 2 ... 48 px/frame, approaching, receding, swerve, sudden reversal), rendered physically once per
 sequence and cached by content. Highlight strength as the paper's over-exposure rate E (Sec. 4A:
 H = O (E G + 1)): radiance is linear in the lights' intensity, so each sequence is scaled until the
-plate's peak reaches (E + 1) x the LDR saturation level (here the scene's own beams are the
-highlight, not an added Gaussian).
+plate's peak reaches `peak_gain(E)` x the LDR saturation level (here the scene's own beams are the
+highlight, not an added Gaussian). The paper forms Eq. 3 on stored 8-bit (display-encoded) values,
+"pixel values ... beyond 255" (Sec. 4.A), so its E = 9 puts the peak at 255 x 10 in code value;
+reading `display` (default, E_READINGS) takes that peak through the sRGB decoding extended above 1
+(IEC 61966-2-1, the LDR source's transfer): gain ((E + 1.055) / 1.055)^2.4 = 224x linear radiance at
+E = 9, 1.05e4x at E = 49; reading `linear` (this benchmark's earlier one) is E + 1. With `display`,
+E means the same in both protocols (apps/eval_paper.py sets the source's e_domain = "display").
 
 Methods, one 8-bit image per frame t (frames < loop.init_frames are the loop's white start, not
 scored):
@@ -47,6 +52,7 @@ from poevp_optics.core.paths import SCENES_DIR
 from poevp_optics.core.seeds import ENCODED_STREAM, FUSION_STREAM, LDR_STREAM, capture_seed
 from poevp_optics.render.exposures import RenderedExposure
 from poevp_optics.scene.load import load_scene
+from poevp_optics.sources.ldr_highlight import srgb_to_linear
 
 BASE = SCENES_DIR / "highbeam_plate"
 #: Test texts: 6 characters, "LL DDDD"; the predictor's training texts (apps/training_data.py
@@ -54,6 +60,18 @@ BASE = SCENES_DIR / "highbeam_plate"
 TEXTS = ("KA 7391", "MH 2046", "TN 0952", "DL 3817")
 FUSION_EXPOSURES = (1 / 8, 1 / 5, 1.0)
 BASELINES = ("ldr", "fusion_classic", "fusion_deghost")
+#: How E sets the plate's peak, in units of the LDR saturation level (module docstring).
+E_READINGS = ("display", "linear")
+
+
+def peak_gain(e: float, reading: str = "display") -> float:
+    """Plate peak / saturation for over-exposure rate E: the peak's code value is 255 (E + 1), decoded
+    by extended sRGB (`display`, paper Sec. 4.A's domain), or (E + 1) in radiance (`linear`)."""
+    if reading == "linear":
+        return float(e) + 1.0
+    return float(srgb_to_linear(np.float64(e) + 1.0))
+
+
 @dataclass(frozen=True)
 class EvalConfig:
     """What one `poevp evaluate` run measures (defaults: the benchmark in benchmarks/results)."""
@@ -62,7 +80,7 @@ class EvalConfig:
     texts: tuple[str, ...] = TEXTS[:2]                             # one each way; --texts for more
     speeds_px: tuple[float, ...] = (4, 8, 16, 24, 32, 48)          # lateral sweep, px/frame
     e_levels: tuple[float, ...] = (9, 49)                          # speed-sweep panels
-    e_sweep: tuple[float, ...] = (9, 29, 49, 200, 1000)            # accuracy vs E ...
+    e_sweep: tuple[float, ...] = (2, 4, 9, 29, 49)                  # accuracy vs E (display reading: 13x to 1e4x) ...
     e_speed_px: float = 8                                          # ... at this speed
     kinds: tuple[str, ...] = KINDS                                 # motion sweep ...
     motion_speed_px: float = 16                                    # ... at this speed, E:
@@ -75,6 +93,7 @@ class EvalConfig:
     motion_frames: int = 7
     search: str = "frame"              # ALPR search region: "frame" or "vehicle"
     loop_mode: str = "open"
+    e_reading: str = "display"         # E -> plate peak (peak_gain): paper's display-value reading
     paper_law: str = PAPER_LAW         # ldr_highlight scenes (the paper's protocol): Eq. 2's reading
     quick: bool = False
 
@@ -109,6 +128,8 @@ def check_config(cfg: EvalConfig) -> None:
         raise UserError("evaluate: --E: over-exposure rates must be >= 0")
     if cfg.search not in ("frame", "vehicle"):
         raise UserError(f"evaluate: --search: {cfg.search!r}; choose frame or vehicle")
+    if cfg.e_reading not in E_READINGS:
+        raise UserError(f"evaluate: --e-reading: {cfg.e_reading!r}; choose from {', '.join(E_READINGS)}")
     if cfg.paper_law not in PAPER_LAWS:
         raise UserError(f"evaluate: paper_law: {cfg.paper_law!r}; choose from {', '.join(PAPER_LAWS)}")
     if cfg.frames < 4 or cfg.motion_frames < 6:
@@ -279,7 +300,7 @@ def evaluate_sequence(runner: Runner, seq: SequenceSpec, e_levels, exps, keep) -
             "change": seq.change if seq.kind == "reversal" else "", "measured_px_per_frame": _shift_px(exps)}
     rows = []
     for e_level in e_levels:
-        ex = scaled(exps, (e_level + 1) / r0)
+        ex = scaled(exps, peak_gain(e_level, runner.cfg.e_reading) / r0)
         images, secs = runner.method_images(ex)
         boxes = {e.index: cam.box_to_sensor(e.roi) for e in ex}
         keep(seq, e_level, images, boxes)
