@@ -214,7 +214,7 @@ def _scene_law(cfg) -> str:
 
 def _e_text(cfg) -> str:
     """How E sets the plate's peak (apps/evaluate.py peak_gain)."""
-    from poevp_optics.apps.evaluate import peak_gain
+    from poevp_optics.apps.eval_sequences import peak_gain
 
     reading = getattr(cfg, "e_reading", "display")
     if reading == "linear":

@@ -42,8 +42,8 @@ import numpy as np
 from poevp_optics.analysis.metrics import crop, entropy_8bit, to_8bit
 from poevp_optics.analysis.recognition import alpr_read, correct, read_plate, search_window
 from poevp_optics.apps.eval_paper import PAPER_LAW, PAPER_LAWS, is_paper_scene, run_paper
-from poevp_optics.apps.eval_sequences import (KINDS, SequenceSpec, calibrate, eval_overrides,
-                                              render_sequences)
+from poevp_optics.apps.eval_sequences import (E_READINGS, KINDS, SequenceSpec, calibrate, eval_overrides,
+                                              peak_gain, render_sequences)
 from poevp_optics.camera.camera import Camera
 from poevp_optics.control.loop_step import LoopSpec, LoopStep
 from poevp_optics.control.predictors import PREDICTORS, make_predictor
@@ -52,7 +52,6 @@ from poevp_optics.core.paths import SCENES_DIR
 from poevp_optics.core.seeds import ENCODED_STREAM, FUSION_STREAM, LDR_STREAM, capture_seed
 from poevp_optics.render.exposures import RenderedExposure
 from poevp_optics.scene.load import load_scene
-from poevp_optics.sources.ldr_highlight import srgb_to_linear
 
 BASE = SCENES_DIR / "highbeam_plate"
 #: Test texts: 6 characters, "LL DDDD"; the predictor's training texts (apps/training_data.py
@@ -60,18 +59,6 @@ BASE = SCENES_DIR / "highbeam_plate"
 TEXTS = ("KA 7391", "MH 2046", "TN 0952", "DL 3817")
 FUSION_EXPOSURES = (1 / 8, 1 / 5, 1.0)
 BASELINES = ("ldr", "fusion_classic", "fusion_deghost")
-#: How E sets the plate's peak, in units of the LDR saturation level (module docstring).
-E_READINGS = ("display", "linear")
-
-
-def peak_gain(e: float, reading: str = "display") -> float:
-    """Plate peak / saturation for over-exposure rate E: the peak's code value is 255 (E + 1), decoded
-    by extended sRGB (`display`, paper Sec. 4.A's domain), or (E + 1) in radiance (`linear`)."""
-    if reading == "linear":
-        return float(e) + 1.0
-    return float(srgb_to_linear(np.float64(e) + 1.0))
-
-
 @dataclass(frozen=True)
 class EvalConfig:
     """What one `poevp evaluate` run measures (defaults: the benchmark in benchmarks/results)."""
