@@ -14,7 +14,8 @@ Sec. 3): a and b are Eq. 2's light-suppression coefficients. Eq. 2 is garbled in
 "dim by Vs/x" law. A prediction is an 8-bit frame, clipped at 255, so this law dims by at most
 a Vs / 255 = 0.71: a plate highlighted 10 to 50 times over saturation (E = 9 to 49) stays clipped
 wherever it is; the exponential reading dims a clipped prediction to 0 and blacks the plate out
-(README, recognition section: both measured). EvalConfig's `paper_law` picks the other reading.
+(README, recognition section: both measured). EvalConfig's `paper_law` picks the other reading,
+or one of this project's laws (`PROTOCOL_LAWS`, reported as ours).
 The scene's mask.smooth_px (the band-limited mask, DESIGN.md) is kept. Loop mode `open` (the
 predictor sees unmasked LDR frames, Fig. 3), first two frames white (not scored).
 Methods and readings are those of apps/evaluate.py (LDR, both fusions, every predictor; full ALPR
@@ -47,6 +48,8 @@ PAPER_LAW = "threshold_ratio"
 #: Paper Sec. 4.A: Eq. 3 multiplies the stored 8-bit values ("pixel values ... beyond 255").
 PAPER_E_DOMAIN = "display"
 PAPER_LAWS = ("threshold_ratio", "threshold_exp")
+#: Laws the protocol accepts: Eq. 2's two readings, and this project's (labelled ours in the report).
+PROTOCOL_LAWS = (*PAPER_LAWS, "exposure_controller", "target")
 KIND = "paper"
 
 
@@ -57,7 +60,8 @@ def is_paper_scene(scene: Path) -> bool:
 
 def paper_overrides(e: float, law: str = PAPER_LAW) -> list[str]:
     """Scene overrides of the paper's protocol at over-exposure rate `e`."""
-    return [f"source.e={e!r}", f"source.r_px={PAPER_R_PX!r}", f"source.e_domain={json.dumps(PAPER_E_DOMAIN)}", f"mask.law={json.dumps(law)}",
+    return [f"source.e={e!r}", f"source.r_px={PAPER_R_PX!r}", f"source.e_domain={json.dumps(PAPER_E_DOMAIN)}",
+            f"mask.law={json.dumps(law)}",
             f"mask.vs={PAPER_VS!r}", f"mask.a={PAPER_A!r}", f"mask.b={PAPER_B!r}", "loop.mode=\"open\""]
 
 

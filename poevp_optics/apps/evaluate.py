@@ -41,7 +41,7 @@ import numpy as np
 
 from poevp_optics.analysis.metrics import crop, entropy_8bit, to_8bit
 from poevp_optics.analysis.recognition import alpr_read, correct, read_plate, search_window
-from poevp_optics.apps.eval_paper import PAPER_LAW, PAPER_LAWS, is_paper_scene, run_paper
+from poevp_optics.apps.eval_paper import PAPER_LAW, PROTOCOL_LAWS, is_paper_scene, run_paper
 from poevp_optics.apps.eval_sequences import (E_READINGS, KINDS, SequenceSpec, calibrate, eval_overrides,
                                               peak_gain, render_sequences)
 from poevp_optics.camera.camera import Camera
@@ -117,8 +117,8 @@ def check_config(cfg: EvalConfig) -> None:
         raise UserError(f"evaluate: --search: {cfg.search!r}; choose frame or vehicle")
     if cfg.e_reading not in E_READINGS:
         raise UserError(f"evaluate: --e-reading: {cfg.e_reading!r}; choose from {', '.join(E_READINGS)}")
-    if cfg.paper_law not in PAPER_LAWS:
-        raise UserError(f"evaluate: paper_law: {cfg.paper_law!r}; choose from {', '.join(PAPER_LAWS)}")
+    if cfg.paper_law not in PROTOCOL_LAWS:
+        raise UserError(f"evaluate: --paper-law: {cfg.paper_law!r}; choose from {', '.join(PROTOCOL_LAWS)}")
     if cfg.frames < 4 or cfg.motion_frames < 6:
         raise UserError("evaluate: --frames: need >= 4 frames (>= 6 for motion kinds): 2 start the loop")
 
