@@ -12,9 +12,10 @@ simulation experiment, the mask coefficients (a, b) are set to (0.9, 0)", Fig. 3
 Sec. 3): a and b are Eq. 2's light-suppression coefficients. Eq. 2 is garbled in our copy
 (control/masks.py); `PAPER_LAW` picks the ratio reading, M = 255 (a Vs / x + b) above Vs, the plain
 "dim by Vs/x" law. A prediction is an 8-bit frame, clipped at 255, so this law dims by at most
-a Vs / 255 = 0.71: a plate highlighted 10 to 50 times over saturation (E = 9 to 49) stays clipped
-wherever it is; the exponential reading dims a clipped prediction to 0 and blacks the plate out
-(README, recognition section: both measured). EvalConfig's `paper_law` picks the other reading,
+a Vs / 255 = 0.71: a pixel of stored value O stays clipped where 0.71 O (E G + 1) > 255, i.e. at
+the highlight's centre any O above 36, 12, 7 at E = 9, 29, 49 (black plate ink is ~45 in the demo);
+the exponential reading sends a clipped prediction to level 0 (only the DMD's leakage and the
+smoothed mask's edge pass) (README, recognition section: both measured). EvalConfig's `paper_law` picks the other reading,
 or one of this project's laws (`PROTOCOL_LAWS`, reported as ours).
 The scene's mask.smooth_px (the band-limited mask, DESIGN.md) is kept. Loop mode `open` (the
 predictor sees unmasked LDR frames, Fig. 3), first two frames white (not scored).
