@@ -258,7 +258,8 @@ def _eval_config(args):
            "kinds": tuple(args.kinds.split(",")) if args.kinds else None,
            "predictors": tuple(args.predictors.split(",")) if args.predictors else None,
            "baselines": tuple(b for b in args.baselines.split(",") if b) if args.baselines is not None else None,
-           "search": args.search, "loop_mode": args.loop_mode}
+           "search": args.search, "loop_mode": args.loop_mode, "e_reading": args.e_reading,
+           "paper_law": args.paper_law}
     return dataclasses.replace(cfg, **{k: v for k, v in new.items() if v is not None})
 
 
@@ -359,6 +360,11 @@ def _add_evaluate_parser(sub) -> None:
     p.add_argument("--predictors", help="hold,flow,dmvfn,dmvfn_lite,oracle (default hold,flow,dmvfn,oracle)")
     p.add_argument("--baselines", help="ldr,fusion_classic,fusion_deghost (default all; '' for none)")
     p.add_argument("--search", choices=("frame", "vehicle"), help="ALPR search region (default frame)")
+    p.add_argument("--paper-law", dest="paper_law",
+                   choices=("threshold_ratio", "threshold_exp", "exposure_controller", "target"),
+                   help="ldr_highlight scenes: Eq. 2's reading (default threshold_ratio) or one of ours")
+    p.add_argument("--e-reading", dest="e_reading", choices=("display", "linear"),
+                   help="E -> plate peak: display (paper Sec. 4.A, 8-bit values x (E+1), default) or linear")
     p.add_argument("--loop-mode", dest="loop_mode", choices=("open", "raw", "demodulated"),
                    help="what the predictor sees (default open, paper Fig. 3)")
     _add_job_options(p, "default out/evaluate")

@@ -4,15 +4,19 @@ can be compared like for like.
 
 Protocol (paper Sec. 6A): the LDR sequence as it is (its own plate, motion and text: the source's
 boxes CSV gives the plate box and text per frame), the artificial highlight of Eq. 3,
-H = O (E G + 1), at E = 9, 29, 49 and R = 50 px at 720x1280 (scaled to the frame by
+H = O (E G + 1), formed on the stored 8-bit values as the paper does (Sec. 4.A: the product
+"makes some pixel values of the original LDR frames increase beyond 255"; source e_domain =
+"display", then sRGB-decoded), at E = 9, 29, 49 and R = 50 px at 720x1280 (scaled to the frame by
 sources/ldr_highlight.py), the mask law of Eq. 2 with (Vs, a, b) = (200, 0.9, 0) ("In the
 simulation experiment, the mask coefficients (a, b) are set to (0.9, 0)", Fig. 3 caption; Vs = 200,
 Sec. 3): a and b are Eq. 2's light-suppression coefficients. Eq. 2 is garbled in our copy
 (control/masks.py); `PAPER_LAW` picks the ratio reading, M = 255 (a Vs / x + b) above Vs, the plain
 "dim by Vs/x" law. A prediction is an 8-bit frame, clipped at 255, so this law dims by at most
-a Vs / 255 = 0.71: a plate highlighted 10 to 50 times over saturation (E = 9 to 49) stays clipped
-wherever it is; the exponential reading dims a clipped prediction to 0 and blacks the plate out
-(README, recognition section: both measured). EvalConfig's `paper_law` picks the other reading.
+a Vs / 255 = 0.71: a pixel of stored value O stays clipped where 0.71 O (E G + 1) > 255, i.e. at
+the highlight's centre any O above 36, 12, 7 at E = 9, 29, 49 (black plate ink is ~45 in the demo);
+the exponential reading sends a clipped prediction to level 0 (only the DMD's leakage and the
+smoothed mask's edge pass) (README, recognition section: both measured). EvalConfig's `paper_law` picks the other reading,
+or one of this project's laws (`PROTOCOL_LAWS`, reported as ours).
 The scene's mask.smooth_px (the band-limited mask, DESIGN.md) is kept. Loop mode `open` (the
 predictor sees unmasked LDR frames, Fig. 3), first two frames white (not scored).
 Methods and readings are those of apps/evaluate.py (LDR, both fusions, every predictor; full ALPR
@@ -42,7 +46,11 @@ PAPER_R_PX = 50.0
 #: Paper Sec. 3 (Vs = 200) and Fig. 3 caption ((a, b) = (0.9, 0) in simulation).
 PAPER_VS, PAPER_A, PAPER_B = 200.0, 0.9, 0.0
 PAPER_LAW = "threshold_ratio"
+#: Paper Sec. 4.A: Eq. 3 multiplies the stored 8-bit values ("pixel values ... beyond 255").
+PAPER_E_DOMAIN = "display"
 PAPER_LAWS = ("threshold_ratio", "threshold_exp")
+#: Laws the protocol accepts: Eq. 2's two readings, and this project's (labelled ours in the report).
+PROTOCOL_LAWS = (*PAPER_LAWS, "exposure_controller", "target")
 KIND = "paper"
 
 
@@ -53,7 +61,8 @@ def is_paper_scene(scene: Path) -> bool:
 
 def paper_overrides(e: float, law: str = PAPER_LAW) -> list[str]:
     """Scene overrides of the paper's protocol at over-exposure rate `e`."""
-    return [f"source.e={e!r}", f"source.r_px={PAPER_R_PX!r}", f"mask.law={json.dumps(law)}",
+    return [f"source.e={e!r}", f"source.r_px={PAPER_R_PX!r}", f"source.e_domain={json.dumps(PAPER_E_DOMAIN)}",
+            f"mask.law={json.dumps(law)}",
             f"mask.vs={PAPER_VS!r}", f"mask.a={PAPER_A!r}", f"mask.b={PAPER_B!r}", "loop.mode=\"open\""]
 
 

@@ -184,7 +184,7 @@ def write_tables(out: Path, rows: list[dict], cfg, seconds: float, extra_text: s
              "measured_px_per_frame": c["measured_px_per_frame"]} for c in cells.values()]
     _write_csv(out / "evaluation.csv", flat)
     text = "\n".join([f"# Plate recognition over speed, over-exposure and motion: LDR vs fusion vs POE-VP\n",
-                      _intro(cfg, rows, seconds), *markdown_tables(cells, lag, cfg), "\n## Findings\n",
+                      _intro(cfg, rows, seconds, _scene_law(cfg)), *markdown_tables(cells, lag, cfg), "\n## Findings\n",
                       _findings_text(find, cfg), extra_text, *paper_tables(cells, cfg)]) + "\n"
     with atomic_path(out / "evaluation.md") as tmp:
         Path(tmp).write_text(text)
@@ -204,9 +204,29 @@ def _write_csv(path: Path, rows: list[dict]) -> None:
         Path(tmp).write_text(buf.getvalue())
 
 
-def _intro(cfg, rows, seconds) -> str:
+def _scene_law(cfg) -> str:
+    """The scene's mask law and relay PSF, for the header."""
+    from poevp_optics.scene.load import load_scene
+
+    spec = load_scene(cfg.scene)
+    return f"{spec.mask.law}`, relay `{spec.relay.psf}"
+
+
+def _e_text(cfg) -> str:
+    """How E sets the plate's peak (apps/evaluate.py peak_gain)."""
+    from poevp_optics.apps.eval_sequences import peak_gain
+
+    reading = getattr(cfg, "e_reading", "display")
+    if reading == "linear":
+        return "E read in linear radiance: the plate's peak is (E + 1) x the LDR saturation level. "
+    return ("E read as the paper's Eq. 3 does, on 8-bit display values (Sec. 4.A, 'pixel values ... beyond "
+            "255'): the plate's peak code value is 255 (E + 1), decoded by extended sRGB, so its linear "
+            f"radiance is {peak_gain(9):.0f}x / {peak_gain(49):.0f}x the LDR saturation level at E = 9 / 49. ")
+
+
+def _intro(cfg, rows, seconds, law: str = "") -> str:
     n_seq = len({(r["text"], r["kind"], r["speed_px"]) for r in rows})
-    return (f"{'Quick' if cfg.quick else 'Default'} set: scene `{Path(cfg.scene).name}`, {len(cfg.texts)} texts "
+    return (_e_text(cfg) + (f"Mask law `{law}` (the scene's). " if law else "") + f"{'Quick' if cfg.quick else 'Default'} set: scene `{scene_name(cfg.scene)}`, {len(cfg.texts)} texts "
             f"({', '.join(cfg.texts)}), {n_seq} rendered sequences at {cfg.resolution[0]}x{cfg.resolution[1]}, "
             f"{cfg.spp} spp, 2 ms exposure; loop mode `{cfg.loop_mode}`; frames < 2 (the loop's white start) "
             f"not scored. Each cell: **full ALPR % [Wilson 95 %] / recognition-only %** (PP-OCRv4 detection + "
@@ -289,6 +309,29 @@ def _paper_protocol_md(cells: dict, cfg, e_levels, rendered: dict) -> list[str]:
     return out
 
 
+def scene_name(scene) -> str:
+    """The scene's folder name (a path to its scene.toml gives the folder's)."""
+    p = Path(scene)
+    return p.parent.name if p.suffix == ".toml" else p.name
+
+
+def law_text(law: str) -> str:
+    """The paper protocol's mask law, labelled paper or ours, with Eq. 2's floor for the paper's."""
+    from poevp_optics.apps.eval_paper import PAPER_A, PAPER_LAWS, PAPER_VS
+
+    if law not in PAPER_LAWS:
+        return (f"mask law `{law}` (ours, not the paper's Eq. 2: the same frames, highlight and loop, the "
+                "project's law in place of Eq. 2)")
+    floor = PAPER_A * PAPER_VS / 255.0
+    extra = ""
+    if law == "threshold_ratio":
+        ink = ", ".join(f"{255.0 / (floor * (e + 1.0)):.0f}" for e in (9, 29, 49))
+        extra = (f"; on a prediction clipped at 255 it dims by at most a Vs / 255 = {floor:.2f}, so a pixel of "
+                 f"stored value O stays clipped where 0.71 O (E G + 1) > 255: at the highlight's centre "
+                 f"any O above {ink} at E = 9, 29, 49 (plate ink is ~45 here)")
+    return f"mask law Eq. 2 (`{law}` reading) with (Vs, a, b) = (200, 0.9, 0){extra}"
+
+
 def write_paper_tables(out: Path, rows: list[dict], cfg, seconds: float) -> dict:
     """evaluation.md/.csv, frames.csv and report.json of the paper protocol (apps/eval_paper.py)."""
     e_levels = sorted({float(r["E"]) for r in rows})
@@ -311,9 +354,9 @@ def write_paper_tables(out: Path, rows: list[dict], cfg, seconds: float) -> dict
              + ("" if v["ldr_le_oracle"] else " - LDR above the oracle") for e, v in find["paper_protocol"].items()]
     text = "\n".join([
         "# Plate recognition, the paper's simulation protocol (Sec. 6): LDR vs fusion vs POE-VP\n",
-        f"Scene `{Path(cfg.scene).name}` (`[source] kind = \"ldr_highlight\"`): its LDR frames with Eq. 3's "
-        f"highlight H = O (E G + 1), E = 9, 29, 49, R = 50 px at 720x1280; mask law Eq. 2 "
-        f"(`{cfg.paper_law}` reading) with (Vs, a, b) = (200, 0.9, 0); loop `open` (paper Fig. 3); "
+        f"Scene `{scene_name(cfg.scene)}` (`[source] kind = \"ldr_highlight\"`): its LDR frames with Eq. 3's "
+        f"highlight H = O (E G + 1) formed on the stored 8-bit values as the paper does (Sec. 4.A), then "
+        f"sRGB-decoded, E = 9, 29, 49, R = 50 px at 720x1280; {law_text(cfg.paper_law)}; loop `open` (paper Fig. 3); "
         f"plate text and boxes from the source's CSV ({', '.join(texts)}; the plate moves "
         f"{np.median([r['measured_px_per_frame'] for r in rows]):g} px/frame); frames < 2 (the loop's "
         f"white start) not scored; this project's DMD and sensor (noise, ADC) in place of the paper's "

@@ -41,6 +41,7 @@ from poevp_optics.core.runtime import cache_dir
 from poevp_optics.core.seeds import render_seeds
 from poevp_optics.core.units import PHOTON_RADIANCE_UNIT
 from poevp_optics.render.exposures import RenderedExposure, rel_error, union_box
+from poevp_optics.sources.ldr_highlight import srgb_to_linear
 from poevp_optics.sources.motion import MotionSpec
 
 KINDS = ("lateral", "approaching", "receding", "swerve", "reversal")
@@ -48,6 +49,17 @@ EXPOSURE_S = 0.002
 NODES = 2
 RANGE_SPEED_M_PER_S = 12.0
 CACHE_VERSION = "eval-seq-v1"
+
+#: How E sets the plate's peak, in units of the LDR saturation level (module docstring).
+E_READINGS = ("display", "linear")
+
+
+def peak_gain(e: float, reading: str = "display") -> float:
+    """Plate peak / saturation for over-exposure rate E: the peak's code value is 255 (E + 1), decoded
+    by extended sRGB (`display`, paper Sec. 4.A's domain), or (E + 1) in radiance (`linear`)."""
+    if reading == "linear":
+        return float(e) + 1.0
+    return float(srgb_to_linear(np.float64(e) + 1.0))
 
 
 @dataclass(frozen=True)

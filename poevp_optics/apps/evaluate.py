@@ -5,8 +5,13 @@ Test set: the scene's plate carrying each test text along each motion (eval_sequ
 at 2 ... 48 px/frame, approaching, receding, swerve, sudden reversal), rendered physically once per
 sequence and cached by content. Highlight strength as the paper's over-exposure rate E (Sec. 4A:
 H = O (E G + 1)): radiance is linear in the lights' intensity, so each sequence is scaled until the
-plate's peak reaches (E + 1) x the LDR saturation level (here the scene's own beams are the
-highlight, not an added Gaussian).
+plate's peak reaches `peak_gain(E)` x the LDR saturation level (here the scene's own beams are the
+highlight, not an added Gaussian). The paper forms Eq. 3 on stored 8-bit (display-encoded) values,
+"pixel values ... beyond 255" (Sec. 4.A), so its E = 9 puts the peak at 255 x 10 in code value;
+reading `display` (default, E_READINGS) takes that peak through the sRGB decoding extended above 1
+(IEC 61966-2-1, the LDR source's transfer): gain ((E + 1.055) / 1.055)^2.4 = 224x linear radiance at
+E = 9, 1.05e4x at E = 49; reading `linear` (this benchmark's earlier one) is E + 1. With `display`,
+E means the same in both protocols (apps/eval_paper.py sets the source's e_domain = "display").
 
 Methods, one 8-bit image per frame t (frames < loop.init_frames are the loop's white start, not
 scored):
@@ -36,9 +41,9 @@ import numpy as np
 
 from poevp_optics.analysis.metrics import crop, entropy_8bit, to_8bit
 from poevp_optics.analysis.recognition import alpr_read, correct, read_plate, search_window
-from poevp_optics.apps.eval_paper import PAPER_LAW, PAPER_LAWS, is_paper_scene, run_paper
-from poevp_optics.apps.eval_sequences import (KINDS, SequenceSpec, calibrate, eval_overrides,
-                                              render_sequences)
+from poevp_optics.apps.eval_paper import PAPER_LAW, PROTOCOL_LAWS, is_paper_scene, run_paper
+from poevp_optics.apps.eval_sequences import (E_READINGS, KINDS, SequenceSpec, calibrate, eval_overrides,
+                                              peak_gain, render_sequences)
 from poevp_optics.camera.camera import Camera
 from poevp_optics.control.loop_step import LoopSpec, LoopStep
 from poevp_optics.control.predictors import PREDICTORS, make_predictor
@@ -62,7 +67,7 @@ class EvalConfig:
     texts: tuple[str, ...] = TEXTS[:2]                             # one each way; --texts for more
     speeds_px: tuple[float, ...] = (4, 8, 16, 24, 32, 48)          # lateral sweep, px/frame
     e_levels: tuple[float, ...] = (9, 49)                          # speed-sweep panels
-    e_sweep: tuple[float, ...] = (9, 29, 49, 200, 1000)            # accuracy vs E ...
+    e_sweep: tuple[float, ...] = (2, 4, 9, 29, 49)                  # accuracy vs E (display reading: 13x to 1e4x) ...
     e_speed_px: float = 8                                          # ... at this speed
     kinds: tuple[str, ...] = KINDS                                 # motion sweep ...
     motion_speed_px: float = 16                                    # ... at this speed, E:
@@ -75,6 +80,7 @@ class EvalConfig:
     motion_frames: int = 7
     search: str = "frame"              # ALPR search region: "frame" or "vehicle"
     loop_mode: str = "open"
+    e_reading: str = "display"         # E -> plate peak (peak_gain): paper's display-value reading
     paper_law: str = PAPER_LAW         # ldr_highlight scenes (the paper's protocol): Eq. 2's reading
     quick: bool = False
 
@@ -109,8 +115,10 @@ def check_config(cfg: EvalConfig) -> None:
         raise UserError("evaluate: --E: over-exposure rates must be >= 0")
     if cfg.search not in ("frame", "vehicle"):
         raise UserError(f"evaluate: --search: {cfg.search!r}; choose frame or vehicle")
-    if cfg.paper_law not in PAPER_LAWS:
-        raise UserError(f"evaluate: paper_law: {cfg.paper_law!r}; choose from {', '.join(PAPER_LAWS)}")
+    if cfg.e_reading not in E_READINGS:
+        raise UserError(f"evaluate: --e-reading: {cfg.e_reading!r}; choose from {', '.join(E_READINGS)}")
+    if cfg.paper_law not in PROTOCOL_LAWS:
+        raise UserError(f"evaluate: --paper-law: {cfg.paper_law!r}; choose from {', '.join(PROTOCOL_LAWS)}")
     if cfg.frames < 4 or cfg.motion_frames < 6:
         raise UserError("evaluate: --frames: need >= 4 frames (>= 6 for motion kinds): 2 start the loop")
 
@@ -279,7 +287,7 @@ def evaluate_sequence(runner: Runner, seq: SequenceSpec, e_levels, exps, keep) -
             "change": seq.change if seq.kind == "reversal" else "", "measured_px_per_frame": _shift_px(exps)}
     rows = []
     for e_level in e_levels:
-        ex = scaled(exps, (e_level + 1) / r0)
+        ex = scaled(exps, peak_gain(e_level, runner.cfg.e_reading) / r0)
         images, secs = runner.method_images(ex)
         boxes = {e.index: cam.box_to_sensor(e.roi) for e in ex}
         keep(seq, e_level, images, boxes)

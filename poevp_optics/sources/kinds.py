@@ -84,6 +84,7 @@ class SourceSpec:
     e: float = param(math.nan, min=0, max=1e9)          # Eq. 3 over-exposure rate E
     r_px: float = param(math.nan, gt=0, max=1e6)        # Eq. 3 radius R, px at 720x1280
     radius_rule: str = param("sigma", choices=ldr_highlight.RADIUS_RULES)
+    e_domain: str = param("linear", choices=ldr_highlight.E_DOMAINS)   # Eq. 3 on linear or stored values
 
     @property
     def renders(self) -> bool:

@@ -17,6 +17,15 @@ R_frame = r_px x sqrt((H / 720) (W / 1280)) (the geometric mean of the two axes'
 for 16:9 frames). G is evaluated at pixel centres (x + 0.5, y + 0.5) about the box centre
 ((x0 + x1) / 2, (y0 + y1) / 2), box edges in input pixels (frames.py).
 
+**Domain of Eq. 3** (`e_domain`, `E_DOMAINS`). The paper applies Eq. 3 to the stored 8-bit
+frames: O "represents the original frames in the LSV-LP dataset" (phone videos, display-encoded),
+and the product "makes some pixel values of the original LDR frames increase beyond 255 ...
+pixels whose values are over 255 are cut off to 255" (Sec. 4.A). `"display"` follows the paper:
+H is formed on the stored values V (in units of 255), then decoded by `transfer` extended above 1
+(sRGB: ((V + 0.055) / 1.055)^2.4), so the peak's linear gain is decode(E + 1) / decode(1), about
+(E + 1)^2.4: E = 9 is 224x in linear radiance (158x for a 2.2 power law). `"linear"` (default,
+this source's earlier reading) forms H on the linearised values: E = 9 is 10x in radiance.
+
 **Per input frame j**: decode (8- or 16-bit PNG/JPEG by glob, or a video frame by OpenCV) ->
 value / (2^bits - 1) -> linearise (`TRANSFERS`) -> colour frames: Rec. 709 luminance
 Y = 0.2126 R + 0.7152 G + 0.0722 B of the linear values (ITU-R BT.709-6; sRGB has the BT.709
@@ -31,6 +40,7 @@ box: H = O) -> photon radiance = scale x H.
 | e                   | float   | -                         | required | over-exposure rate E of Eq. 3 (paper: 9, 29, 49) |
 | r_px                | float   | px at 720x1280            | required | radius R of Eq. 3 (paper: 50) |
 | radius_rule         | str     | -                         | "sigma"  | how R gives the Gaussian's sigma (above) |
+| e_domain            | str     | -                         | "linear" | Eq. 3 on linear values or on stored values (`display`, the paper's) |
 | box / boxes         | [4] / str | input px / -            | one of   | constant plate box [x0, y0, x1, y1] / CSV `frame,x0,y0,x1,y1,text` |
 | text                | str     | -                         | ""       | plate text with a constant `box` (ground truth) |
 | scale               | float   | e- s-1 m-2 sr-1           | one of   | photon radiance of the linear value 1 |
@@ -54,7 +64,7 @@ from poevp_optics.sources.frames import (Box, Clock, FrameSequenceSource, Source
                                          check_clock_keys, check_file_keys, check_spectrum_key, frame_files,
                                          photon_radiance_per_cd_per_m2, read_boxes_csv, resolve_path)
 
-KEYS = ("frames", "video", "transfer", "gamma", "e", "r_px", "radius_rule", "box", "boxes", "text",
+KEYS = ("frames", "video", "transfer", "gamma", "e", "r_px", "radius_rule", "e_domain", "box", "boxes", "text",
         "scale", "luminance_cd_per_m2", "spectrum", "fps", "t0_s", "subframes")
 
 #: The paper's frame size for r_px (Sec. 6: R = 50 at 720x1280).
@@ -81,6 +91,12 @@ RADIUS_RULES.register("sigma", lambda r: r, source="He et al. 2024 Eq. 3 with th
 RADIUS_RULES.register("literal", math.sqrt, source="He et al. 2024 Eq. 3 as printed, exp(-d^2/(2R)): "
                                                    "sigma = sqrt(R)")
 
+#: Where Eq. 3's product is formed (module docstring, "Domain of Eq. 3").
+E_DOMAINS = Registry("Eq. 3 domain")
+E_DOMAINS.register("linear", lambda: None, source="ours: H = O (E G + 1) on linearised values")
+E_DOMAINS.register("display", lambda: None, source="He et al. 2024 Sec. 4.A: H = O (E G + 1) on the stored "
+                                                   "8-bit values ('pixel values ... beyond 255'), then decoded")
+
 #: Rec. 709 luminance weights of linear R, G, B (ITU-R BT.709-6, item 3.2).
 REC709_LUMA = (0.2126, 0.7152, 0.0722)
 
@@ -101,22 +117,42 @@ def gaussian_map(shape: tuple[int, int], center_xy: tuple[float, float], sigma_p
 
 
 def artificial_highlight(o: np.ndarray, box: Box | None, e: float, sigma_px: float) -> np.ndarray:
-    """Paper Eq. 3: H = O (E G + 1), G centred on the plate box; no box: H = O (float64)."""
+    """Paper Eq. 3: H = O (E G + 1), G centred on the plate box; no box: H = O (float64).
+    O: (H, W) or (H, W, C) (G is shared by the channels)."""
     o = np.asarray(o, dtype=np.float64)
     if box is None:
         return o
-    return o * (e * gaussian_map(o.shape, box.center_xy, sigma_px) + 1.0)
+    g = gaussian_map(o.shape[:2], box.center_xy, sigma_px)
+    return o * (e * (g[..., None] if o.ndim == 3 else g) + 1.0)
 
 
-def linear_luminance(img: np.ndarray, transfer: str, gamma: float) -> np.ndarray:
-    """Stored 8/16-bit image (H, W), (H, W, 3) RGB or (H, W, 4) RGBA -> linear O in [0, 1]."""
+def stored_values(img: np.ndarray) -> np.ndarray:
+    """Stored 8/16-bit image -> values V in [0, 1] (float64), channels kept."""
     if img.dtype not in (np.uint8, np.uint16):
         raise TypeError(f"expected 8- or 16-bit values, got {img.dtype}")
-    v = img.astype(np.float64) / float(np.iinfo(img.dtype).max)
+    return img.astype(np.float64) / float(np.iinfo(img.dtype).max)
+
+
+def luminance_of(v: np.ndarray, transfer: str, gamma: float) -> np.ndarray:
+    """Stored values V (any range >= 0; (H, W), RGB or RGBA) -> linear luminance."""
     lin = TRANSFERS[transfer](v, gamma)
     if lin.ndim == 3:
         lin = lin[..., :3] @ np.asarray(REC709_LUMA)
     return lin
+
+
+def linear_luminance(img: np.ndarray, transfer: str, gamma: float) -> np.ndarray:
+    """Stored 8/16-bit image (H, W), (H, W, 3) RGB or (H, W, 4) RGBA -> linear O in [0, 1]."""
+    return luminance_of(stored_values(img), transfer, gamma)
+
+
+def highlighted_luminance(img: np.ndarray, box: Box | None, e: float, sigma_px: float, transfer: str,
+                          gamma: float, domain: str) -> np.ndarray:
+    """Linear luminance of frame `img` with Eq. 3's highlight formed in `domain` (E_DOMAINS)."""
+    E_DOMAINS.entry(domain)
+    if domain == "display":
+        return luminance_of(artificial_highlight(stored_values(img), box, e, sigma_px), transfer, gamma)
+    return artificial_highlight(linear_luminance(img, transfer, gamma), box, e, sigma_px)
 
 
 def check_keys(src, given: frozenset[str], base_dir: Path) -> None:
@@ -236,7 +272,7 @@ class LdrHighlightSource(FrameSequenceSource):
         r_frame = frame_radius_px(src.r_px, self.shape_in)
         self.sigma_px = RADIUS_RULES[src.radius_rule](r_frame)
         reason = (f"{what} {shape[0]}x{shape[1]}, {TRANSFERS.entry(src.transfer).source}, Eq. 3 highlight "
-                  f"E = {src.e:g}, R = {src.r_px:g} px at 720x1280 -> {r_frame:.4g} px, sigma "
+                  f"E = {src.e:g} ({src.e_domain} values), R = {src.r_px:g} px at 720x1280 -> {r_frame:.4g} px, sigma "
                   f"{self.sigma_px:.4g} px ({src.radius_rule}); {anchor}; {src.fps:g} fps; samples by "
                   f"{src.subframes!r}")
         clock = Clock.uniform(n, src.fps, src.t0_s)
@@ -262,8 +298,8 @@ class LdrHighlightSource(FrameSequenceSource):
 
     def load(self, j: int) -> np.ndarray:
         src = self.spec.source
-        o = linear_luminance(self.decoded(j), src.transfer, src.gamma)
-        return self.scale * artificial_highlight(o, self.boxes.get(j), src.e, self.sigma_px)
+        return self.scale * highlighted_luminance(self.decoded(j), self.boxes.get(j), src.e, self.sigma_px,
+                                                  src.transfer, src.gamma, src.e_domain)
 
 
 def open_source(spec, guard_px: int, sensor_qe: str) -> LdrHighlightSource:

@@ -24,8 +24,9 @@ def test_paper_overrides_set_the_papers_coefficients():
     spec = load_scene(SCENE, paper_overrides(49.0))
     assert (spec.source.e, spec.source.r_px) == (49.0, 50.0)
     assert (spec.mask.law, spec.mask.vs, spec.mask.a, spec.mask.b) == ("threshold_ratio", 200.0, 0.9, 0.0)
-    with pytest.raises(UserError, match="paper_law"):
-        check_config(dataclasses.replace(quick_config(SCENE), paper_law="target"))
+    assert spec.source.e_domain == "display"                  # Eq. 3 on the 8-bit values (Sec. 4.A)
+    with pytest.raises(UserError, match="paper-law"):
+        check_config(dataclasses.replace(quick_config(SCENE), paper_law="white"))
 
 
 def test_paper_protocol_runs_and_ldr_reads_no_more_than_the_oracle(tmp_path):
