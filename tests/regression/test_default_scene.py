@@ -34,6 +34,17 @@ def _run(tmp_path, scene, *sets):
     return json.loads((out / "report.json").read_text()), out
 
 
+def _assert_causal_loop(r):
+    """The real thing (issue 18): two white initialisation frames, then dmvfn_lite from its
+    shipped weights file feeding the exposure controller."""
+    assert r["metrics"]["init_frames"] == 2
+    assert all(f.get("init") for f in r["per_frame"][:2]) and not r["per_frame"][2].get("init")
+    pred = r["stages"]["predict"]["predictor"]
+    assert pred["name"] == "dmvfn_lite" and pred["weights"].endswith("dmvfn_lite.safetensors")
+    assert len(pred["weights_sha256"]) == 16
+    assert r["mask"]["law"] == "exposure_controller" and r["mask"]["predictor"] == "dmvfn_lite"
+
+
 def test_highbeam_plate_runs_the_causal_loop_and_its_mask_fixes_saturation(tmp_path):
     """The default scene is the real thing (issue 18): a torch predictor from its weights file,
     a physical relay PSF, two white initialisation frames, the exposure controller, the timing
@@ -41,11 +52,7 @@ def test_highbeam_plate_runs_the_causal_loop_and_its_mask_fixes_saturation(tmp_p
     r, out = _run(tmp_path, "highbeam_plate", "timing.frames=4", "render.spp=8",
                   "render.resolution=[184,320]", "render.subframes=2")
     m = r["metrics"]
-    assert m["init_frames"] == 2
-    assert all(f.get("init") for f in r["per_frame"][:2]) and not r["per_frame"][2].get("init")
-    pred = r["stages"]["predict"]["predictor"]
-    assert pred["name"] == "dmvfn_lite" and pred["weights"].endswith("dmvfn_lite.safetensors")
-    assert r["mask"]["law"] == "exposure_controller" and r["mask"]["predictor"] == "dmvfn_lite"
+    _assert_causal_loop(r)
     assert "relay" not in r["skipped_stages"]          # Airy PSF: the relay convolves
     assert m["saturated_fraction_roi"]["ldr_after_init"] > 0.5
     assert m["saturated_fraction_roi"]["encoded_after_init"] < 0.01
@@ -73,11 +80,7 @@ def test_default_scene_is_night_road_and_runs_the_causal_loop(tmp_path):
     assert scene == "night_road"
     r, out = _run(tmp_path, scene, "timing.frames=4", "render.spp=2")
     m = r["metrics"]
-    assert m["init_frames"] == 2
-    assert all(f.get("init") for f in r["per_frame"][:2]) and not r["per_frame"][2].get("init")
-    pred = r["stages"]["predict"]["predictor"]
-    assert pred["name"] == "dmvfn_lite" and pred["weights"].endswith("dmvfn_lite.safetensors")
-    assert r["mask"]["law"] == "exposure_controller" and r["mask"]["predictor"] == "dmvfn_lite"
+    _assert_causal_loop(r)
     assert "relay" not in r["skipped_stages"] and "objective" not in r["skipped_stages"]
     tb = r["timing_budget"]
     assert tb["compute"] == "fpga_zynq" and tb["late_frames"] == []
