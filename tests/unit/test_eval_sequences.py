@@ -7,7 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from poevp_optics.apps.eval_sequences import SequenceSpec, calibrate, eval_overrides, node_times, poses, with_poses
+from poevp_optics.apps.eval_sequences import (SequenceSpec, calibrate, eval_overrides, node_times, nodes_for_speed,
+                                             poses, with_poses)
 from poevp_optics.apps.evaluate import TEXTS, EvalConfig, check_config
 from poevp_optics.apps.training_data import random_plate_text
 from poevp_optics.analysis.recognition import normalise
@@ -85,3 +86,20 @@ def test_bad_configurations_name_the_flag():
                       (dict(texts=()), "--texts"), (dict(speeds_px=(0,)), "--speeds"), (dict(search="sky"), "--search")):
         with pytest.raises(UserError, match=flag):
             check_config(EvalConfig(**bad))
+
+
+@pytest.mark.parametrize("speed", [4.0, 16.0, 32.0, 48.0])
+def test_nodes_keep_the_plate_within_half_a_pixel_between_samples(setup, speed):
+    """A fast plate is sampled densely enough within its 2 ms exposure that the node sum is a
+    blur, not separate sharp copies: image displacement between consecutive nodes <= 0.5 px
+    (closed form: speed x 2 ms x fps / (K - 1)), and K is the smallest such count (>= 2)."""
+    spec, _, cal = setup
+    seq = SequenceSpec("KA 7391", "lateral", speed, 3, 1)
+    k = nodes_for_speed(speed, spec.timing.fps)
+    times = node_times(spec, seq.frames, k)
+    x_px = poses(seq, cal, spec.timing.fps, times.ravel())[:, 0].reshape(times.shape) * cal.px_per_m
+    step = np.abs(np.diff(x_px, axis=1)).max()
+    blur = speed * 0.002 * spec.timing.fps
+    assert step == pytest.approx(blur / (k - 1), rel=1e-6)
+    assert step <= 0.5 + 1e-9
+    assert k == 2 or blur / (k - 2) > 0.5
