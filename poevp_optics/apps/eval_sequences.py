@@ -179,12 +179,12 @@ def node_times(spec, frames: int, nodes: int = NODES) -> np.ndarray:
     return np.stack([node_times_s(*spec.exposure_window_s(i), nodes) for i in range(frames)])
 
 
-def content_key(spec, seq: SequenceSpec, offsets: np.ndarray, spp: int) -> str:
+def content_key(spec, seq: SequenceSpec, offsets: np.ndarray, spp: int, nodes: int) -> str:
     """Cache key: the scene's files, the sequence, its poses and the render settings."""
     files = [hashlib.sha1(Path(p).read_bytes()).hexdigest() for p in (spec.toml_path, spec.xml_path)]
     blob = [files, dataclasses.asdict(seq), np.round(offsets, 6).tolist(), list(spec.render.resolution), spp,
             spec.render.seed, spec.accuracy.mc_splits,
-            EXPOSURE_S, nodes_for_speed(seq.speed_px, spec.timing.fps), __version__, CACHE_VERSION]
+            EXPOSURE_S, nodes, __version__, CACHE_VERSION]
     return hashlib.sha1(json.dumps(blob, default=str).encode()).hexdigest()[:16]
 
 
@@ -237,7 +237,7 @@ def render_sequences(spec, seqs: list[SequenceSpec], cal: Calibration, guard_px:
     for j, seq in enumerate(seqs):
         times = node_times(spec, seq.frames, nodes_for_speed(seq.speed_px, spec.timing.fps))
         offs = poses(seq, cal, spec.timing.fps, times.ravel())
-        path = cache_dir("eval") / f"{content_key(spec, seq, offs, acc.spp)}.npz"
+        path = cache_dir("eval") / f"{content_key(spec, seq, offs, acc.spp, times.shape[1])}.npz"
         plan.append((seq, times, offs, path))
         if not path.is_file():
             missing.append(j)

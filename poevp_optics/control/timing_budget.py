@@ -41,8 +41,8 @@ from poevp_optics.core.registry import Registry
 COMPUTE_BUDGETS = Registry("compute budget")
 COMPUTE_BUDGETS.register("fpga_zynq", 3.96e-3, source="paper App. D: 1e10 FLOP / 2.525 TFLOPS, Zynq XC7Z035")
 COMPUTE_BUDGETS.register("rtx3090", 16.9e-3, source="paper Table 2: VP + mask 16.9 ms, RTX 3090")
-COMPUTE_BUDGETS.register("measured", "measured", source="this run: predictor + mask law wall time per frame")
-COMPUTE_BUDGETS.register("given", "given", source="the scene's budget.compute_s")
+COMPUTE_BUDGETS.register("measured", None, source="this run: predictor + mask law wall time per frame")
+COMPUTE_BUDGETS.register("given", None, source="the scene's budget.compute_s")
 
 LATE_MASK_MODES = ("ideal", "partial", "next")
 
@@ -90,8 +90,8 @@ class MaskClock:
 
     def compute_seconds(self, measured_s: float | None) -> float:
         """Predictor + mask time of one mask (s): the device budget, the given one or measured."""
-        fixed = COMPUTE_BUDGETS[self.spec.compute]     # seconds, or the name of a rule
-        if not isinstance(fixed, str):
+        fixed = COMPUTE_BUDGETS[self.spec.compute]     # seconds; None: measured or given
+        if fixed is not None:
             return float(fixed)
         if self.spec.compute == "measured" and measured_s is not None:
             return float(measured_s)

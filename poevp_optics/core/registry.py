@@ -13,6 +13,9 @@ from dataclasses import dataclass
 from typing import Any, Iterator
 
 
+_DECORATE = object()     # `register(name, source=...)` without an object: used as a decorator
+
+
 class UnknownName(ValueError):
     """A name no entry of the registry carries."""
 
@@ -35,9 +38,10 @@ class Registry:
         self.what = what
         self._entries: dict[str, Entry] = {}
 
-    def register(self, name: str, obj: Any = None, *, source: str, doc: str = ""):
-        """Register `obj` under `name` (also usable as a decorator when `obj` is None)."""
-        if obj is None:
+    def register(self, name: str, obj: Any = _DECORATE, *, source: str, doc: str = ""):
+        """Register `obj` under `name` (None included: an entry whose rule is elsewhere); without
+        `obj`, a decorator that registers what it decorates."""
+        if obj is _DECORATE:
             return lambda o: self.register(name, o, source=source, doc=doc)
         if not name or not isinstance(name, str):
             raise ValueError(f"{self.what}: a name must be a non-empty string, got {name!r}")

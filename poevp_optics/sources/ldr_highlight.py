@@ -92,10 +92,6 @@ RADIUS_RULES.register("literal", math.sqrt, source="He et al. 2024 Eq. 3 as prin
                                                    "sigma = sqrt(R)")
 
 #: Where Eq. 3's product is formed (module docstring, "Domain of Eq. 3").
-E_DOMAINS = Registry("Eq. 3 domain")
-E_DOMAINS.register("linear", lambda: None, source="ours: H = O (E G + 1) on linearised values")
-E_DOMAINS.register("display", lambda: None, source="He et al. 2024 Sec. 4.A: H = O (E G + 1) on the stored "
-                                                   "8-bit values ('pixel values ... beyond 255'), then decoded")
 
 #: Rec. 709 luminance weights of linear R, G, B (ITU-R BT.709-6, item 3.2).
 REC709_LUMA = (0.2126, 0.7152, 0.0722)
@@ -146,13 +142,21 @@ def linear_luminance(img: np.ndarray, transfer: str, gamma: float) -> np.ndarray
     return luminance_of(stored_values(img), transfer, gamma)
 
 
+#: Where Eq. 3's product is formed (module docstring, "Domain of Eq. 3"):
+#: (img, box, e, sigma_px, transfer, gamma) -> linear luminance with the highlight.
+E_DOMAINS = Registry("Eq. 3 domain")
+E_DOMAINS.register("linear", lambda img, box, e, sigma, transfer, gamma: artificial_highlight(
+    linear_luminance(img, transfer, gamma), box, e, sigma), source="ours: H = O (E G + 1) on linearised values")
+E_DOMAINS.register("display", lambda img, box, e, sigma, transfer, gamma: luminance_of(
+    artificial_highlight(stored_values(img), box, e, sigma), transfer, gamma),
+    source="He et al. 2024 Sec. 4.A: H = O (E G + 1) on the stored 8-bit values ('pixel values ... "
+           "beyond 255'), then decoded")
+
+
 def highlighted_luminance(img: np.ndarray, box: Box | None, e: float, sigma_px: float, transfer: str,
                           gamma: float, domain: str) -> np.ndarray:
     """Linear luminance of frame `img` with Eq. 3's highlight formed in `domain` (E_DOMAINS)."""
-    E_DOMAINS.entry(domain)
-    if domain == "display":
-        return luminance_of(artificial_highlight(stored_values(img), box, e, sigma_px), transfer, gamma)
-    return artificial_highlight(linear_luminance(img, transfer, gamma), box, e, sigma_px)
+    return E_DOMAINS[domain](img, box, e, sigma_px, transfer, gamma)
 
 
 def check_keys(src, given: frozenset[str], base_dir: Path) -> None:
