@@ -20,7 +20,7 @@ from poevp_optics.apps.outputs import OutputWriter, mask_png
 from poevp_optics.apps.run_report import build_report
 from poevp_optics.apps.temporal_check import temporal_error
 from poevp_optics.camera.camera import Camera
-from poevp_optics.control.loop_step import LoopStep, oracle_mask
+from poevp_optics.control.loop_step import LoopStep, oracle_mask, oracle_transmission
 from poevp_optics.control.masks import MaskSpec
 from poevp_optics.core.exceptions import SceneError
 from poevp_optics.core.report import write_report
@@ -53,6 +53,7 @@ class FrameCapture:
     est: np.ndarray
     flags: np.ndarray
     record: dict
+    oracle_transmission: float = 1.0      # the oracle mask's attenuator setting
 
 
 @dataclass
@@ -81,6 +82,21 @@ def _shown_mask(clock, decision, i: int, rec: dict):
     return shown.levels, switch
 
 
+def _attenuator_setting(spec, camera: Camera, step: LoopStep, decision, i: int, rec: dict) -> float:
+    """The global attenuator's transmission in frame i (camera/attenuator.py): the decision's,
+    unless its command (sent when the mask's compute ends) settles after the exposure starts;
+    budget.late_mask = 'ideal' takes it as on time, like the mask."""
+    if not spec.attenuator.enabled:
+        return 1.0
+    budget = rec.get("timing_budget")
+    command_s = None
+    if budget and spec.budget.late_mask != "ideal":
+        command_s = budget["compute_start_s"] + budget["compute_s"]
+    rec["attenuator"] = step.attenuator_state.apply(decision.transmission, command_s,
+                                                    camera.timing.exposure_window_s(i)[0])
+    return rec["attenuator"]["transmission"]
+
+
 def _capture(spec, camera: Camera, step: LoopStep | None, ex: RenderedExposure, res: RunResult) -> FrameCapture:
     """LDR twin (DMD all white), the loop's mask, the encoded capture and its reconstruction."""
     i = ex.index
@@ -91,10 +107,12 @@ def _capture(spec, camera: Camera, step: LoopStep | None, ex: RenderedExposure, 
                          **timing)
     rec = {"index": i}
     mask = oracle = None
+    oracle_g = 1.0
     enc = ldr
     if camera.dmd:
         tm = time.perf_counter()
-        oracle = oracle_mask(camera, spec.mask, truth, i)
+        oracle_g = oracle_transmission(camera, spec.mask, spec.attenuator, truth, i)
+        oracle = oracle_mask(camera, spec.mask, truth, i, oracle_g)
         res.stage_seconds["mask"] += time.perf_counter() - tm
         decision = step.next_mask(i, truth)
         mask = decision.levels
@@ -106,8 +124,9 @@ def _capture(spec, camera: Camera, step: LoopStep | None, ex: RenderedExposure, 
             res.predict_seconds.append(decision.predict_seconds)
             rec["predict_seconds"] = decision.predict_seconds
         mask, switch = _shown_mask(step.clock, decision, i, rec)
+        g = _attenuator_setting(spec, camera, step, decision, i, rec)
         enc = camera.capture(subs, mask, i, capture_seed(spec.sensor.seed, spec.render.seed, i, ENCODED_STREAM),
-                             **timing, **({"switch": switch} if switch else {}))
+                             **timing, **({"switch": switch} if switch else {}), transmission=g)
     for k in ("dmd", "relay", "sensor"):
         res.stage_seconds[k] += enc.seconds[k]
     if camera.objective is not None:         # the LDR twin formed the image; the encoded capture reuses it
@@ -117,7 +136,7 @@ def _capture(spec, camera: Camera, step: LoopStep | None, ex: RenderedExposure, 
     est, flags, _ = camera.reconstruct(enc, i)
     res.stage_seconds["reconstruct"] += time.perf_counter() - tr
     return FrameCapture(ex, camera.to_sensor(truth).astype(np.float32), camera.box_to_sensor(ex.roi),
-                        ldr, enc, mask, oracle, est, flags, rec)
+                        ldr, enc, mask, oracle, est, flags, rec, oracle_g)
 
 
 def _metrics(camera: Camera, fc: FrameCapture) -> None:
@@ -147,7 +166,7 @@ def _against_oracle(spec, camera: Camera, fc: FrameCapture) -> None:
     subs = list(fc.exposure.subframes) if not spec.is_static else [fc.exposure.radiance.data]
     timing = fc.exposure.capture_timing() if not spec.is_static else {}
     oc = camera.capture(subs, fc.oracle, i, capture_seed(spec.sensor.seed, spec.render.seed, i, ENCODED_STREAM),
-                        **timing)
+                        **timing, transmission=fc.oracle_transmission)
     fc.record["saturated_fraction_roi"]["oracle"] = saturated_fraction(crop(oc.dn, box), max_dn)
     fc.record["entropy_roi"]["oracle"] = entropy_8bit(to_8bit(crop(oc.dn, box), max_dn))
     if not fc.record.get("init"):
@@ -239,7 +258,8 @@ def loop_step_of(spec, camera: Camera) -> LoopStep | None:
     from poevp_optics.control.predictors.dmvfn import WeightsError
 
     try:
-        return LoopStep(camera, spec.mask, spec.loop, spec.predictor, budget=spec.budget)
+        return LoopStep(camera, spec.mask, spec.loop, spec.predictor, budget=spec.budget,
+                        attenuator=spec.attenuator)
     except WeightsError as e:
         raise SceneError(f"{spec.toml_path}: predictor.weights: {e}") from None
 

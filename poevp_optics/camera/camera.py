@@ -251,8 +251,11 @@ class Camera:
             out.append(on + fl.off_fraction * (full - on))
         return out
 
-    def _check_inputs(self, subframes, mask_levels, frame_index: int) -> None:
-        """Radiance must be finite and >= 0 on the mirror grid; clear errors, not a hung sampler."""
+    def _check_inputs(self, subframes, mask_levels, frame_index: int, transmission: float = 1.0) -> None:
+        """Radiance must be finite and >= 0 on the mirror grid, the attenuator's transmission in
+        (0, 1]; clear errors, not a hung sampler."""
+        if not 0.0 < transmission <= 1.0:
+            raise ValueError(f"frame {frame_index}: attenuator transmission {transmission!r} is not in (0, 1]")
         for j, sub in enumerate(subframes):
             a = np.asarray(sub)
             if a.shape != self.mirror_shape:
@@ -278,7 +281,7 @@ class Camera:
         return rel
 
     def capture(self, subframes, mask_levels, frame_index: int, seed: int,
-                basis: tuple[str, ...] = (), times_s=None, switch=None) -> Capture:
+                basis: tuple[str, ...] = (), times_s=None, switch=None, transmission: float = 1.0) -> Capture:
         """Expose the sensor to K radiance samples (mirror grid) through `mask_levels` (mirror grid;
         None: no DMD or all white without one). times_s: the samples' absolute times (the
         scene's `subframe_times_s`); None: K uniform nodes over the exposure (`node_times_s`).
@@ -286,11 +289,14 @@ class Camera:
         basis: when given, `subframes` are emitter-group images named by it (flickering lamps,
         `Camera.basis_tables`) rather than time samples: their exposures are exact integrals.
         switch: (new_levels, switch_s): a late mask that replaces `mask_levels` for the bit-planes
-        starting at or after switch_s (absolute, s; dmd.late_schedules)."""
+        starting at or after switch_s (absolute, s; dmd.late_schedules).
+        transmission: the global attenuator's setting for the frame (camera/attenuator.py): every
+        mirror's exposure x transmission, in the capture's `exposure_s` too (so the
+        reconstruction divides it out)."""
         import drjit as dr
         from drjit.auto import Float
 
-        self._check_inputs(subframes, mask_levels, frame_index)
+        self._check_inputs(subframes, mask_levels, frame_index, transmission)
         k = len(subframes)
         h, w = self.shape
         n_mirrors = self.mirror_shape[0] * self.mirror_shape[1]
@@ -320,6 +326,8 @@ class Camera:
             thr = throughput_on(self.dmd_spec) if self.dmd is not None else 1.0
             dt = node_time_weights_s(self.timing.exposure_s, self.nodes_rel(frame_index, k, times_s))
             weights = [dr.full(Float, float(d * thr), n_mirrors) for d in dt]
+        if transmission != 1.0:
+            weights = [wt * float(transmission) for wt in weights]
         plane = weights[0] * subs[0]
         for j in range(1, k):
             plane = dr.fma(weights[j], subs[j], plane)

@@ -26,8 +26,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from poevp_optics.analysis.metrics import to_8bit
+from poevp_optics.camera.attenuator import AttenuatorSpec, AttenuatorState, choose_transmission
 from poevp_optics.control.exposure_control import ExposureController
-from poevp_optics.control.masks import MaskSpec, mask_levels, predicted_electrons
+from poevp_optics.control.masks import MaskSpec, mask_levels, predicted_electrons, reach_electrons
 from poevp_optics.control.timing_budget import BudgetSpec, MaskClock
 from poevp_optics.control.predictors import PREDICTORS, PredictorSpec, checked_prediction, make_predictor
 from poevp_optics.core.params import param
@@ -91,13 +92,31 @@ def predictor_input(mode: str, camera, ldr, enc, est, flags, index: int, clipped
     return LOOP_MODES[mode](camera, ldr, enc, est, flags, index, clipped_gain)
 
 
-def oracle_mask(camera, mask: MaskSpec, radiance_mean: np.ndarray, index: int) -> np.ndarray:
-    """The mask law applied to the true frame (mirror grid): the upper bound of any predictor."""
+def oracle_mask(camera, mask: MaskSpec, radiance_mean: np.ndarray, index: int, transmission: float = 1.0) -> np.ndarray:
+    """The mask law applied to the true frame (mirror grid): the upper bound of any predictor.
+    transmission: the global attenuator's setting (`oracle_transmission`)."""
     white_e = radiance_mean.astype(np.float64) * camera.electrons_per_radiance() * camera.white_exposure_s(index)
     ldr8 = to_8bit(camera.noise_free_dn(white_e), camera.params.max_dn)
     return mask_levels(mask, camera.dmd.spec.bits, pred_8bit=ldr8, pred_electrons=white_e,
                        full_well_e=camera.params.full_well_e, level_exposure=camera.level_exposure_s(index),
-                       sensor=camera.params)
+                       sensor=camera.params, transmission=transmission)
+
+
+def attenuator_transmission(camera, mask: MaskSpec, attenuator: AttenuatorSpec, demand_e: np.ndarray,
+                            index: int) -> float:
+    """The attenuator's setting for frame `index` given the all-white electrons per mirror the
+    mask law assumes (camera/attenuator.py); 1 for a disabled attenuator or a paper law."""
+    if not attenuator.enabled or mask.law not in ("target", "exposure_controller"):
+        return 1.0
+    reach = reach_electrons(mask, camera.top_level, camera.level_exposure_s(index), camera.params)
+    return choose_transmission(demand_e, reach, attenuator)
+
+
+def oracle_transmission(camera, mask: MaskSpec, attenuator: AttenuatorSpec, radiance_mean: np.ndarray,
+                        index: int) -> float:
+    """The oracle's attenuator setting: from the true frame's all-white electrons."""
+    white_e = radiance_mean.astype(np.float64) * camera.electrons_per_radiance() * camera.white_exposure_s(index)
+    return attenuator_transmission(camera, mask, attenuator, white_e, index)
 
 
 def predicted_mask(camera, mask: MaskSpec, pred_8bit: np.ndarray, index: int, controller=None,
@@ -105,13 +124,28 @@ def predicted_mask(camera, mask: MaskSpec, pred_8bit: np.ndarray, index: int, co
     """The mask law applied to a predicted frame on the 8-bit scale (sensor grid), placed on the
     mirror grid through the inverse registration first (camera.to_mirror). controller: the
     loop's ExposureController (past masks and captures); pred_masked: the prediction is of
-    masked captures (MASKED_MODES)."""
+    masked captures (MASKED_MODES). No attenuator (`predicted_decision` has one)."""
+    return predicted_decision(camera, mask, pred_8bit, index, controller, pred_masked)[0]
+
+
+def predicted_decision(camera, mask: MaskSpec, pred_8bit: np.ndarray, index: int, controller=None,
+                       pred_masked: bool = False,
+                       attenuator: AttenuatorSpec = AttenuatorSpec()) -> tuple[np.ndarray, float]:
+    """(levels, attenuator transmission) from a predicted frame (`predicted_mask`). The
+    transmission is global, so it needs no prediction of where: it comes from the exposure
+    controller's demand of the last capture, per mirror and not dilated (so a highlight counts
+    with its measured size: camera/attenuator.py serves only highlights of serve_min_mirrors or
+    more), or from the prediction without a controller; then the levels through it."""
     pred = camera.to_mirror(pred_8bit).astype(np.float64)
     e = predicted_electrons(pred, camera.params, mask.clipped_gain)
-    return mask_levels(mask, camera.dmd.spec.bits, pred_8bit=np.clip(pred, 0, 255),
-                       pred_electrons=e, full_well_e=camera.params.full_well_e,
-                       level_exposure=camera.level_exposure_s(index), sensor=camera.params,
-                       controller=controller, pred_masked=pred_masked)
+    kw = dict(pred_8bit=np.clip(pred, 0, 255), pred_electrons=e, full_well_e=camera.params.full_well_e,
+              level_exposure=camera.level_exposure_s(index), sensor=camera.params,
+              controller=controller, pred_masked=pred_masked)
+    g = 1.0
+    if attenuator.enabled:     # global: where does not matter, only how bright and how large
+        measured = controller is not None and controller.demand_e is not None
+        g = attenuator_transmission(camera, mask, attenuator, controller.demand_e if measured else e, index)
+    return mask_levels(mask, camera.dmd.spec.bits, transmission=g, **kw), g
 
 
 def controller_view(camera, enc, est, flags, index: int):
@@ -134,6 +168,7 @@ class MaskDecision:
     init: bool                       # an all-white initialisation frame
     predict_seconds: float | None    # predictor + mask law (causal predictors)
     fallback_px: int = 0             # prediction pixels that were NaN/Inf and fell back to hold
+    transmission: float = 1.0        # the global attenuator's commanded setting (camera/attenuator.py)
 
 
 class LoopStep:
@@ -143,11 +178,14 @@ class LoopStep:
     HISTORY = 4
 
     def __init__(self, camera, mask: MaskSpec, loop: LoopSpec, predictor: PredictorSpec,
-                 model=None, budget: BudgetSpec = BudgetSpec()):
+                 model=None, budget: BudgetSpec = BudgetSpec(), attenuator: AttenuatorSpec = AttenuatorSpec()):
         """model: an already built predictor (else built from `predictor`); none for the oracle.
         budget: the real-time budget; `clock` (timing_budget.MaskClock) says when each mask
-        reaches the DMD and what each window shows."""
+        reaches the DMD and what each window shows. attenuator: the global variable ND whose
+        setting each decision carries (camera/attenuator.py)."""
         self.camera, self.mask, self.loop, self.predictor_spec = camera, mask, loop, predictor
+        self.attenuator = attenuator
+        self.attenuator_state = AttenuatorState(attenuator)
         self.needs_truth = PREDICTORS[predictor.name].needs_truth
         self.model = None if self.needs_truth else (model or make_predictor(
             predictor.name, predictor.weights, predictor.resolution))
@@ -164,12 +202,13 @@ class LoopStep:
         if index < self.loop.init_frames or len(self.history) < needs:
             return MaskDecision(self.camera.white_mask(), True, None)
         if self.needs_truth:
-            return MaskDecision(oracle_mask(self.camera, self.mask, truth, index), False, None)
+            g = oracle_transmission(self.camera, self.mask, self.attenuator, truth, index)
+            return MaskDecision(oracle_mask(self.camera, self.mask, truth, index, g), False, None, transmission=g)
         t0 = time.perf_counter()
         pred, n_bad = checked_prediction(self.model, self.history[-2:])
-        levels = predicted_mask(self.camera, self.mask, resize_to(pred, self.camera.shape), index,
-                                self.controller, self.loop.mode in MASKED_MODES)
-        return MaskDecision(levels, False, time.perf_counter() - t0, n_bad)
+        levels, g = predicted_decision(self.camera, self.mask, resize_to(pred, self.camera.shape), index,
+                                       self.controller, self.loop.mode in MASKED_MODES, self.attenuator)
+        return MaskDecision(levels, False, time.perf_counter() - t0, n_bad, transmission=g)
 
     def observe(self, index: int, ldr, enc, est, flags) -> None:
         """Take what the camera saw of frame `index` into the predictor's history and the

@@ -145,7 +145,9 @@ class MaskInput:
     """What a law may look at: the predicted frame on the 8-bit scale (mirror grid), the electrons
     it implies with the all-white mask, the full well, and the exposure of every DMD level; for
     the exposure controller also the sensor (SensorParams), the controller's state (past masks
-    and captures) and whether the prediction is of masked captures (the `raw` loop mode)."""
+    and captures) and whether the prediction is of masked captures (the `raw` loop mode); the
+    global attenuator's transmission for the frame (the `target` and `exposure_controller` laws
+    take it into the exposure; the paper's laws act on the 8-bit prediction as is)."""
 
     pred_8bit: np.ndarray | None = None
     pred_electrons: np.ndarray | None = None
@@ -154,6 +156,7 @@ class MaskInput:
     sensor: object | None = None
     controller: object | None = None
     pred_masked: bool = False
+    transmission: float = 1.0       # the global attenuator's setting (camera/attenuator.py)
 
     @property
     def shape(self):
@@ -168,18 +171,15 @@ def _target_law(spec, top: int, x: MaskInput) -> np.ndarray:
     if x.pred_electrons is None or x.level_exposure is None or x.full_well_e is None:
         raise ValueError("mask law 'target' needs predicted electrons and the level table")
     e = np.nan_to_num(np.asarray(x.pred_electrons, dtype=np.float64), nan=1e30, posinf=1e30)
-    env = smooth_envelope(e, spec.smooth_px)
+    env = smooth_envelope(e * x.transmission, spec.smooth_px)
     return target_levels(env, x.full_well_e, spec.target, x.level_exposure, min(spec.min_level, top))
 
 
-def _controller_law(spec, top: int, x: MaskInput) -> np.ndarray:
-    """exposure_control.py: bright where the prediction clips, as bright as the controller's
-    demand there (first_guess x saturation where the controller has no clipped history: the
-    prediction moved the highlight beyond the carried region), the prediction's own value
-    elsewhere; smooth envelope; then the level putting the signal in the
-    band [band_low, band_high] x full scale, aiming at `target`."""
-    from poevp_optics.control.exposure_control import full_scale_electrons
-
+def controller_demand_e(spec, x: "MaskInput") -> np.ndarray:
+    """The all-white electrons the exposure controller assumes per mirror (before the smooth
+    envelope): bright where the prediction clips, as bright as the controller's demand there
+    (first_guess x saturation where the controller has no clipped history: the prediction moved
+    the highlight beyond the carried region), the prediction's own value elsewhere."""
     if x.pred_electrons is None or x.level_exposure is None or x.sensor is None:
         raise ValueError("mask law 'exposure_controller' needs predicted electrons, the level table "
                          "and the sensor")
@@ -194,8 +194,28 @@ def _controller_law(spec, top: int, x: MaskInput) -> np.ndarray:
         held = c.held_e()
         known = held >= p.saturation_capacity_e
         e = np.where(bright, np.where(known, held, spec.first_guess * p.saturation_capacity_e), e)
-    env = smooth_envelope(e, spec.smooth_px)
-    e_low, e_aim, e_high = full_scale_electrons(p, [spec.band_low, spec.target, spec.band_high])
+    return e
+
+
+def reach_electrons(spec, top: int, level_exposure: np.ndarray, sensor) -> float:
+    """The most all-white electrons the darkest usable level (>= min_level) still brings to the
+    aim (`target` x full scale): the exposure controller's reach without a global attenuator."""
+    from poevp_optics.control.exposure_control import full_scale_electrons
+
+    rel = np.asarray(level_exposure, dtype=np.float64) / float(level_exposure[-1])
+    floor = float(np.min(rel[min(spec.min_level, top):]))
+    aim = float(full_scale_electrons(sensor, spec.target))
+    return aim / floor if floor > 0 else float("inf")
+
+
+def _controller_law(spec, top: int, x: MaskInput) -> np.ndarray:
+    """exposure_control.py: the demand (`controller_demand_e`) through the attenuator's
+    transmission, smooth envelope, then the level putting the signal in the band
+    [band_low, band_high] x full scale, aiming at `target`."""
+    from poevp_optics.control.exposure_control import full_scale_electrons
+
+    env = smooth_envelope(controller_demand_e(spec, x) * x.transmission, spec.smooth_px)
+    e_low, e_aim, e_high = full_scale_electrons(x.sensor, [spec.band_low, spec.target, spec.band_high])
     return band_levels(env, x.level_exposure, e_low, e_aim, e_high, min(spec.min_level, top))
 
 
@@ -243,7 +263,8 @@ class MaskSpec:
 def mask_levels(spec: MaskSpec, bits: int, *, pred_8bit: np.ndarray | None = None,
                 pred_electrons: np.ndarray | None = None, full_well_e: float | None = None,
                 level_exposure: np.ndarray | None = None, sensor=None, controller=None,
-                pred_masked: bool = False) -> np.ndarray:
+                pred_masked: bool = False, transmission: float = 1.0) -> np.ndarray:
     """Apply the scene's mask law (MASK_LAWS); integer-valued float64 levels in [0, 2^bits - 1]."""
-    x = MaskInput(pred_8bit, pred_electrons, full_well_e, level_exposure, sensor, controller, pred_masked)
+    x = MaskInput(pred_8bit, pred_electrons, full_well_e, level_exposure, sensor, controller, pred_masked,
+                  transmission)
     return MASK_LAWS[spec.law](spec, (1 << bits) - 1, x)

@@ -12,6 +12,7 @@
 | [road]               | RoadSpec         | sources/road.py (night-road geometry; only road scenes) |
 | [sheeting.<param>]   | SheetingSpec     | render/materials/retroreflective.py |
 | [objective]          | ObjectiveSpec    | camera/objective.py |
+| [attenuator]         | AttenuatorSpec   | camera/attenuator.py (global variable ND before the DMD) |
 | [dmd]                | DMDSpec          | camera/dmd.py (registration: camera/registration.py) |
 | [relay]              | RelaySpec        | camera/relay.py |
 | [sensor]             | SensorSpec       | camera/sensor.py |
@@ -36,6 +37,7 @@ import numpy as np
 
 from poevp_optics.analysis.charts import ChartSpec
 from poevp_optics.apps.outputs import OutputsSpec
+from poevp_optics.camera.attenuator import AttenuatorSpec
 from poevp_optics.camera.dmd import DMDSpec
 from poevp_optics.camera.objective import ObjectiveSpec
 from poevp_optics.camera.relay import RelaySpec
@@ -83,6 +85,7 @@ class SceneSpec:
     chart: ChartSpec
     road: RoadSpec
     source: SourceSpec
+    attenuator: AttenuatorSpec
     raw: Mapping[str, Any]
     origin: str = ""               # the file and the --set overrides it was read with (messages)
 
@@ -146,7 +149,7 @@ SECTIONS = {
     "render": RenderSpec, "timing": TimingSpec, "dmd": DMDSpec, "objective": ObjectiveSpec,
     "relay": RelaySpec, "sensor": SensorSpec, "mask": MaskSpec, "predictor": PredictorSpec,
     "loop": LoopSpec, "budget": BudgetSpec, "outputs": OutputsSpec, "plate": PlateSpec, "chart": ChartSpec,
-    "source": SourceSpec, "road": RoadSpec,
+    "source": SourceSpec, "road": RoadSpec, "attenuator": AttenuatorSpec,
 }
 TABLE_SECTIONS = {"motion": MotionSpec, "spectra": SpectrumSpec, "flicker": FlickerSpec,
                   "sheeting": SheetingSpec}

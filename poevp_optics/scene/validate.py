@@ -289,3 +289,22 @@ def check_road(ctx, road, spectra_, sheeting) -> None:
                        "with a photometric distribution (our high beams)")
     if road.sheeting not in sheeting:
         raise ctx.fail("road.sheeting", f"{road.sheeting!r} names no [sheeting] entry")
+
+
+def check_attenuator(ctx, sec: dict):
+    """[attenuator]: an enabled one needs the DMD, a mask law that takes its transmission
+    (`target`, `exposure_controller`) and time to settle between two exposures."""
+    a = sec["attenuator"]
+    if not a.enabled:
+        return
+    if not sec["dmd"].enabled:
+        raise ctx.fail("attenuator.kind", f"{a.kind!r} is set with the mask's law: it needs [dmd] enabled")
+    if sec["mask"].law not in ("target", "exposure_controller"):
+        raise ctx.fail("attenuator.kind", f"{a.kind!r} is set by the 'target' or 'exposure_controller' "
+                       f"mask law, not {sec['mask'].law!r}")
+    t = sec["timing"]
+    gap = 1.0 / t.fps - t.exposure_s
+    if a.settle_s > gap:
+        raise ctx.fail("attenuator.settle_s", f"impossible timing: {a.settle_s * 1e3:.3g} ms to settle, but "
+                       f"only {gap * 1e3:.3g} ms between two exposures (1/fps - exposure_s): every "
+                       f"setting would arrive late")
