@@ -54,7 +54,7 @@ def frame_rows(report: dict, kept: dict, label: str) -> list[list]:
                      near["entrance_deg"], near["r_a"], p["peak_over_saturation"],
                      "yes" if ldr_read else "no", "yes" if enc_read else f"no ({texts or '-'})",
                      plate_white_fraction(k["capture"], k["roi"]), f["saturated_fraction_roi"]["encoded"],
-                     f["rel_error_roi"]])
+                     f.get("attenuator", {}).get("transmission", 1.0), f["rel_error_roi"]])
     return rows
 
 
@@ -82,7 +82,7 @@ def main(argv=None):
     night_road.plot(RESULTS / "night_road.png", nr, f"{spec.name}: plate peak over saturation vs distance")
     header = ["frame", "", "distance (m)", "observation (deg)", "entrance (deg)", "R_A (cd/lx/m2)",
               "plate peak / saturation", "LDR read", "encoded read", "encoded white p90/255",
-              "encoded saturated plate", "plate MC error"]
+              "encoded saturated plate", "attenuator transmission", "plate MC error"]
     dr = [["plate demand", nr["plate_demand_db"]], ["frame demand", nr["frame_demand_db"]],
           [f"DMD floor ({nr['dmd_binding_part']} binds it)", nr["dmd_floor_db"]],
           ["objective glare floor (veil on the plate)", nr["glare_floor_db"]],

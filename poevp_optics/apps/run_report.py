@@ -85,7 +85,22 @@ def skipped_stages(spec, camera, causal: bool) -> dict:
             skipped["predict"] = "predictor 'oracle' uses the rendered ground truth: no predictor runs"
         if camera.taps is None:
             skipped["registration"] = "identity mirror-to-sensor map: no resampling"
+        if not spec.attenuator.enabled:
+            skipped["attenuator"] = "attenuator.kind = 'none': the mask alone sets each mirror's exposure"
     return skipped
+
+
+def attenuator_section(spec, per_frame) -> dict:
+    """The global attenuator's settings over the run (camera/attenuator.py)."""
+    a = spec.attenuator
+    recs = [f["attenuator"] for f in per_frame if f.get("attenuator")]
+    g = [r["transmission"] for r in recs]
+    return {"kind": a.kind, "min_transmission": a.min_transmission, "settle_s": a.settle_s,
+            "serve_min_mirrors": a.serve_min_mirrors,
+            "transmission_min": min(g) if g else None, "transmission_max": max(g) if g else None,
+            "dimmed_frames": [f["index"] for f in per_frame if f.get("attenuator", {}).get("transmission", 1.0) < 1.0],
+            "late_frames": [f["index"] for f in per_frame if f.get("attenuator", {}).get("late")],
+            "definition": "transmission per frame in per_frame[i].attenuator; a late command keeps the previous one"}
 
 
 def run_metrics(spec, camera, per_frame, law_cmp, causal: bool) -> dict:
@@ -240,6 +255,7 @@ def build_report(spec, renderer, camera, step, res, *, setup_s: float, t_run: fl
         "stages": stage_sections(spec, renderer, step, res, setup_s, causal),
         **({"timing_budget": step.clock.summary({"timeline_png": res.timeline})}
            if step is not None and step.clock is not None else {}),
+        **({"attenuator": attenuator_section(spec, per_frame)} if spec.attenuator.enabled else {}),
         "metrics": metrics,
         "errors": error_budget(spec, camera, per_frame, res.stage_seconds, temporal or {"rel": None},
                                stats.seconds + setup_s),
