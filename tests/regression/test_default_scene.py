@@ -96,6 +96,24 @@ def test_default_scene_is_night_road_and_runs_the_causal_loop(tmp_path):
     nr = r["night_road"]
     assert nr["binding"] in ("glare", "dmd", "none") and nr["plate_demand_db"] > 20.0
     assert (out / "night_road.png").exists() and (out / "timeline_plot.png").exists()
+    # at the scene's own beams the plate (20-60x) is within the 8-bit DMD's reach (122x at the
+    # aim) and the oncoming lamps' cores are too small to be served: the attenuator stays clear
+    assert r["attenuator"]["kind"] == "variable_nd" and r["attenuator"]["dimmed_frames"] == []
+
+
+def test_default_scene_at_ten_times_the_beams_dims_the_frame_and_keeps_the_plate_in_band(tmp_path):
+    """Our high beams at 1 Mcd each (10x): the plate is ~220x over saturation, beyond the 8-bit
+    DMD's reach (0.6 / (1/255 + 1/1000) = 122x). The first loop frame clips (prior 22x); the
+    bracket (4 x the lower bound) then asks for more than the mask can give, so the variable
+    ND dims the frame (g < 1) and the plate lands in the 40-90 % band with nothing saturated."""
+    r, _ = _run(tmp_path, _demo_scene(), "timing.frames=4", "render.spp=4", "spectra.highbeam.intensity_cd=1e6")
+    f2, f3 = r["per_frame"][2], r["per_frame"][3]
+    assert f2["plate"]["peak_over_saturation"] > 150.0
+    assert f2["attenuator"]["transmission"] == 1.0 and f2["saturated_fraction_roi"]["encoded"] > 0.3
+    assert f3["attenuator"]["transmission"] < 0.9 and not f3["attenuator"]["late"]
+    assert 0.4 <= f3["plate_white_fraction"]["encoded"] <= 0.9
+    assert f3["saturated_fraction_roi"]["encoded"] < 0.02
+    assert r["attenuator"]["dimmed_frames"] == [3]
 
 
 def test_lab_rail_reports_the_white_fill_floor(tmp_path):
