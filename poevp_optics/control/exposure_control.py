@@ -31,6 +31,10 @@ the camera has: its previous masks and captures.
 - carried D_t-1: the region's history. The previous demand, grey-dilated by the mask's motion
   radius R = ceil(3 smooth_px), so a region known to be 500x stays 500x where the highlight
   moved onto mirrors that were white (their own lower bound is only 1x);
+- moved D_t (`mask.carry = "extrapolate"`, `moved_e`): each bright region of D_t moved on one
+  frame at the velocity of its bounding box over the last two frames (region_motion.py), for a
+  highlight whose image moves faster than R per frame and a predictor that lags it; the mask
+  law takes the larger of it and its own demand everywhere. Off by default ("dilate");
 - `clip_frames`: consecutive frames each region has been clipped (dilated with the region),
   reported per frame; a clipped pixel with clip_frames = 0 before is a new region.
 
@@ -70,11 +74,13 @@ class ExposureController:
     """The demand map D and the clip history of each region (module docstring). State is real:
     it is the camera's memory of past captures."""
 
-    def __init__(self, first_guess: float, clip_step: float, radius_px: int, saturation_e: float):
+    def __init__(self, first_guess: float, clip_step: float, radius_px: int, saturation_e: float,
+                 extrapolate: bool = False):
         """first_guess: assumed over-exposure of a never-measured clipped region (x saturation);
         clip_step: the guess after a repeated clip (x the new lower bound);
         radius_px: motion radius over which a region's history is carried (mirrors);
-        saturation_e: electrons at which the sensor clips."""
+        saturation_e: electrons at which the sensor clips;
+        extrapolate: keep the previous demand too, for `moved_e`."""
         self.first_guess = float(first_guess)
         self.clip_step = float(clip_step)
         self.radius_px = int(radius_px)
@@ -82,6 +88,8 @@ class ExposureController:
         self.demand_e: np.ndarray | None = None
         self.clip_frames: np.ndarray | None = None
         self.rel: np.ndarray | None = None
+        self.extrapolate = bool(extrapolate)
+        self.prev_demand_e: np.ndarray | None = None
 
     def observe(self, e_white: np.ndarray, clipped: np.ndarray, rel: np.ndarray) -> None:
         """Take one capture in (mirror grid): e_white, the all-white electrons it implies (the
@@ -98,6 +106,8 @@ class ExposureController:
             carried = np.zeros(clip.shape, np.float64)
         new = frames <= 0                                              # never clipped here before
         guess = np.maximum(np.maximum(step, carried), np.where(new, self.first_guess * self.saturation_e, 0.0))
+        if self.extrapolate:
+            self.prev_demand_e = self.demand_e
         self.demand_e = np.where(clip, guess, e).astype(np.float32)
         self.clip_frames = np.where(clip, frames + 1, 0).astype(np.float32)
         self.rel = np.asarray(rel, dtype=np.float32)
@@ -108,6 +118,17 @@ class ExposureController:
         if self.demand_e is None:
             return None
         return grey_dilate(self.demand_e, self.radius_px).astype(np.float64)
+
+    def moved_e(self) -> np.ndarray | None:
+        """D's bright regions (>= saturation) moved on one frame at their boxes' velocity over
+        the last two frames (region_motion.py), dilated by the motion radius; None unless
+        `extrapolate` and two frames were seen."""
+        from poevp_optics.control.region_motion import extrapolate
+
+        if not self.extrapolate or self.prev_demand_e is None:
+            return None
+        moved = extrapolate(self.prev_demand_e, self.demand_e, self.saturation_e)
+        return grey_dilate(moved, self.radius_px).astype(np.float64)
 
     def summary(self) -> dict:
         """Per-frame numbers for the report: clipped mirrors and their longest clip history."""

@@ -194,7 +194,7 @@ class LoopStep:
         self.clock = MaskClock(budget, camera.timing, camera.shape, p.bits, camera.mirror_shape,
                                camera.dmd.spec.bits) if camera.dmd else None
         self.controller = ExposureController(mask.first_guess, mask.clip_step, int(np.ceil(3 * mask.smooth_px)),
-                                             p.saturation_capacity_e) if camera.dmd else None
+                                             p.saturation_capacity_e, mask.carry == "extrapolate") if camera.dmd else None
 
     def next_mask(self, index: int, truth: np.ndarray | None = None) -> MaskDecision:
         """The mask for frame `index`; `truth` (mirror grid, time-averaged radiance) for the oracle."""

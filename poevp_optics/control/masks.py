@@ -194,6 +194,9 @@ def controller_demand_e(spec, x: "MaskInput") -> np.ndarray:
         held = c.held_e()
         known = held >= p.saturation_capacity_e
         e = np.where(bright, np.where(known, held, spec.first_guess * p.saturation_capacity_e), e)
+        moved = c.moved_e() if spec.carry == "extrapolate" else None
+        if moved is not None:                   # regions moving faster than the carry radius
+            e = np.maximum(e, moved)
     return e
 
 
@@ -229,6 +232,10 @@ def _paper_law(formula):
     return law
 
 
+#: How the exposure controller carries a region's demand to the next frame (exposure_control.py):
+#: dilated by 3 smooth_px where the prediction clips, or also moved on at its box's velocity.
+CARRY_MODES = ("dilate", "extrapolate")
+
 MASK_LAWS = Registry("mask law")
 MASK_LAWS.register("threshold_exp", _paper_law(threshold_exp),
                    source="paper Eq. 2, exponential reading (module docstring)")
@@ -258,6 +265,7 @@ class MaskSpec:
     band_low: float = param(0.4, gt=0, lt=1)            # exposure_controller: band, fraction of full scale
     band_high: float = param(0.9, gt=0, max=1)
     min_level: int = param(0, min=0, max=65535)         # lowest DMD level a law may use
+    carry: str = param("dilate", choices=CARRY_MODES)    # exposure_controller: history carried to the next frame
 
 
 def mask_levels(spec: MaskSpec, bits: int, *, pred_8bit: np.ndarray | None = None,
