@@ -6,10 +6,10 @@ white per frame (90th percentile of the plate box in the raw 8-bit capture / 255
     python -m benchmarks.plate_band --scene scenes/night_road --scale 4 --frames 21 \
         --set render.spp=8 --out plate_band_night_road.md
 
-Writes results/plate_band.md (or --out). One render per (gain, text) at the scene's beams; a beam
-gain g scales it by g (exact for all light from the beams, which is all the plate gets; the 0.005
-cd/m^2 sky glow on the road, and on night_road the oncoming car's lamps and the tail lamps, are
-scaled too: a harsher case than our beams alone, with brighter lamp cores beside the plate). Gains run in the order given, each over every text,
+Writes results/plate_band.md (or --out). One render per (gain, text). On a road scene (night_road)
+a beam gain g renders with our high beams' intensity_cd x g (the oncoming car's lamps and the tail
+lamps unchanged); elsewhere the render at the scene's beams is scaled by g (exact for all light
+from the beams, which is all the plate gets; the 0.005 cd/m^2 sky glow is scaled too). Gains run in the order given, each over every text,
 and the table is rewritten after every row, so a cut-off run keeps what it finished.
 `--scale s` renders s x the scene's resolution with s x its objective focal length: the same field
 (the XML's fov) over s x as many mirrors of the same pitch (dmd / objective pixel_pitch_m), the
@@ -98,6 +98,19 @@ def _cpu_s() -> float:
     return r.ru_utime + r.ru_stime
 
 
+def beam_overrides(scene: str, gain: float) -> list[str]:
+    """On a road scene, the high beams' own intensity x gain (rendered again: only our beams
+    change, the oncoming car's lamps and the tail lamps do not); elsewhere [] (the radiance is
+    scaled: module docstring)."""
+    from poevp_optics.scene.load import load_scene
+
+    spec = load_scene(scene, [])
+    if gain == 1.0 or not spec.has_road:
+        return []
+    name = spec.road.highbeam
+    return [f"spectra.{name}.intensity_cd={spec.spectra[name].intensity_cd * gain:.9g}"]
+
+
 def scale_overrides(scene: str, scale: int) -> list[str]:
     """--set overrides for `scale` x the scene's resolution and objective focal length (module
     docstring): the field stays the XML's, the mirror pitch the DMD's; the mask's smoothing
@@ -157,9 +170,9 @@ def main(argv=None):
     for gain in (float(g) for g in args.gains.split(",")):
         for text in args.texts.split(","):
             t0, c0 = time.perf_counter(), _cpu_s()
-            ov = [f'plate.text="{text}"', f"timing.frames={args.frames}", *sets]
+            ov = [f'plate.text="{text}"', f"timing.frames={args.frames}", *sets, *beam_overrides(args.scene, gain)]
             spec, renderer, ex = render_once(args.scene, ov)
-            fr = loop_frames(spec, renderer, scaled(ex, gain), text)
+            fr = loop_frames(spec, renderer, ex if spec.has_road else scaled(ex, gain), text)
             del ex
             s = summarise(fr, spec.mask.band_low, spec.mask.band_high)
             mc = [r["mc_error"] for r in fr if r.get("mc_error") is not None]
