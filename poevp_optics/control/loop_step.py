@@ -108,7 +108,7 @@ def predicted_mask(camera, mask: MaskSpec, pred_8bit: np.ndarray, index: int, co
     masked captures (MASKED_MODES)."""
     pred = camera.to_mirror(pred_8bit).astype(np.float64)
     e = predicted_electrons(pred, camera.params, mask.clipped_gain)
-    return mask_levels(mask, camera.dmd.spec.bits, pred_8bit=np.clip(pred, 0, 255),
+    return mask_levels(mask, camera.dmd.spec.bits, pred_8bit=pred,
                        pred_electrons=e, full_well_e=camera.params.full_well_e,
                        level_exposure=camera.level_exposure_s(index), sensor=camera.params,
                        controller=controller, pred_masked=pred_masked)
