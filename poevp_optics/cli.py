@@ -351,9 +351,9 @@ def _add_evaluate_parser(sub) -> None:
     p = sub.add_parser("evaluate", help="plate recognition (full ALPR) over speed, E and motion: LDR vs fusion vs POE-VP")
     p.add_argument("scene", nargs="?", help="a scene with a plate (render.roi_shape); default highbeam_plate")
     p.add_argument("--quick", action="store_true", help="CI size: 1 text, 2 speeds, E = 49 (about a minute)")
-    p.add_argument("--texts", help="comma-separated plate texts (default: 2 held-out texts)")
+    p.add_argument("--texts", help="comma-separated plate texts (default: 4 held-out texts)")
     p.add_argument("--texts-file", help="plate texts, one a line")
-    p.add_argument("--speeds", help="lateral speeds, px/frame, comma-separated (default 4,8,16,24,32,48)")
+    p.add_argument("--speeds", help="lateral speeds, px/frame, comma-separated (default 4,8,16,20,24,28,32,40,48)")
     p.add_argument("--E", help="over-exposure rates of the speed sweep (default 9,49)")
     p.add_argument("--E-sweep", dest="E_sweep", help="over-exposure rates of the accuracy-vs-E sweep")
     p.add_argument("--kinds", help="motion kinds: lateral,approaching,receding,swerve,reversal")
@@ -366,7 +366,7 @@ def _add_evaluate_parser(sub) -> None:
     p.add_argument("--e-reading", dest="e_reading", choices=("display", "linear"),
                    help="E -> plate peak: display (paper Sec. 4.A, 8-bit values x (E+1), default) or linear")
     p.add_argument("--loop-mode", dest="loop_mode", choices=("open", "raw", "demodulated"),
-                   help="what the predictor sees (default open, paper Fig. 3)")
+                   help="what the predictor sees (default demodulated; open: paper Fig. 3)")
     _add_job_options(p, "default out/evaluate")
     p.set_defaults(func=cmd_evaluate)
 

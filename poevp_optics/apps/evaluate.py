@@ -21,7 +21,11 @@ scored):
   fusion_deghost  the same after median-threshold-bitmap alignment (OpenCV `createAlignMTB`;
                   Ward 2003)
   hold, flow, dmvfn, ... oracle   POE-VP single shot (control/loop_step.py LoopStep), loop mode
-                  `open` by default (paper Fig. 3), the scene's mask law
+                  `demodulated` by default, the scene's mask law. `open` (paper Fig. 3, --loop-mode
+                  open) feeds the predictor clipped LDR frames: under high beams the whole car
+                  clips, the plate is invisible inside it, and the exposure_controller's
+                  brightness comes from its demand map carried in place (R = 12 px), so every
+                  causal predictor reads like `hold` (benchmarks/results/predictor_alignment.md)
 Every method sees the same sensor noise (common seeds), so differences are the methods'.
 Reading: full ALPR (PP-OCRv4 detection + recognition on the frame) and recognition only (the
 plate box), analysis/recognition.py; Eq. 4 accuracy with Wilson 95 % intervals, Eq. 5 plate
@@ -64,8 +68,8 @@ class EvalConfig:
     """What one `poevp evaluate` run measures (defaults: the benchmark in benchmarks/results)."""
 
     scene: Path = BASE
-    texts: tuple[str, ...] = TEXTS[:2]                             # one each way; --texts for more
-    speeds_px: tuple[float, ...] = (4, 8, 16, 24, 32, 48)          # lateral sweep, px/frame
+    texts: tuple[str, ...] = TEXTS                                 # two each way: 16 frames a cell
+    speeds_px: tuple[float, ...] = (4, 8, 16, 20, 24, 28, 32, 40, 48)   # lateral, px/frame: dense where hold fails
     e_levels: tuple[float, ...] = (9, 49)                          # speed-sweep panels
     e_sweep: tuple[float, ...] = (2, 4, 9, 29, 49)                  # accuracy vs E (display reading: 13x to 1e4x) ...
     e_speed_px: float = 8                                          # ... at this speed
@@ -79,7 +83,7 @@ class EvalConfig:
     frames: int = 6
     motion_frames: int = 7
     search: str = "frame"              # ALPR search region: "frame" or "vehicle"
-    loop_mode: str = "open"
+    loop_mode: str = "demodulated"    # the scene's; open (paper Fig. 3) reads like hold (module docstring)
     e_reading: str = "display"         # E -> plate peak (peak_gain): paper's display-value reading
     paper_law: str = PAPER_LAW         # ldr_highlight scenes (the paper's protocol): Eq. 2's reading
     quick: bool = False

@@ -138,7 +138,7 @@ def predicted_decision(camera, mask: MaskSpec, pred_8bit: np.ndarray, index: int
     more), or from the prediction without a controller; then the levels through it."""
     pred = camera.to_mirror(pred_8bit).astype(np.float64)
     e = predicted_electrons(pred, camera.params, mask.clipped_gain)
-    kw = dict(pred_8bit=np.clip(pred, 0, 255), pred_electrons=e, full_well_e=camera.params.full_well_e,
+    kw = dict(pred_8bit=pred, pred_electrons=e, full_well_e=camera.params.full_well_e,
               level_exposure=camera.level_exposure_s(index), sensor=camera.params,
               controller=controller, pred_masked=pred_masked)
     g = 1.0

@@ -142,7 +142,8 @@ def predicted_electrons(pred_8bit: np.ndarray, params, clipped_gain: float) -> n
 
 @dataclass(frozen=True)
 class MaskInput:
-    """What a law may look at: the predicted frame on the 8-bit scale (mirror grid), the electrons
+    """What a law may look at: the predicted frame on the 8-bit scale (mirror grid; above 255 in
+    the demodulated loop, the paper's laws clip it), the electrons
     it implies with the all-white mask, the full well, and the exposure of every DMD level; for
     the exposure controller also the sensor (SensorParams), the controller's state (past masks
     and captures) and whether the prediction is of masked captures (the `raw` loop mode); the
@@ -177,9 +178,11 @@ def _target_law(spec, top: int, x: MaskInput) -> np.ndarray:
 
 def controller_demand_e(spec, x: "MaskInput") -> np.ndarray:
     """The all-white electrons the exposure controller assumes per mirror (before the smooth
-    envelope): bright where the prediction clips, as bright as the controller's demand there
-    (first_guess x saturation where the controller has no clipped history: the prediction moved
-    the highlight beyond the carried region), the prediction's own value elsewhere."""
+    envelope): bright where the prediction clips (the clip marker 254.5-255.5: "at least
+    saturated"), as bright as the controller's demand there (first_guess x saturation where the
+    controller has no clipped history: the prediction moved the highlight beyond the carried
+    region), the prediction's own value elsewhere, above the clip included (the demodulated
+    loop's estimates: their brightness moves with the prediction, issue 20)."""
     if x.pred_electrons is None or x.level_exposure is None or x.sensor is None:
         raise ValueError("mask law 'exposure_controller' needs predicted electrons, the level table "
                          "and the sensor")
@@ -187,13 +190,16 @@ def controller_demand_e(spec, x: "MaskInput") -> np.ndarray:
     e = np.nan_to_num(np.asarray(x.pred_electrons, dtype=np.float64), nan=1e30, posinf=1e30)
     c = x.controller
     if c is not None and c.demand_e is not None:
-        bright = (_as_8bit(x.pred_8bit) >= 254.5 if x.pred_8bit is not None
-                  else e >= p.saturation_capacity_e)
+        x8 = None if x.pred_8bit is None else np.nan_to_num(np.asarray(x.pred_8bit, dtype=np.float64), nan=255.0)
+        bright = x8 >= 254.5 if x8 is not None else e >= p.saturation_capacity_e
         if x.pred_masked:                       # a prediction of masked captures: demodulate it
             e = np.where(bright, e, e / np.maximum(c.rel.astype(np.float64), 1e-9))
+        # a predicted value above the clip (the demodulated loop's estimates) carries its own
+        # brightness, moved by the predictor; only the clip marker takes the controller's demand
+        marker = bright & (x8 <= 255.5) if x8 is not None else bright
         held = c.held_e()
         known = held >= p.saturation_capacity_e
-        e = np.where(bright, np.where(known, held, spec.first_guess * p.saturation_capacity_e), e)
+        e = np.where(marker, np.where(known, held, spec.first_guess * p.saturation_capacity_e), e)
         moved = c.moved_e() if spec.carry == "extrapolate" else None
         if moved is not None:                   # regions moving faster than the carry radius
             e = np.maximum(e, moved)

@@ -11,7 +11,7 @@ import pytest
 from poevp_optics.camera.dmd import DMDSpec, Schedule, transmission_table
 from poevp_optics.control.exposure_control import ExposureController
 from poevp_optics.control.masks import band_levels
-from poevp_optics.control.masks import MASK_LAWS, MaskSpec, mask_levels
+from poevp_optics.control.masks import MASK_LAWS, MaskSpec, mask_levels, predicted_electrons
 
 SAT_E = 10000.0
 # offset 0 and gain 255 / SAT_E: a fraction f of full scale is f x SAT_E electrons exactly
@@ -27,10 +27,10 @@ def level_table(contrast_ratio=2000.0):
     return transmission_table(np.arange(256), DMDSpec(contrast_ratio=contrast_ratio), sched, 1)[:, 0]
 
 
-def scene(t, over):
+def scene(t, over, speed=SPEED_PX):
     """All-white electrons of frame t: a disk `over` x saturation on a dim background."""
     yy, xx = np.mgrid[0:H, 0:W]
-    inside = (yy - H / 2) ** 2 + (xx - 20 - SPEED_PX * t) ** 2 <= RADIUS ** 2
+    inside = (yy - H / 2) ** 2 + (xx - 20 - speed * t) ** 2 <= RADIUS ** 2
     return np.where(inside, over, BACKGROUND) * SAT_E, inside
 
 
@@ -43,9 +43,10 @@ def closed_form_white(over, rel):
     return over * rel[np.flatnonzero(over * rel <= SPEC.band_high).max(initial=0)]
 
 
-def run_loop(over, mode, frames=10, init=2):
+def run_loop(over, mode, frames=10, init=2, speed=SPEED_PX):
     """Closed loop on the mirror grid with an ideal, noise-free sensor. open: the predictor is
-    the true next LDR frame; raw: it holds the last encoded capture (masked)."""
+    the true next LDR frame; raw: it holds the last encoded capture (masked); demodulated: the
+    true next frame unclipped (the all-white signal on the 8-bit scale, above 255 allowed)."""
     table = level_table()
     rel = table / table[-1]
     ctl = ExposureController(SPEC.first_guess, SPEC.clip_step, int(np.ceil(3 * SPEC.smooth_px)), SAT_E)
@@ -53,13 +54,15 @@ def run_loop(over, mode, frames=10, init=2):
     whites = []
     enc8 = None
     for t in range(frames):
-        truth, inside = scene(t, over)
+        truth, inside = scene(t, over, speed)
         if t >= init:
             if mode == "open":
                 pred8 = np.clip(truth / SAT_E * 255, 0, 255)
+            elif mode == "demodulated":
+                pred8 = truth / SAT_E * 255
             else:
                 pred8 = enc8
-            pred_e = np.where(pred8 >= 254.5, SPEC.clipped_gain * SAT_E, pred8 / 255 * SAT_E)
+            pred_e = predicted_electrons(pred8, SENSOR, SPEC.clipped_gain)
             mask = mask_levels(SPEC, 8, pred_8bit=pred8, pred_electrons=pred_e, full_well_e=SAT_E,
                                level_exposure=table, sensor=SENSOR, controller=ctl,
                                pred_masked=(mode == "raw"))
@@ -84,6 +87,19 @@ def test_moving_highlight_settles_in_band(over, mode):
     np.testing.assert_allclose(whites[-4:], expect, rtol=1e-5)
     # settled within four loop frames (two clipped guesses, one measurement, one correction)
     np.testing.assert_allclose(whites[2 + 4:], expect, rtol=1e-5)
+
+
+@pytest.mark.parametrize("over", [5.0, 40.0, 150.0])
+def test_predicted_brightness_follows_a_highlight_faster_than_the_carry_radius(over):
+    """Issue 20: a highlight moving 20 px/frame, past the demand's carry radius R = 6. Predicted
+    exactly in the demodulated loop (values above 255 carry their brightness), its white is the
+    static closed form on every loop frame; predicted exactly but clipped (the open loop: only
+    'at least saturated'), the law takes the demand held where the highlight was, and a 150x
+    highlight lands on never-measured mirrors, guessed first_guess = 40x: clipped."""
+    whites, rel = run_loop(over, "demodulated", frames=5, speed=20.0)
+    np.testing.assert_allclose(whites[2:], closed_form_white(over, rel), rtol=1e-5)
+    if over > SPEC.first_guess / SPEC.band_high:
+        assert max(run_loop(over, "open", frames=5, speed=20.0)[0][2:]) >= 1.0
 
 
 def test_first_guess_and_bracketed_escalation_after_clipping():

@@ -151,3 +151,49 @@ def test_predictor_input_per_mode():
     assert np.isclose(x[0, 0], 510.0 * spec.mask.clipped_gain, rtol=1e-5)
     est[0, 0] *= 0.5             # saturated behind a white mirror (lower bound 255): clipped marker
     assert predictor_input("demodulated", cam, ldr, enc, est, flags, 0, spec.mask.clipped_gain)[0, 0] == 255.0
+
+
+def _clipped_blob(t, speed, h=184, w=320, x0=20, touch_edge=False):
+    """An 8-bit frame with a flat saturated rectangle (no texture inside: a clipped highlight)
+    moving `speed` px/frame, a static saturated band along the bottom (a lit road) and a dim
+    textured background; touch_edge: the rectangle runs out of the frame's left edge."""
+    rng = np.random.default_rng(7)
+    img = (30 + rng.uniform(0, 20, (h, w))).astype(np.float32)
+    left = 0 if touch_edge else int(x0 + speed * t)
+    img[40:110, left:int(x0 + 120 + speed * t)] = 255.0
+    img[170:, 60:260] = 255.0
+    return img
+
+
+def _sat_x_range(img, rows=slice(40, 110)):
+    xs = np.flatnonzero((img[rows] >= 254.5).any(0))
+    return xs.min(), xs.max()
+
+
+@pytest.mark.parametrize("speed", [16.0, 24.0, 32.0, 48.0])
+@pytest.mark.parametrize("touch_edge", [False, True])
+def test_flow_moves_a_clipped_region_by_its_speed(speed, touch_edge):
+    """Constant velocity: the prediction of frame 2 from frames 0, 1 puts the saturated
+    rectangle's leading edge at x0 + 119 + 2 v exactly (closed form), at speeds where DIS alone
+    moved it 8-10 px (issue 20); the static band stays where it is."""
+    frames = [_clipped_blob(t, speed, touch_edge=touch_edge) for t in range(2)]
+    pred = FlowExtrapolation()(frames)
+    lo, hi = _sat_x_range(pred)
+    assert hi == 20 + 119 + 2 * speed
+    if not touch_edge:
+        assert lo == 20 + 2 * speed
+    assert _sat_x_range(pred, slice(172, 184)) == (60, 259)
+
+
+def test_flow_sees_texture_above_255_through_the_log_curve():
+    """Demodulated-loop frames (above 255): a plate 100x over its surround moving 24 px/frame,
+    with characters 30x darker than its white, is predicted 24 px on (its brightest column)."""
+    def frame(t):
+        img = np.full((96, 160), 20.0, np.float32)
+        x = 20 + 24 * t
+        img[30:60, x:x + 60] = 25500.0
+        img[38:52, x + 10:x + 50:8] = 850.0                # dark strokes
+        return img
+    pred = FlowExtrapolation()([frame(0), frame(1)])
+    cols = np.flatnonzero((pred >= 25500.0).any(0))
+    assert (cols.min(), cols.max()) == (68, 127)

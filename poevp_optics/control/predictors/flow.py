@@ -1,10 +1,25 @@
-"""Classical motion extrapolation: DIS optical flow, then a forward splat one frame ahead.
+"""Classical motion extrapolation: DIS optical flow, a translation per saturated region, then a
+forward splat one frame ahead.
 
 Flow from frame t-1 to frame t (OpenCV DIS, ultrafast preset: Kroeger et al., "Fast Optical
 Flow using Dense Inverse Search", ECCV 2016) is assumed constant for one more frame. Every pixel
 of frame t is pushed along its flow; where several land on one pixel the brightest wins (a
 highlight must never be predicted dimmer than it is), and pixels nothing lands on keep frame t
 (holding the old value is the safe choice for the mask: it errs toward dimming).
+
+Two things DIS cannot see (issue 20, benchmarks/results/predictor_alignment.md):
+- **Saturated regions.** A clipped region is one flat value: no texture, so DIS finds motion only
+  at its outline and the splat moved a 24 px/frame highlight by 8-10 px. Each connected region
+  at or above `SATURATED` (8-bit scale) in frame t gets one translation, the peak of the phase
+  correlation of its outline with frame t-1's saturated outline (Kuglin & Hines 1975; OpenCV
+  `phaseCorrelate`, no taper: outlines on the frame's edge are dropped, since they do not move
+  with a region the frame cuts, so the maps are zero at the window's edge), searched over a window
+  of the region's box grown by `SEARCH_PX` + the region's own size (a shift up to half the window
+  is found, whatever the speed); that translation replaces DIS's flow inside the region.
+- **Values above 255** (the `demodulated` loop mode's unclipped estimates). DIS takes 8-bit
+  frames: both frames are mapped by one log curve, 255 ln(1 + x) / ln(1 + max), when either
+  exceeds 255 (radiance ratios become differences: a plate 200x over its surround keeps its
+  texture); frames within 0-255 go in as they are.
 """
 
 from __future__ import annotations
@@ -13,6 +28,15 @@ import cv2
 import numpy as np
 
 from poevp_optics.control.predictors.base import Predictor
+
+#: 8-bit value from which a pixel counts as saturated (the mask laws' clip marker, masks.py).
+SATURATED = 254.5
+#: Smallest saturated region (px) given its own translation (smaller ones keep DIS's flow).
+MIN_REGION_PX = 16
+#: Search margin (px) around a region's box, beyond the region's own size.
+SEARCH_PX = 32
+#: Smallest normalised phase-correlation peak accepted (below: the region keeps DIS's flow).
+MIN_RESPONSE = 0.05
 
 
 class FlowExtrapolation(Predictor):
@@ -23,10 +47,67 @@ class FlowExtrapolation(Predictor):
         self.dis = cv2.DISOpticalFlow_create(preset)
 
     def __call__(self, history):
-        prev = np.clip(history[-2], 0, 255).astype(np.uint8)
+        prev = np.asarray(history[-2], dtype=np.float32)
         cur = np.asarray(history[-1], dtype=np.float32)
-        flow = self.dis.calc(prev, np.clip(cur, 0, 255).astype(np.uint8), None)
+        p8, c8 = log_8bit(prev, cur)
+        flow = self.dis.calc(p8, c8, None)
+        region_translations(prev >= SATURATED, cur >= SATURATED, flow)
         return forward_splat(cur, flow)
+
+
+def log_8bit(*frames: np.ndarray) -> list[np.ndarray]:
+    """uint8 frames for DIS: as they are when all lie within 0-255, else one shared log curve
+    255 ln(1 + x) / ln(1 + max) (module docstring)."""
+    top = max(float(np.nanmax(f)) for f in frames)
+    if top <= 255.0:
+        return [np.clip(f, 0, 255).astype(np.uint8) for f in frames]
+    k = 255.0 / np.log1p(top)
+    return [np.clip(np.rint(k * np.log1p(np.maximum(f, 0))), 0, 255).astype(np.uint8) for f in frames]
+
+
+def outline(sat: np.ndarray) -> np.ndarray:
+    """The inner outline (1 px) of a saturated map, float64, without the pixels on the image's
+    border: a region cut by the frame's edge has an edge there that does not move with it."""
+    m = np.asarray(sat, dtype=np.uint8)
+    edge = (m > cv2.erode(m, np.ones((3, 3), np.uint8), borderType=cv2.BORDER_REPLICATE)).astype(np.float64)
+    edge[[0, -1], :] = 0.0
+    edge[:, [0, -1]] = 0.0
+    return edge
+
+
+def region_shift(prev_sat: np.ndarray, cur_sat: np.ndarray, box, margin_px: int) -> tuple[float, float, float]:
+    """(dx, dy, response): the translation (px) taking frame t-1's saturated map onto `cur_sat`
+    (one region of frame t, box (y0, x0, y1, x1)), by phase correlation of their outlines over
+    the box grown by `margin_px`."""
+    h, w = cur_sat.shape
+    y0, x0, y1, x1 = box
+    ya, yb = max(0, y0 - margin_px), min(h, y1 + margin_px)
+    xa, xb = max(0, x0 - margin_px), min(w, x1 + margin_px)
+    a = outline(prev_sat)[ya:yb, xa:xb]
+    b = outline(cur_sat)[ya:yb, xa:xb]
+    if a.sum() == 0 or b.sum() == 0 or min(a.shape) < 2:
+        return 0.0, 0.0, 0.0
+    (dx, dy), resp = cv2.phaseCorrelate(a, b)
+    return float(dx), float(dy), float(resp)
+
+
+def region_translations(prev_sat: np.ndarray, cur_sat: np.ndarray, flow: np.ndarray) -> list[tuple]:
+    """Overwrite `flow` (H, W, 2; x, y) inside each saturated region of frame t with the region's
+    translation from frame t-1 (module docstring); returns [(box, dx, dy, response)]."""
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(cur_sat.astype(np.uint8), connectivity=8)
+    out = []
+    for k in range(1, n):
+        x, y, bw, bh, area = (int(v) for v in stats[k])
+        if area < MIN_REGION_PX:
+            continue
+        box = (y, x, y + bh, x + bw)
+        inside = labels == k
+        dx, dy, resp = region_shift(prev_sat, inside, box, SEARCH_PX + max(bw, bh))
+        out.append((box, dx, dy, resp))
+        if resp >= MIN_RESPONSE:
+            flow[inside, 0] = dx
+            flow[inside, 1] = dy
+    return out
 
 
 def forward_splat(frame: np.ndarray, flow: np.ndarray, min_value: float = 128.0,
