@@ -290,7 +290,8 @@ def run_frames(spec, out_dir: Path, progress: bool = True, *, renderer=None,
             from poevp_optics.apps.timeline import write_timeline
 
             res.timeline = write_timeline(out_dir, spec.timing, step.clock, camera.schedule,
-                                          spec.loop.init_frames, spec.timing.frames).name
+                                          spec.loop.init_frames, spec.timing.frames,
+                                          spec.attenuator.settle_s if spec.attenuator.enabled else None).name
     if exposures is not None:
         temporal = {"rel": None, "method": "not estimated: this run reuses a shared render", "seconds": 0.0}
     elif renderer.temporal_skip:

@@ -1,6 +1,8 @@
 """The run's timeline figure (the paper's Fig. 7 analogue): over three frames, the sensor
 exposure, the DMD window with its bit-planes, the capture's readout, the predictor + mask compute,
-the mask's transfer and load, and when each mask reaches the DMD; late masks marked in red.
+the mask's transfer and load, and when each mask reaches the DMD; late masks marked in red; with
+a global attenuator (camera/attenuator.py), its settling after the command (red when it would
+settle after the next exposure starts).
 
 Times come from the run's MaskClock records (control/timing_budget.py) and the frame clock
 (core/timing.py); the bit-planes from camera/dmd.py's Schedule. Written as
@@ -43,8 +45,11 @@ def _dmd_row(ax, y, schedule_of, shown_frames, records):
                     color="red", fontsize=6, ha="left")
 
 
-def write_timeline(out: Path, timing, clock, schedule_of, init_frames: int, frames: int) -> Path:
-    """Draw the timeline of three frames into out/timeline_plot.png; returns the path."""
+def write_timeline(out: Path, timing, clock, schedule_of, init_frames: int, frames: int,
+                   attenuator_settle_s: float | None = None) -> Path:
+    """Draw the timeline of three frames into out/timeline_plot.png; returns the path.
+    attenuator_settle_s: the attenuator's settling time (s), drawn after each compute (None: no
+    attenuator row)."""
     from poevp_optics.core.io import atomic_path
     from poevp_optics.core.runtime import pyplot
 
@@ -52,7 +57,8 @@ def write_timeline(out: Path, timing, clock, schedule_of, init_frames: int, fram
     shown = timeline_frames(clock, init_frames, frames)
     records = {r["frame"]: r for r in clock.records}
     fig, ax = plt.subplots(figsize=(9.0, 3.2))
-    ys = {name: len(ROWS) - k for k, name in enumerate(ROWS)}
+    rows = ROWS + (("attenuator settle",) if attenuator_settle_s is not None else ())
+    ys = {name: len(rows) - k for k, name in enumerate(rows)}
     _bars(ax, ys["sensor exposure"], [timing.exposure_window_s(i) for i in shown], "0.55")
     _dmd_row(ax, ys["DMD window (bit-planes)"], schedule_of, shown, records)
     for i in shown:
@@ -64,6 +70,9 @@ def write_timeline(out: Path, timing, clock, schedule_of, init_frames: int, fram
         _bars(ax, ys["readout (bus)"], [(end, end + clock.readout_s)], "tab:green")
         _bars(ax, ys["predictor + mask"], [(c0, c1)], "tab:orange")
         _bars(ax, ys["mask transfer + load"], [(c1, rec["ready_s"])], "tab:purple")
+        if attenuator_settle_s is not None:
+            late = c1 + attenuator_settle_s > timing.exposure_window_s(i + 1)[0]
+            _bars(ax, ys["attenuator settle"], [(c1, c1 + attenuator_settle_s)], "red" if late else "tab:olive")
         color = "red" if rec["late"] else "tab:blue"
         ax.annotate("", xy=(max(rec["window_start_s"], rec["ready_s"]) * 1e3, ys["DMD window (bit-planes)"] - 0.35),
                     xytext=(rec["ready_s"] * 1e3, ys["mask transfer + load"] - 0.35),
@@ -72,9 +81,9 @@ def write_timeline(out: Path, timing, clock, schedule_of, init_frames: int, fram
                 f"mask {i + 1}: slack {rec['slack_s'] * 1e3:+.2f} ms", fontsize=6, color=color)
     for i in shown:
         ax.axvline(timing.frame_start_s(i) * 1e3, color="0.8", lw=0.6, ls="--", zorder=0)
-        ax.text(timing.frame_start_s(i) * 1e3, len(ROWS) + 0.55, f"frame {i}", fontsize=7)
+        ax.text(timing.frame_start_s(i) * 1e3, len(rows) + 0.55, f"frame {i}", fontsize=7)
     ax.set_yticks(list(ys.values()), list(ys))
-    ax.set_ylim(0.0, len(ROWS) + 0.9)
+    ax.set_ylim(0.0, len(rows) + 0.9)
     ax.set_xlabel("time (ms)")
     s = clock.summary()
     ax.set_title(f"budget {s['budget_s'] * 1e3:.2f} ms ({clock.spec.compute}), gap {s['gap_s'] * 1e3:.2f} ms, "
