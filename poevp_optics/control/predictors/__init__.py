@@ -6,7 +6,7 @@ choices; adding a predictor is one `PREDICTORS.register(...)` with a factory.
 |-------------|----------------------------------------------------------------------|-----------|
 | oracle      | the true next frame (upper bound; needs the ground truth)            | - |
 | hold        | the last frame                                                        | non-predictive spatially varying exposure |
-| flow        | DIS optical flow (ultrafast) + forward splat of bright moving pixels | Kroeger et al., ECCV 2016 (DIS) |
+| flow        | DIS optical flow (ultrafast, log curve above 255), one phase-correlation translation per saturated region, forward splat of bright moving pixels | Kroeger et al., ECCV 2016 (DIS); Kuglin & Hines 1975 |
 | dmvfn       | dynamic multi-scale voxel flow network, 9 blocks, routing            | Hu et al., CVPR 2023 |
 | dmvfn_lite  | same block design, grey, quarter resolution, 3 blocks, no routing    | ours, after Hu et al. |
 
@@ -58,7 +58,8 @@ PREDICTORS = Registry("predictor")
 PREDICTORS.register("oracle", PredictorEntry(None), source="the rendered next frame (upper bound)")
 PREDICTORS.register("hold", PredictorEntry(lambda w, r: Hold()),
                     source="the last frame: a non-predictive spatially varying exposure camera")
-PREDICTORS.register("flow", PredictorEntry(_flow), source="Kroeger et al., ECCV 2016 (DIS) + forward splat")
+PREDICTORS.register("flow", PredictorEntry(_flow), source="Kroeger et al., ECCV 2016 (DIS) + region phase "
+                    "correlation (Kuglin & Hines 1975) + forward splat")
 PREDICTORS.register("dmvfn", PredictorEntry(_dmvfn("dmvfn"), takes_weights=True),
                     source="Hu et al., CVPR 2023 (DMVFN), deterministic routing")
 PREDICTORS.register("dmvfn_lite", PredictorEntry(_dmvfn("dmvfn_lite"), takes_weights=True),

@@ -9,7 +9,7 @@ highlight must never be predicted dimmer than it is), and pixels nothing lands o
 
 Two things DIS cannot see (issue 20, benchmarks/results/predictor_alignment.md):
 - **Saturated regions.** A clipped region is one flat value: no texture, so DIS finds motion only
-  at its outline and the splat moved a 24 px/frame highlight by 8-10 px. Each connected region
+  at its outline and the splat left a 24 px/frame highlight 10-32 px behind. Each connected region
   at or above `SATURATED` (8-bit scale) in frame t gets one translation, the peak of the phase
   correlation of its outline with frame t-1's saturated outline (Kuglin & Hines 1975; OpenCV
   `phaseCorrelate`, no taper: outlines on the frame's edge are dropped, since they do not move
