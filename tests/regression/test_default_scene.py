@@ -104,7 +104,7 @@ def test_default_scene_is_night_road_and_runs_the_causal_loop(tmp_path):
 def test_default_scene_at_ten_times_the_beams_dims_the_frame_and_keeps_the_plate_in_band(tmp_path):
     """Our high beams at 1 Mcd each (10x): the plate is ~220x over saturation, beyond the 8-bit
     DMD's reach (0.6 / (1/255 + 1/1000) = 122x). The first loop frame clips (prior 22x); the
-    bracket (4 x the lower bound) then asks for more than the mask can give, so the variable
+    bracket (clip_step 5 x the lower bound) then asks for more than the mask can give, so the variable
     ND dims the frame (g < 1) and the plate lands in the 40-90 % band with nothing saturated."""
     r, _ = _run(tmp_path, _demo_scene(), "timing.frames=4", "render.spp=4", "spectra.highbeam.intensity_cd=1e6")
     f2, f3 = r["per_frame"][2], r["per_frame"][3]
