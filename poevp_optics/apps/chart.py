@@ -53,6 +53,8 @@ def settle_mask(spec: SceneSpec, cam: Camera, truth: np.ndarray, white_capture) 
     if spec.chart.mask_source == "oracle":
         return oracle_mask(cam, spec.mask, cam.dmd_image(truth), 0), {"source": "oracle", "frames": 0, "converged": True,
                                                        "history": []}
+    # no [attenuator] here: a global ND scales both ends of one frame's range alike, so it leaves
+    # the chart's (intra-frame) dynamic range unchanged
     step = LoopStep(cam, spec.mask, spec.loop, spec.predictor)
     source = f"loop ({step.model.name}, {spec.loop.mode})"
     mask, frames = cam.white_mask(), []

@@ -219,7 +219,7 @@ class Runner:
         if name not in self.models and not PREDICTORS[name].needs_truth:
             self.models[name] = make_predictor(name, pspec.weights, pspec.resolution)
         step = LoopStep(cam, spec.mask, dataclasses.replace(spec.loop, mode=self.cfg.loop_mode), pspec,
-                        model=self.models.get(name))
+                        model=self.models.get(name), attenuator=spec.attenuator)
         out, secs = {}, []
         for e, c in zip(ex, ldr):
             t0 = time.perf_counter()
@@ -227,7 +227,7 @@ class Runner:
             dt = time.perf_counter() - t0
             enc = cam.capture(list(e.subframes), dec.levels, e.index,
                               capture_seed(spec.sensor.seed, spec.render.seed, e.index, ENCODED_STREAM),
-                              **e.capture_timing())
+                              **e.capture_timing(), transmission=dec.transmission)   # the scene's ND, on time
             est = flags = None
             if self.cfg.loop_mode == "demodulated" or step.controller is not None:
                 # the exposure controller (mask law) reads the demodulated estimate in every mode
