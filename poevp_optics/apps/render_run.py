@@ -20,7 +20,7 @@ from poevp_optics.apps.outputs import OutputWriter, mask_png
 from poevp_optics.apps.run_report import build_report
 from poevp_optics.apps.temporal_check import temporal_error
 from poevp_optics.camera.camera import Camera
-from poevp_optics.control.loop_step import LoopStep, oracle_mask, oracle_transmission
+from poevp_optics.control.loop_step import LoopStep, oracle_decision, oracle_mask
 from poevp_optics.control.masks import MaskSpec
 from poevp_optics.core.exceptions import SceneError
 from poevp_optics.core.report import write_report
@@ -111,8 +111,7 @@ def _capture(spec, camera: Camera, step: LoopStep | None, ex: RenderedExposure, 
     enc = ldr
     if camera.dmd:
         tm = time.perf_counter()
-        oracle_g = oracle_transmission(camera, spec.mask, spec.attenuator, truth, i)
-        oracle = oracle_mask(camera, spec.mask, truth, i, oracle_g)
+        oracle, oracle_g = oracle_decision(camera, spec.mask, truth, i, spec.attenuator)
         res.stage_seconds["mask"] += time.perf_counter() - tm
         decision = step.next_mask(i, truth)
         mask = decision.levels

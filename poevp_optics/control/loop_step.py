@@ -28,7 +28,7 @@ import numpy as np
 from poevp_optics.analysis.metrics import to_8bit
 from poevp_optics.camera.attenuator import AttenuatorSpec, AttenuatorState, choose_transmission
 from poevp_optics.control.exposure_control import ExposureController
-from poevp_optics.control.masks import MaskSpec, mask_levels, predicted_electrons, reach_electrons
+from poevp_optics.control.masks import ATTENUATED_LAWS, MaskSpec, mask_levels, predicted_electrons, reach_electrons
 from poevp_optics.control.timing_budget import BudgetSpec, MaskClock
 from poevp_optics.control.predictors import PREDICTORS, PredictorSpec, checked_prediction, make_predictor
 from poevp_optics.core.params import param
@@ -92,31 +92,31 @@ def predictor_input(mode: str, camera, ldr, enc, est, flags, index: int, clipped
     return LOOP_MODES[mode](camera, ldr, enc, est, flags, index, clipped_gain)
 
 
-def oracle_mask(camera, mask: MaskSpec, radiance_mean: np.ndarray, index: int, transmission: float = 1.0) -> np.ndarray:
-    """The mask law applied to the true frame (mirror grid): the upper bound of any predictor.
-    transmission: the global attenuator's setting (`oracle_transmission`)."""
+def oracle_decision(camera, mask: MaskSpec, radiance_mean: np.ndarray, index: int,
+                    attenuator: AttenuatorSpec = AttenuatorSpec()) -> tuple[np.ndarray, float]:
+    """(levels, attenuator transmission) of the mask law applied to the true frame (mirror
+    grid): the upper bound of any predictor; the transmission from the true all-white electrons."""
     white_e = radiance_mean.astype(np.float64) * camera.electrons_per_radiance() * camera.white_exposure_s(index)
+    g = attenuator_transmission(camera, mask, attenuator, white_e, index)
     ldr8 = to_8bit(camera.noise_free_dn(white_e), camera.params.max_dn)
     return mask_levels(mask, camera.dmd.spec.bits, pred_8bit=ldr8, pred_electrons=white_e,
                        full_well_e=camera.params.full_well_e, level_exposure=camera.level_exposure_s(index),
-                       sensor=camera.params, transmission=transmission)
+                       sensor=camera.params, transmission=g), g
+
+
+def oracle_mask(camera, mask: MaskSpec, radiance_mean: np.ndarray, index: int) -> np.ndarray:
+    """The mask law applied to the true frame (mirror grid), no attenuator (`oracle_decision`)."""
+    return oracle_decision(camera, mask, radiance_mean, index)[0]
 
 
 def attenuator_transmission(camera, mask: MaskSpec, attenuator: AttenuatorSpec, demand_e: np.ndarray,
                             index: int) -> float:
     """The attenuator's setting for frame `index` given the all-white electrons per mirror the
     mask law assumes (camera/attenuator.py); 1 for a disabled attenuator or a paper law."""
-    if not attenuator.enabled or mask.law not in ("target", "exposure_controller"):
+    if not attenuator.enabled or mask.law not in ATTENUATED_LAWS:
         return 1.0
     reach = reach_electrons(mask, camera.top_level, camera.level_exposure_s(index), camera.params)
     return choose_transmission(demand_e, reach, attenuator)
-
-
-def oracle_transmission(camera, mask: MaskSpec, attenuator: AttenuatorSpec, radiance_mean: np.ndarray,
-                        index: int) -> float:
-    """The oracle's attenuator setting: from the true frame's all-white electrons."""
-    white_e = radiance_mean.astype(np.float64) * camera.electrons_per_radiance() * camera.white_exposure_s(index)
-    return attenuator_transmission(camera, mask, attenuator, white_e, index)
 
 
 def predicted_mask(camera, mask: MaskSpec, pred_8bit: np.ndarray, index: int, controller=None,
@@ -202,8 +202,8 @@ class LoopStep:
         if index < self.loop.init_frames or len(self.history) < needs:
             return MaskDecision(self.camera.white_mask(), True, None)
         if self.needs_truth:
-            g = oracle_transmission(self.camera, self.mask, self.attenuator, truth, index)
-            return MaskDecision(oracle_mask(self.camera, self.mask, truth, index, g), False, None, transmission=g)
+            levels, g = oracle_decision(self.camera, self.mask, truth, index, self.attenuator)
+            return MaskDecision(levels, False, None, transmission=g)
         t0 = time.perf_counter()
         pred, n_bad = checked_prediction(self.model, self.history[-2:])
         levels, g = predicted_decision(self.camera, self.mask, resize_to(pred, self.camera.shape), index,

@@ -238,6 +238,9 @@ def _paper_law(formula):
     return law
 
 
+#: The laws that take a global attenuator's transmission into the exposure (camera/attenuator.py).
+ATTENUATED_LAWS = ("target", "exposure_controller")
+
 #: How the exposure controller carries a region's demand to the next frame (exposure_control.py):
 #: dilated by 3 smooth_px where the prediction clips, or also moved on at its box's velocity.
 CARRY_MODES = ("dilate", "extrapolate")

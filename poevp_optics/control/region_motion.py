@@ -64,7 +64,8 @@ def extrapolate(prev: np.ndarray, cur: np.ndarray, level: float) -> np.ndarray:
         nw, nh = max(1, int(round(ax * cw))), max(1, int(round(ay * ch)))
         nx = int(round(ax * (cx + cw / 2.0) + bx - nw / 2.0))
         ny = int(round(ay * (cy + ch / 2.0) + by - nh / 2.0))
-        crop = np.where(region, cur, 0.0)[int(cy):int(cy + ch), int(cx):int(cx + cw)].astype(np.float32)
+        box = (slice(int(cy), int(cy + ch)), slice(int(cx), int(cx + cw)))
+        crop = np.where(region[box], np.asarray(cur)[box], 0.0).astype(np.float32)
         moved = cv2.resize(crop, (nw, nh), interpolation=cv2.INTER_NEAREST)
         y0, x0, y1, x1 = max(ny, 0), max(nx, 0), min(ny + nh, h), min(nx + nw, w)
         if y1 <= y0 or x1 <= x0:

@@ -16,7 +16,7 @@ from poevp_optics.analysis.charts import ChartSpec
 from poevp_optics.camera.dmd import DMDSpec
 from poevp_optics.camera.relay import RelaySpec
 from poevp_optics.camera.sensor import SensorSpec
-from poevp_optics.control.masks import MaskSpec
+from poevp_optics.control.masks import ATTENUATED_LAWS, MaskSpec
 from poevp_optics.control.predictors import PREDICTORS, PredictorSpec, takes_weights
 from poevp_optics.core.paths import ASSETS_DIR
 from poevp_optics.core.timing import TimingSpec
@@ -299,7 +299,7 @@ def check_attenuator(ctx, sec: dict):
         return
     if not sec["dmd"].enabled:
         raise ctx.fail("attenuator.kind", f"{a.kind!r} is set with the mask's law: it needs [dmd] enabled")
-    if sec["mask"].law not in ("target", "exposure_controller"):
+    if sec["mask"].law not in ATTENUATED_LAWS:
         raise ctx.fail("attenuator.kind", f"{a.kind!r} is set by the 'target' or 'exposure_controller' "
                        f"mask law, not {sec['mask'].law!r}")
     t = sec["timing"]

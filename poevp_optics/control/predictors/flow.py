@@ -75,15 +75,15 @@ def outline(sat: np.ndarray) -> np.ndarray:
     return edge
 
 
-def region_shift(prev_sat: np.ndarray, cur_sat: np.ndarray, box, margin_px: int) -> tuple[float, float, float]:
-    """(dx, dy, response): the translation (px) taking frame t-1's saturated map onto `cur_sat`
-    (one region of frame t, box (y0, x0, y1, x1)), by phase correlation of their outlines over
-    the box grown by `margin_px`."""
+def region_shift(prev_outline: np.ndarray, cur_sat: np.ndarray, box, margin_px: int) -> tuple[float, float, float]:
+    """(dx, dy, response): the translation (px) taking frame t-1's saturated outline
+    (`outline` of its saturated map) onto `cur_sat`'s (one region of frame t, box (y0, x0, y1,
+    x1)), by phase correlation of the outlines over the box grown by `margin_px`."""
     h, w = cur_sat.shape
     y0, x0, y1, x1 = box
     ya, yb = max(0, y0 - margin_px), min(h, y1 + margin_px)
     xa, xb = max(0, x0 - margin_px), min(w, x1 + margin_px)
-    a = outline(prev_sat)[ya:yb, xa:xb]
+    a = prev_outline[ya:yb, xa:xb]
     b = outline(cur_sat)[ya:yb, xa:xb]
     if a.sum() == 0 or b.sum() == 0 or min(a.shape) < 2:
         return 0.0, 0.0, 0.0
@@ -96,13 +96,14 @@ def region_translations(prev_sat: np.ndarray, cur_sat: np.ndarray, flow: np.ndar
     translation from frame t-1 (module docstring); returns [(box, dx, dy, response)]."""
     n, labels, stats, _ = cv2.connectedComponentsWithStats(cur_sat.astype(np.uint8), connectivity=8)
     out = []
+    prev_outline = outline(prev_sat)              # one map for every region of frame t
     for k in range(1, n):
         x, y, bw, bh, area = (int(v) for v in stats[k])
         if area < MIN_REGION_PX:
             continue
         box = (y, x, y + bh, x + bw)
         inside = labels == k
-        dx, dy, resp = region_shift(prev_sat, inside, box, SEARCH_PX + max(bw, bh))
+        dx, dy, resp = region_shift(prev_outline, inside, box, SEARCH_PX + max(bw, bh))
         out.append((box, dx, dy, resp))
         if resp >= MIN_RESPONSE:
             flow[inside, 0] = dx
