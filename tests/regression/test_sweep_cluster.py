@@ -207,7 +207,9 @@ def test_cluster_sweep_in_other_folders_equals_local_cluster_and_survives_killed
     assert rc == 1, text
     df = pd.read_parquet(tmp_path / "noretry" / "results.parquet")
     failed = df[df["status"] == "failed"]
-    assert len(df) == 4 and 1 <= len(failed) <= 2       # the point it ran (and one it held)
+    # the point it ran and those it held: how many it held is the scheduler's choice (one
+    # worker was seen holding all 4 on a loaded machine); every other point ran to "ok"
+    assert len(df) == 4 and len(failed) >= 1 and (df["status"] != "failed").sum() == (df["status"] == "ok").sum()
     assert failed["error"].str.startswith("worker lost 1 times (KilledWorker").all()
     assert not any((tmp_path / "noretry" / "points" / f"{k}-s0").exists() for k in failed["point_key"])
     rc, text = _sweep(capsys, "--out", str(tmp_path / "noretry"), "--scheduler-file", str(sf), "--retry-failed")
