@@ -5,6 +5,10 @@ white per frame (90th percentile of the plate box in the raw 8-bit capture / 255
     python -m benchmarks.plate_band [--texts "JN F9H28,..."] [--gains 1,10] [--frames 16]
     python -m benchmarks.plate_band --scene scenes/night_road --scale 4 --frames 21 \
         --set render.spp=8 --out plate_band_night_road.md
+    python -m benchmarks.plate_band --scene scenes/night_road --frames 21 --gains 1 \
+        --set "render.resolution=[1080,1920]" --set objective.focal_length_m=0.06906 \
+        --set mask.smooth_px=24 --set attenuator.serve_min_mirrors=864 --set render.spp=8 \
+        --out plate_band_night_road_1920_1x.md        # the DLP6500's 1920 x 1080 mirrors (6x)
 
 Writes results/plate_band.md (or --out). One render per (gain, text). On a road scene (night_road)
 a beam gain g renders with our high beams' intensity_cd x g (the oncoming car's lamps and the tail
@@ -14,7 +18,11 @@ and the table is rewritten after every row, so a cut-off run keeps what it finis
 `--scale s` renders s x the scene's resolution with s x its objective focal length: the same field
 (the XML's fov) over s x as many mirrors of the same pitch (dmd / objective pixel_pitch_m), the
 same f-number, as a camera with s x the DLP6500 columns the scene's resolution stands in for;
-sizes in mirrors scale too (mask.smooth_px by s, attenuator.serve_min_mirrors by s^2).
+sizes in mirrors scale too (mask.smooth_px by s, attenuator.serve_min_mirrors by s^2). The
+third command is the same at s = 6 with the DMD's own 1080 rows (1104 would exceed them).
+A beam gain also scales the exposure controller's prior `mask.first_guess` (beam_overrides;
+`--fixed-prior` keeps the scene's). `--save-captures DIR` keeps each run's raw 8-bit captures,
+masks and plate boxes as one .npz per (gain, text), to read them again without rendering.
 """
 
 from __future__ import annotations
@@ -55,9 +63,10 @@ def scaled(exposures, gain: float):
         subframe_variances=tuple(v * gain ** 2 for v in ex.subframe_variances)) for ex in exposures]
 
 
-def loop_frames(spec, renderer, exposures, label: str, ocr: bool = True) -> list[dict]:
+def loop_frames(spec, renderer, exposures, label: str, ocr: bool = True, save_npz: str | None = None) -> list[dict]:
     """Run the camera loop of `spec` on rendered exposures; per frame: init flag, plate white
-    (LDR twin and encoded), saturated plate fraction, whole-frame OCR read of the capture."""
+    (LDR twin and encoded), saturated plate fraction, whole-frame OCR read of the capture.
+    save_npz: also write the raw 8-bit captures, masks, plate boxes and distances there."""
     import tempfile
 
     from poevp_optics.analysis.metrics import plate_white_fraction
@@ -79,6 +88,16 @@ def loop_frames(spec, renderer, exposures, label: str, ocr: bool = True) -> list
                     "late": bool(f.get("timing_budget", {}).get("late")),
                     "distance_m": f.get("plate", {}).get("distance_m"), "mc_error": f.get("rel_error_roi"),
                     "box_px": None if k["roi"] is None else int(k["roi"][3] - k["roi"][1])})
+    if save_npz:
+        idx = sorted(kept)
+        np.savez_compressed(save_npz, label=label, index=np.array(idx),
+                            capture=np.stack([kept[i]["capture"] for i in idx]).astype(np.uint8),
+                            ldr=np.stack([kept[i]["ldr"] for i in idx]).astype(np.uint8),
+                            mask=np.stack([np.full(kept[i]["capture"].shape, 255, np.uint8) if kept[i]["mask"] is None
+                                           else np.asarray(kept[i]["mask"], dtype=np.uint8) for i in idx]),
+                            roi=np.array([[-1] * 4 if kept[i]["roi"] is None else list(kept[i]["roi"]) for i in idx]),
+                            init=np.array([r["init"] for r in out]),
+                            distance_m=np.array([np.nan if r["distance_m"] is None else r["distance_m"] for r in out]))
     return out
 
 
@@ -98,17 +117,23 @@ def _cpu_s() -> float:
     return r.ru_utime + r.ru_stime
 
 
-def beam_overrides(scene: str, gain: float) -> list[str]:
+def beam_overrides(scene: str, gain: float, prior_follows_beams: bool = True) -> list[str]:
     """On a road scene, the high beams' own intensity x gain (rendered again: only our beams
     change, the oncoming car's lamps and the tail lamps do not); elsewhere [] (the radiance is
-    scaled: module docstring)."""
+    scaled: module docstring). prior_follows_beams: the exposure controller's first_guess x gain
+    too. The scene's prior is the plate's over-exposure under its own beams where the loop starts
+    (what a camera beside its beams computes from their intensity and the sheeting's R_A); a camera
+    with beams g x as strong is set up with g x the prior, as it knows its own beams."""
     from poevp_optics.scene.load import load_scene
 
     spec = load_scene(scene, [])
     if gain == 1.0 or not spec.has_road:
         return []
     name = spec.road.highbeam
-    return [f"spectra.{name}.intensity_cd={spec.spectra[name].intensity_cd * gain:.9g}"]
+    out = [f"spectra.{name}.intensity_cd={spec.spectra[name].intensity_cd * gain:.9g}"]
+    if spec.mask.law == "exposure_controller" and prior_follows_beams:
+        out.append(f"mask.first_guess={spec.mask.first_guess * gain:.9g}")
+    return out
 
 
 def scale_overrides(scene: str, scale: int) -> list[str]:
@@ -145,7 +170,9 @@ def write_results(args, sets: list[str], rows: list[list], per_frame: list, extr
             f"{' '.join(sets) or 'its defaults'}, {args.frames} frames (the first "
             f"init_frames white, marked *). White = 90th percentile of the plate box in the raw "
             f"8-bit capture / 255. Read = RapidOCR PP-OCRv4 detection + recognition on the whole "
-            f"frame, every character (paper Eq. 4). Seconds: wall per row (render + loop + OCR). "
+            f"frame, every character (paper Eq. 4). Beam gain g on a road scene: our high beams' "
+            f"intensity_cd x g, re-rendered{', the controller prior mask.first_guess x g' if not args.fixed_prior else ', the controller prior kept at the scene value (--fixed-prior)'}. "
+            f"Seconds: wall per row (render + loop + OCR). "
             f"Machine: {machine_line()}.\n\n"
             f"{markdown_table(header, sorted(rows, key=lambda r: r[0]))}\n\n## Per frame\n\n{detail}\n{extra}")
     save_text(args.out, text)
@@ -162,7 +189,11 @@ def main(argv=None):
     ap.add_argument("--frames", type=int, default=16)
     ap.add_argument("--scale", type=int, default=1)  # x the scene's resolution and focal length
     ap.add_argument("--set", action="append", default=[])
+    ap.add_argument("--fixed-prior", action="store_true", help="keep the scene's mask.first_guess at every "
+                    "beam gain (default: x the gain, beam_overrides)")
     ap.add_argument("--out", default="plate_band.md")
+    ap.add_argument("--save-captures", default=None, help="folder for one .npz per (gain, text): raw 8-bit "
+                    "captures, masks, plate boxes (for reading them again without rendering)")
     args = ap.parse_args(argv)
     runtime.set_threads(2)
     rows, per_frame = [], []
@@ -170,9 +201,15 @@ def main(argv=None):
     for gain in (float(g) for g in args.gains.split(",")):
         for text in args.texts.split(","):
             t0, c0 = time.perf_counter(), _cpu_s()
-            ov = [f'plate.text="{text}"', f"timing.frames={args.frames}", *sets, *beam_overrides(args.scene, gain)]
+            ov = [f'plate.text="{text}"', f"timing.frames={args.frames}", *sets,
+                  *beam_overrides(args.scene, gain, not args.fixed_prior)]
             spec, renderer, ex = render_once(args.scene, ov)
-            fr = loop_frames(spec, renderer, ex if spec.has_road else scaled(ex, gain), text)
+            npz = None
+            if args.save_captures:
+                import os
+                os.makedirs(args.save_captures, exist_ok=True)
+                npz = os.path.join(args.save_captures, f"{gain:g}x_{text.replace(' ', '_')}.npz")
+            fr = loop_frames(spec, renderer, ex if spec.has_road else scaled(ex, gain), text, save_npz=npz)
             del ex
             s = summarise(fr, spec.mask.band_low, spec.mask.band_high)
             mc = [r["mc_error"] for r in fr if r.get("mc_error") is not None]
