@@ -296,11 +296,9 @@ def controller_prior(ctx, mask: MaskSpec, road, spectra_, has_road: bool) -> Mas
     that is set: the prior is the plate's over-exposure under the beams it was worked out for,
     and a camera beside its own beams knows their intensity, so g x the beams is g x the prior
     (the signal of light returned from our beams is proportional to their intensity)."""
-    if mask.prior_beam_cd == 0:
-        return mask
+    if mask.prior_beam_cd == 0 or mask.law != "exposure_controller":
+        return mask                     # other laws have no prior (first_guess is inert there too)
     key = "mask.prior_beam_cd"
-    if mask.law != "exposure_controller":
-        raise ctx.fail(key, f"scales the 'exposure_controller' law's first_guess; the law is {mask.law!r}")
     if not has_road:
         raise ctx.fail(key, "needs a [road] section: the prior follows its high beam's intensity_cd")
     guess = mask.first_guess * spectra_[road.highbeam].intensity_cd / mask.prior_beam_cd
