@@ -20,8 +20,8 @@ and the table is rewritten after every row, so a cut-off run keeps what it finis
 same f-number, as a camera with s x the DLP6500 columns the scene's resolution stands in for;
 sizes in mirrors scale too (mask.smooth_px by s, attenuator.serve_min_mirrors by s^2). The
 third command is the same at s = 6 with the DMD's own 1080 rows (1104 would exceed them).
-A beam gain also scales the exposure controller's prior `mask.first_guess` (beam_overrides;
-`--fixed-prior` keeps the scene's). `--save-captures DIR` keeps each run's raw 8-bit captures,
+A beam gain also scales the exposure controller's prior `mask.first_guess` where the scene
+sets `mask.prior_beam_cd` (night_road does; `--fixed-prior` keeps the scene's value). `--save-captures DIR` keeps each run's raw 8-bit captures,
 masks and plate boxes as one .npz per (gain, text), to read them again without rendering.
 """
 
@@ -117,23 +117,19 @@ def _cpu_s() -> float:
     return r.ru_utime + r.ru_stime
 
 
-def beam_overrides(scene: str, gain: float, prior_follows_beams: bool = True) -> list[str]:
+def beam_overrides(scene: str, gain: float, fixed_prior: bool = False) -> list[str]:
     """On a road scene, the high beams' own intensity x gain (rendered again: only our beams
     change, the oncoming car's lamps and the tail lamps do not); elsewhere [] (the radiance is
-    scaled: module docstring). prior_follows_beams: the exposure controller's first_guess x gain
-    too. The scene's prior is the plate's over-exposure under its own beams where the loop starts
-    (what a camera beside its beams computes from their intensity and the sheeting's R_A); a camera
-    with beams g x as strong is set up with g x the prior, as it knows its own beams."""
+    scaled: module docstring). A scene with mask.prior_beam_cd scales its controller prior with
+    the beams itself (scene/validate.controller_prior); fixed_prior turns that off."""
     from poevp_optics.scene.load import load_scene
 
     spec = load_scene(scene, [])
     if gain == 1.0 or not spec.has_road:
         return []
     name = spec.road.highbeam
-    out = [f"spectra.{name}.intensity_cd={spec.spectra[name].intensity_cd * gain:.9g}"]
-    if spec.mask.law == "exposure_controller" and prior_follows_beams:
-        out.append(f"mask.first_guess={spec.mask.first_guess * gain:.9g}")
-    return out
+    return [f"spectra.{name}.intensity_cd={spec.spectra[name].intensity_cd * gain:.9g}",
+            *(["mask.prior_beam_cd=0"] if fixed_prior else [])]
 
 
 def scale_overrides(scene: str, scale: int) -> list[str]:
@@ -171,7 +167,7 @@ def write_results(args, sets: list[str], rows: list[list], per_frame: list, extr
             f"init_frames white, marked *). White = 90th percentile of the plate box in the raw "
             f"8-bit capture / 255. Read = RapidOCR PP-OCRv4 detection + recognition on the whole "
             f"frame, every character (paper Eq. 4). Beam gain g on a road scene: our high beams' "
-            f"intensity_cd x g, re-rendered{', the controller prior mask.first_guess x g' if not args.fixed_prior else ', the controller prior kept at the scene value (--fixed-prior)'}. "
+            f"intensity_cd x g, re-rendered{'; the controller prior mask.first_guess x g where the scene sets mask.prior_beam_cd' if not args.fixed_prior else ', the controller prior kept at the scene value (--fixed-prior)'}. "
             f"Seconds: wall per row (render + loop + OCR). "
             f"Machine: {machine_line()}.\n\n"
             f"{markdown_table(header, sorted(rows, key=lambda r: r[0]))}\n\n## Per frame\n\n{detail}\n{extra}")
@@ -190,7 +186,7 @@ def main(argv=None):
     ap.add_argument("--scale", type=int, default=1)  # x the scene's resolution and focal length
     ap.add_argument("--set", action="append", default=[])
     ap.add_argument("--fixed-prior", action="store_true", help="keep the scene's mask.first_guess at every "
-                    "beam gain (default: x the gain, beam_overrides)")
+                    "beam gain (mask.prior_beam_cd=0; by default a scene that sets it scales the prior with the beams)")
     ap.add_argument("--out", default="plate_band.md")
     ap.add_argument("--save-captures", default=None, help="folder for one .npz per (gain, text): raw 8-bit "
                     "captures, masks, plate boxes (for reading them again without rendering)")
@@ -202,7 +198,7 @@ def main(argv=None):
         for text in args.texts.split(","):
             t0, c0 = time.perf_counter(), _cpu_s()
             ov = [f'plate.text="{text}"', f"timing.frames={args.frames}", *sets,
-                  *beam_overrides(args.scene, gain, not args.fixed_prior)]
+                  *beam_overrides(args.scene, gain, args.fixed_prior)]
             spec, renderer, ex = render_once(args.scene, ov)
             npz = None
             if args.save_captures:

@@ -205,8 +205,17 @@ def camera_sections(spec, camera, floor) -> dict:
                  "attenuation_floor": floor} if camera.dmd else None),
         "mask": ({"law": spec.mask.law, "vs": spec.mask.vs, "a": spec.mask.a, "b": spec.mask.b,
                   "target": spec.mask.target, "smooth_px": spec.mask.smooth_px,
-                  "predictor": spec.predictor.name} if camera.dmd else None),
+                  "predictor": spec.predictor.name, **_controller_keys(spec.mask)} if camera.dmd else None),
     }
+
+
+def _controller_keys(mask) -> dict:
+    """The exposure controller's settings (first_guess as used: scaled with the beams when
+    mask.prior_beam_cd is set); {} for the other laws."""
+    if mask.law != "exposure_controller":
+        return {}
+    return {"first_guess": mask.first_guess, "prior_beam_cd": mask.prior_beam_cd or None,
+            "clip_step": mask.clip_step, "band": [mask.band_low, mask.band_high], "carry": mask.carry}
 
 
 def stage_sections(spec, renderer, step, res, setup_s: float, causal: bool) -> dict:

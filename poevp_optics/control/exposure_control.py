@@ -20,7 +20,10 @@ the camera has: its previous masks and captures.
   every lost first frame. A clipped frame loses the read, a dim one only the band, so P puts the
   window on the lower decade, where the default scene's plate is (p90 white 7x over at its
   120 kcd beams, 57x at 10x the beams): both read on the first loop frame (0.11 and 0.96).
-  Brighter plates clip once and are bracketed (below).
+  Brighter plates clip once and are bracketed (below). On a road scene `mask.prior_beam_cd`
+  ties P to our own beams: P is the prior under beams of that intensity and scales with
+  [road].highbeam's intensity_cd (the light a plate returns from our beams is proportional to
+  them, and a camera knows its own beams; scene/validate.controller_prior).
 - k = `mask.clip_step` (default 2): the bracket after a clip. A clipped measurement says only
   X > lower bound L, so the next guess is k L: the next frame puts X at target X / (k L), i.e.
   0.3 of full scale if X was just above L (still read), and clips again only if X > k L /

@@ -270,6 +270,8 @@ class MaskSpec:
     smooth_px: float = param(4.0, min=0, max=1000)
     clipped_gain: float = param(32.0, min=1, max=1e9)   # assumed x saturation (x lower bound) where clipped
     first_guess: float = param(40.0, min=1, max=1e9)    # exposure_controller: never-measured clipped region, x saturation
+    prior_beam_cd: float = param(0.0, min=0, max=1e12)  # exposure_controller on a road scene: our beams' intensity_cd
+    # that first_guess is for; the prior scales with [road].highbeam's intensity_cd / this (0: fixed)
     clip_step: float = param(2.0, min=1, max=1e9)       # exposure_controller: guess after a repeated clip, x lower bound
     band_low: float = param(0.4, gt=0, lt=1)            # exposure_controller: band, fraction of full scale
     band_high: float = param(0.9, gt=0, max=1)

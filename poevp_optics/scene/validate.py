@@ -291,6 +291,23 @@ def check_road(ctx, road, spectra_, sheeting) -> None:
         raise ctx.fail("road.sheeting", f"{road.sheeting!r} names no [sheeting] entry")
 
 
+def controller_prior(ctx, mask: MaskSpec, road, spectra_, has_road: bool) -> MaskSpec:
+    """[mask] with `first_guess` scaled by our high beams' intensity_cd / `prior_beam_cd` when
+    that is set: the prior is the plate's over-exposure under the beams it was worked out for,
+    and a camera beside its own beams knows their intensity, so g x the beams is g x the prior
+    (the signal of light returned from our beams is proportional to their intensity)."""
+    if mask.prior_beam_cd == 0 or mask.law != "exposure_controller":
+        return mask                     # other laws have no prior (first_guess is inert there too)
+    key = "mask.prior_beam_cd"
+    if not has_road:
+        raise ctx.fail(key, "needs a [road] section: the prior follows its high beam's intensity_cd")
+    guess = mask.first_guess * spectra_[road.highbeam].intensity_cd / mask.prior_beam_cd
+    if not 1.0 <= guess <= 1e9:
+        raise ctx.fail(key, f"first_guess {mask.first_guess:g} x {spectra_[road.highbeam].intensity_cd:g} cd / "
+                       f"{mask.prior_beam_cd:g} cd = {guess:.4g} x saturation, outside [1, 1e9]")
+    return dataclasses.replace(mask, first_guess=guess)
+
+
 def check_attenuator(ctx, sec: dict):
     """[attenuator]: an enabled one needs the DMD, a mask law that takes its transmission
     (`target`, `exposure_controller`) and time to settle between two exposures."""

@@ -101,14 +101,38 @@ def test_default_scene_is_night_road_and_runs_the_causal_loop(tmp_path):
     assert r["attenuator"]["kind"] == "variable_nd" and r["attenuator"]["dimmed_frames"] == []
 
 
-def test_default_scene_at_ten_times_the_beams_dims_the_frame_and_keeps_the_plate_in_band(tmp_path):
+def test_default_scene_at_ten_times_the_beams_dims_the_first_loop_frame_with_the_prior_that_follows_them(tmp_path):
     """Our high beams at 1 Mcd each (10x): the plate is ~220x over saturation, beyond the 8-bit
-    DMD's reach (0.6 / (1/255 + 1/1000) = 122x). The first loop frame clips (prior 22x); the
-    bracket (clip_step 5 x the lower bound) then asks for more than the mask can give, so the variable
-    ND dims the frame (g < 1) and the plate lands in the 40-90 % band with nothing saturated."""
+    DMD's reach at the aim, ~0.6 / t_1 = 122x (t_1 = 1/255 + (254/255)/1000, what the darkest
+    level min_level = 1 passes). night_road's prior (22x at prior_beam_cd = 100 kcd) follows the
+    beams to 220x, so on the first loop frame the variable ND dims the frame to g = aim / t_1 /
+    (220 x saturation), electrons from the report's sensor, and the plate lands in the 40-90 %
+    band with nothing saturated."""
     r, _ = _run(tmp_path, _demo_scene(), "timing.frames=4", "render.spp=4", "spectra.highbeam.intensity_cd=1e6")
+    assert r["mask"]["first_guess"] == 220.0 and r["mask"]["prior_beam_cd"] == 1e5
     f2, f3 = r["per_frame"][2], r["per_frame"][3]
     assert f2["plate"]["peak_over_saturation"] > 150.0
+    t1 = 1 / 255 + (254 / 255) / 1000
+    sn = r["sensor"]                    # aim 0.6 of the top code and saturation, in electrons
+    aim_e = (0.6 * 255 - sn["offset_dn"]) / sn["gain_dn_per_e"]
+    sat_e = min(sn["full_well_e"], (255 - sn["offset_dn"]) / sn["gain_dn_per_e"])
+    g = aim_e / t1 / (220.0 * sat_e)
+    assert 0.5 < g < 0.6 and abs(f2["attenuator"]["transmission"] - g) < 1e-6 * g
+    assert not f2["attenuator"]["late"]
+    for f in (f2, f3):
+        assert 0.4 <= f["plate_white_fraction"]["encoded"] <= 0.9
+        assert f["saturated_fraction_roi"]["encoded"] < 0.02
+    assert r["attenuator"]["dimmed_frames"] == [2, 3]
+
+
+def test_default_scene_at_ten_times_the_beams_with_a_fixed_prior_clips_once_then_dims(tmp_path):
+    """The same with the prior held at 22x (mask.prior_beam_cd = 0): the first loop frame clips;
+    the bracket (clip_step 5 x the lower bound) then asks for more than the mask can give, so the
+    variable ND dims the next frame (g < 1) and the plate lands in the band."""
+    r, _ = _run(tmp_path, _demo_scene(), "timing.frames=4", "render.spp=4", "spectra.highbeam.intensity_cd=1e6",
+                "mask.prior_beam_cd=0")
+    assert r["mask"]["first_guess"] == 22.0 and r["mask"]["prior_beam_cd"] is None
+    f2, f3 = r["per_frame"][2], r["per_frame"][3]
     assert f2["attenuator"]["transmission"] == 1.0 and f2["saturated_fraction_roi"]["encoded"] > 0.3
     assert f3["attenuator"]["transmission"] < 0.9 and not f3["attenuator"]["late"]
     assert 0.4 <= f3["plate_white_fraction"]["encoded"] <= 0.9

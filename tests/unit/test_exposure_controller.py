@@ -12,6 +12,7 @@ from poevp_optics.camera.dmd import DMDSpec, Schedule, transmission_table
 from poevp_optics.control.exposure_control import ExposureController
 from poevp_optics.control.masks import band_levels
 from poevp_optics.control.masks import MASK_LAWS, MaskSpec, mask_levels, predicted_electrons
+from tests.conftest import SCENES
 
 SAT_E = 10000.0
 # offset 0 and gain 255 / SAT_E: a fraction f of full scale is f x SAT_E electrons exactly
@@ -176,3 +177,28 @@ def test_band_levels_unreachable_band_stays_below():
 def test_paper_laws_remain_registered():
     for name in ("threshold_exp", "threshold_ratio", "target", "exposure_controller", "white"):
         assert name in MASK_LAWS
+
+
+@pytest.mark.parametrize("cd", [1e5, 1e6, 2.5e4])
+def test_a_prior_tied_to_the_beams_scales_with_their_intensity(cd):
+    """mask.prior_beam_cd: night_road's prior (22x saturation under 100 kcd beams) is
+    22 x cd / 1e5 under beams of `cd`; with prior_beam_cd = 0 it stays 22."""
+    from poevp_optics.scene.load import load_scene
+
+    on = load_scene(SCENES / "night_road", [f"spectra.highbeam.intensity_cd={cd}"])
+    off = load_scene(SCENES / "night_road", [f"spectra.highbeam.intensity_cd={cd}", "mask.prior_beam_cd=0"])
+    assert on.mask.first_guess == pytest.approx(22.0 * cd / 1e5, rel=1e-12) and off.mask.first_guess == 22.0
+    other = load_scene(SCENES / "night_road", [f"spectra.highbeam.intensity_cd={cd}", 'mask.law="target"'])
+    assert other.mask.first_guess == 22.0          # a law without a prior leaves it as written
+
+
+@pytest.mark.parametrize("scene, override, says", [
+    ("highbeam_plate", ["mask.prior_beam_cd=1e5"], r"needs a \[road\] section"),
+    ("night_road", ["mask.prior_beam_cd=1e-3"], r"outside \[1, 1e9\]"),
+    ("night_road", ["mask.prior_beam_cd=-1"], ""),
+])
+def test_a_prior_tied_to_the_beams_refuses_what_it_cannot_scale(scene, override, says):
+    from poevp_optics.scene.load import SceneError, load_scene
+
+    with pytest.raises(SceneError, match=r"mask\.prior_beam_cd: .*" + says):
+        load_scene(SCENES / scene, override)
