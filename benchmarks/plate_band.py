@@ -63,20 +63,26 @@ def scaled(exposures, gain: float):
         subframe_variances=tuple(v * gain ** 2 for v in ex.subframe_variances)) for ex in exposures]
 
 
+def run_loop(spec, renderer, exposures) -> tuple[dict, dict]:
+    """(report, kept frames) of the camera loop of `spec` on rendered exposures, every frame
+    kept (captures, masks, plate box), nothing written."""
+    import tempfile
+
+    from poevp_optics.apps.render_run import run_frames
+
+    with tempfile.TemporaryDirectory() as tmp:
+        return run_frames(spec, tmp, False, renderer=renderer, exposures=exposures, write_images=False,
+                          keep_frames=tuple(range(spec.timing.frames)))
+
+
 def loop_frames(spec, renderer, exposures, label: str, ocr: bool = True, save_npz: str | None = None) -> list[dict]:
     """Run the camera loop of `spec` on rendered exposures; per frame: init flag, plate white
     (LDR twin and encoded), saturated plate fraction, whole-frame OCR read of the capture.
     save_npz: also write the raw 8-bit captures, masks, plate boxes and distances there."""
-    import tempfile
-
     from poevp_optics.analysis.metrics import plate_white_fraction
     from poevp_optics.analysis.recognition import frame_reads
-    from poevp_optics.apps.render_run import run_frames
 
-    frames = tuple(range(spec.timing.frames))
-    with tempfile.TemporaryDirectory() as tmp:
-        report, kept = run_frames(spec, tmp, False, renderer=renderer, exposures=exposures,
-                                  write_images=False, keep_frames=frames)
+    report, kept = run_loop(spec, renderer, exposures)
     out = []
     for f in report["per_frame"]:
         k = kept[f["index"]]

@@ -14,7 +14,6 @@ attenuator's transmission. Writes results/plate_dn_range.md and .png.
 from __future__ import annotations
 
 import argparse
-import tempfile
 import time
 
 import numpy as np
@@ -22,16 +21,8 @@ import numpy as np
 from benchmarks.common import RESULTS, machine_line, markdown_table, save_text
 
 
-def run(spec, renderer, exposures) -> tuple[dict, dict]:
-    from poevp_optics.apps.render_run import run_frames
-
-    with tempfile.TemporaryDirectory() as tmp:
-        return run_frames(spec, tmp, False, renderer=renderer, exposures=exposures, write_images=False,
-                          keep_frames=tuple(range(spec.timing.frames)))
-
-
 def main(argv=None):
-    from benchmarks.plate_band import render_once, scaled
+    from benchmarks.plate_band import render_once, run_loop, scaled
     from poevp_optics.analysis.metrics import crop
     from poevp_optics.core import runtime
     from poevp_optics.core.runtime import pyplot
@@ -47,7 +38,7 @@ def main(argv=None):
     rows, series = [], {}
     lo, hi = spec.mask.band_low * 255, spec.mask.band_high * 255
     for gain in (float(g) for g in args.gains.split(",")):
-        report, kept = run(spec, renderer, scaled(ex, gain))
+        report, kept = run_loop(spec, renderer, scaled(ex, gain))
         pts = []
         for f in report["per_frame"]:
             if f.get("init"):

@@ -301,9 +301,10 @@ def controller_prior(ctx, mask: MaskSpec, road, spectra_, has_road: bool) -> Mas
     key = "mask.prior_beam_cd"
     if not has_road:
         raise ctx.fail(key, "needs a [road] section: the prior follows its high beam's intensity_cd")
-    guess = mask.first_guess * spectra_[road.highbeam].intensity_cd / mask.prior_beam_cd
+    beams_cd = spectra_[road.highbeam].intensity_cd
+    guess = mask.first_guess * beams_cd / mask.prior_beam_cd
     if not 1.0 <= guess <= 1e9:
-        raise ctx.fail(key, f"first_guess {mask.first_guess:g} x {spectra_[road.highbeam].intensity_cd:g} cd / "
+        raise ctx.fail(key, f"first_guess {mask.first_guess:g} x {beams_cd:g} cd / "
                        f"{mask.prior_beam_cd:g} cd = {guess:.4g} x saturation, outside [1, 1e9]")
     return dataclasses.replace(mask, first_guess=guess)
 
@@ -317,7 +318,7 @@ def check_attenuator(ctx, sec: dict):
     if not sec["dmd"].enabled:
         raise ctx.fail("attenuator.kind", f"{a.kind!r} is set with the mask's law: it needs [dmd] enabled")
     if sec["mask"].law not in ATTENUATED_LAWS:
-        raise ctx.fail("attenuator.kind", f"{a.kind!r} is set by the 'target' or 'exposure_controller' "
+        raise ctx.fail("attenuator.kind", f"{a.kind!r} is set by the {' or '.join(map(repr, ATTENUATED_LAWS))} "
                        f"mask law, not {sec['mask'].law!r}")
     t = sec["timing"]
     gap = 1.0 / t.fps - t.exposure_s
