@@ -1,6 +1,6 @@
 """Predictor + mask-law latency at 368x640 on this machine, per predictor.
 
-Median of 30 warm calls with torch threads set explicitly (2), plus the model's parameter count
+Median of 30 warm calls on four frames (the loop's history; two-frame predictors use the last two) with torch threads set explicitly (2), plus the model's parameter count
 and multiply-accumulates (hook-counted, all blocks run). The mask law (target law with the
 smooth envelope) is timed on the same frames. Paper: VP + mask 16.9 ms on an RTX 3090; a
 DLPC900 shows an 8-bit pattern in >= 4.05 ms.
@@ -32,14 +32,14 @@ def main():
     rng = np.random.default_rng(0)
     base = rng.uniform(20, 60, (H, W)).astype(np.float32)
     frames = []
-    for t in range(3):
+    for t in range(4):
         f = base.copy()
         f[150:190, 200 + 8 * t:340 + 8 * t] = 255.0
         frames.append(f)
     spec = load_scene("scenes/highbeam_plate", [f"render.resolution=[{H},{W}]"])
     cam = Camera.from_scene(spec)
     rows = []
-    for name in ("hold", "flow", "dmvfn_lite", "dmvfn"):
+    for name in ("hold", "flow", "track", "track_net", "dmvfn_lite", "dmvfn"):
         if name == "dmvfn":
             # full DMVFN: no trained weights ship unless trained on a GPU; time random init
             from poevp_optics.control.predictors.dmvfn import DMVFNPredictor
@@ -47,11 +47,11 @@ def main():
         else:
             pred = make_predictor(name)
         for _ in range(3):
-            pred(frames[:2])
+            pred(frames)
         ts, tm = [], []
         for i in range(30):
             t0 = time.perf_counter()
-            p = pred(frames[:2])
+            p = pred(frames)
             t1 = time.perf_counter()
             predicted_mask(cam, spec.mask, p, 0)
             t2 = time.perf_counter()

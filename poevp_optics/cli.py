@@ -357,7 +357,7 @@ def _add_evaluate_parser(sub) -> None:
     p.add_argument("--E", help="over-exposure rates of the speed sweep (default 9,49)")
     p.add_argument("--E-sweep", dest="E_sweep", help="over-exposure rates of the accuracy-vs-E sweep")
     p.add_argument("--kinds", help="motion kinds: lateral,approaching,receding,swerve,reversal")
-    p.add_argument("--predictors", help="hold,flow,dmvfn,dmvfn_lite,oracle (default hold,flow,dmvfn,oracle)")
+    p.add_argument("--predictors", help="any of poevp_optics.control.predictors.PREDICTORS (default hold,flow,dmvfn_lite,track_net,oracle)")
     p.add_argument("--baselines", help="ldr,fusion_classic,fusion_deghost (default all; '' for none)")
     p.add_argument("--search", choices=("frame", "vehicle"), help="ALPR search region (default frame)")
     p.add_argument("--paper-law", dest="paper_law",

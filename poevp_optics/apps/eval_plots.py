@@ -13,7 +13,8 @@ from poevp_optics.core.io import atomic_path
 
 STYLE = {"ldr": ("0.5", ":"), "fusion_classic": ("tab:brown", "--"), "fusion_deghost": ("tab:pink", "--"),
          "hold": ("tab:red", "-"), "flow": ("tab:blue", "-"), "dmvfn": ("tab:green", "-"),
-         "dmvfn_lite": ("tab:olive", "-"), "oracle": ("k", "-")}
+         "dmvfn_lite": ("tab:olive", "-"), "track": ("tab:cyan", "-"), "track_net": ("tab:purple", "-"),
+         "oracle": ("k", "-")}
 
 
 def _save(fig, path: Path, plt) -> None:

@@ -21,7 +21,7 @@ from poevp_optics.analysis.statistics import lag_frames, wilson_interval
 from poevp_optics.core.io import atomic_path, write_json
 from poevp_optics.core.paths import REPO_ROOT
 
-CAUSAL = ("hold", "flow", "dmvfn", "dmvfn_lite")
+CAUSAL = ("hold", "flow", "dmvfn", "dmvfn_lite", "track", "track_net")
 #: Paper Table 2 (accuracy %, ms per frame); E-averaged, its own data and an RTX 3090.
 PAPER = {"fusion_classic": (65.07, 135.261), "fusion_deghost": (88.56, 424.831),
          "deep_optics": (21.64, 1161.458), "poevp": (94.86, 16.928)}
@@ -85,7 +85,7 @@ def findings(cells: dict, cfg) -> dict:
         sep[f"{e:g}"] = None
         for v in sorted(cfg.speeds_px):
             hold = _cell(cells, "lateral", v, e, "hold")
-            best = [c for c in (_cell(cells, "lateral", v, e, p) for p in ("flow", "dmvfn", "dmvfn_lite")) if c]
+            best = [c for c in (_cell(cells, "lateral", v, e, p) for p in ("flow", "dmvfn", "dmvfn_lite", "track", "track_net")) if c]
             if hold and best and hold["alpr"]["pct"] < 50 and max(c["alpr"]["pct"] for c in best) > 80:
                 sep[f"{e:g}"] = v
                 break

@@ -76,7 +76,7 @@ class EvalConfig:
     kinds: tuple[str, ...] = KINDS                                 # motion sweep ...
     motion_speed_px: float = 16                                    # ... at this speed, E:
     motion_e: float = 9
-    predictors: tuple[str, ...] = ("hold", "flow", "dmvfn", "oracle")
+    predictors: tuple[str, ...] = ("hold", "flow", "dmvfn_lite", "track_net", "oracle")
     baselines: tuple[str, ...] = BASELINES
     resolution: tuple[int, int] = (184, 320)
     spp: int = 8
@@ -357,7 +357,7 @@ def strip_cell(report: dict, cfg: EvalConfig) -> tuple[float, float]:
     for e in cfg.e_levels:
         for v in cfg.speeds_px:
             h = cells.get(f"lateral|{float(v):g}|{float(e):g}|hold")
-            others = [cells.get(f"lateral|{float(v):g}|{float(e):g}|{p}") for p in ("flow", "dmvfn")]
+            others = [cells.get(f"lateral|{float(v):g}|{float(e):g}|{p}") for p in cfg.predictors if p not in ("hold", "oracle")]
             gap = max([c["alpr"]["pct"] for c in others if c] or [0.0]) - (h["alpr"]["pct"] if h else 0.0)
             best = max(best, (gap, float(v), float(e)))
     return best[1], best[2]

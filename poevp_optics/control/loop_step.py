@@ -46,6 +46,22 @@ def resize_to(img: np.ndarray, shape) -> np.ndarray:
     return cv2.resize(img.astype(np.float32), (w, h), interpolation=interp)
 
 
+#: 8-bit value from which a pixel is clipped (the mask laws' clip marker; flow.py's SATURATED).
+CLIP_MARKER = 254.5
+
+
+def resize_keeping_clip(img: np.ndarray, shape) -> np.ndarray:
+    """`resize_to`, with the clip marker kept: a pixel whose footprint is at least half clipped
+    (>= CLIP_MARKER) in `img` is clipped after the resize (>= 255, or its own value where that
+    is higher), so area averaging or bilinear growth never turns a clipped edge into a value the
+    mask law reads as unclipped."""
+    out = resize_to(img, shape)
+    if tuple(np.shape(img)) == tuple(shape):
+        return out
+    frac = resize_to((np.asarray(img) >= CLIP_MARKER).astype(np.float32), shape)
+    return np.where(frac >= 0.5, np.maximum(out, 255.0), out).astype(np.float32)
+
+
 def _open_input(camera, ldr, enc, est, flags, index, clipped_gain):
     return to_8bit(ldr.dn, camera.params.max_dn).astype(np.float32)
 
@@ -205,8 +221,8 @@ class LoopStep:
             levels, g = oracle_decision(self.camera, self.mask, truth, index, self.attenuator)
             return MaskDecision(levels, False, None, transmission=g)
         t0 = time.perf_counter()
-        pred, n_bad = checked_prediction(self.model, self.history[-2:])
-        levels, g = predicted_decision(self.camera, self.mask, resize_to(pred, self.camera.shape), index,
+        pred, n_bad = checked_prediction(self.model, self.history)
+        levels, g = predicted_decision(self.camera, self.mask, resize_keeping_clip(pred, self.camera.shape), index,
                                        self.controller, self.loop.mode in MASKED_MODES, self.attenuator)
         return MaskDecision(levels, False, time.perf_counter() - t0, n_bad, transmission=g)
 
@@ -218,5 +234,5 @@ class LoopStep:
         if self.model is None:
             return
         x = predictor_input(self.loop.mode, self.camera, ldr, enc, est, flags, index, self.mask.clipped_gain)
-        self.history.append(resize_to(x, self.predictor_spec.resolution))
+        self.history.append(resize_keeping_clip(x, self.predictor_spec.resolution))
         self.history = self.history[-self.HISTORY:]

@@ -34,15 +34,15 @@ def _run(tmp_path, scene, *sets):
     return json.loads((out / "report.json").read_text()), out
 
 
-def _assert_causal_loop(r):
-    """The real thing (issue 18): two white initialisation frames, then dmvfn_lite from its
-    shipped weights file feeding the exposure controller."""
+def _assert_causal_loop(r, predictor="dmvfn_lite"):
+    """The real thing (issue 18): two white initialisation frames, then a torch predictor from
+    its shipped weights file (named with its SHA-256) feeding the exposure controller."""
     assert r["metrics"]["init_frames"] == 2
     assert all(f.get("init") for f in r["per_frame"][:2]) and not r["per_frame"][2].get("init")
     pred = r["stages"]["predict"]["predictor"]
-    assert pred["name"] == "dmvfn_lite" and pred["weights"].endswith("dmvfn_lite.safetensors")
+    assert pred["name"] == predictor and pred["weights"] == f"assets/predictor/{predictor}.safetensors"
     assert len(pred["weights_sha256"]) == 16
-    assert r["mask"]["law"] == "exposure_controller" and r["mask"]["predictor"] == "dmvfn_lite"
+    assert r["mask"]["law"] == "exposure_controller" and r["mask"]["predictor"] == predictor
 
 
 def test_highbeam_plate_runs_the_causal_loop_and_its_mask_fixes_saturation(tmp_path):
@@ -80,7 +80,7 @@ def test_default_scene_is_night_road_and_runs_the_causal_loop(tmp_path):
     assert scene == "night_road"
     r, out = _run(tmp_path, scene, "timing.frames=4", "render.spp=2")
     m = r["metrics"]
-    _assert_causal_loop(r)
+    _assert_causal_loop(r, "track_net")
     assert "relay" not in r["skipped_stages"] and "objective" not in r["skipped_stages"]
     tb = r["timing_budget"]
     assert tb["compute"] == "fpga_zynq" and tb["late_frames"] == []

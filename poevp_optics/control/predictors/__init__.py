@@ -9,8 +9,12 @@ choices; adding a predictor is one `PREDICTORS.register(...)` with a factory.
 | flow        | DIS optical flow (ultrafast, log curve above 255), one phase-correlation translation per saturated region, forward splat of bright moving pixels | Kroeger et al., ECCV 2016 (DIS); Kuglin & Hines 1975 |
 | dmvfn       | dynamic multi-scale voxel flow network, 9 blocks, routing            | Hu et al., CVPR 2023 |
 | dmvfn_lite  | same block design, grey, quarter resolution, 3 blocks, no routing    | ours, after Hu et al. |
+| track       | `flow` + each saturated region followed back three frames, constant acceleration (least squares) | ours; SORT-style box tracking (Bewley et al. 2016) |
+| track_net   | `track` with a trained torch motion model choosing the extrapolation from the chain (no preferred direction) | ours |
 
-Every predictor takes `history` (oldest first, at least `needs_frames` frames) and returns one frame.
+Every predictor takes `history` (oldest first, at least `needs_frames` frames; the loop passes
+up to four) and returns one frame. A predictor that moves a clipped pixel moves its value as it
+is, so a region clipped in its inputs stays at the clip marker (tests/unit/test_predictors.py).
 """
 
 from __future__ import annotations
@@ -46,6 +50,18 @@ def _flow(weights, resolution):
     return FlowExtrapolation()
 
 
+def _track(weights, resolution):
+    from poevp_optics.control.predictors.track import RegionTracker
+
+    return RegionTracker()
+
+
+def _track_net(weights, resolution):
+    from poevp_optics.control.predictors.track_net import load_predictor as load_track_net
+
+    return load_track_net(weights)
+
+
 def _dmvfn(name):
     def factory(weights, resolution):
         from poevp_optics.control.predictors.dmvfn import load_predictor
@@ -62,6 +78,10 @@ PREDICTORS.register("flow", PredictorEntry(_flow), source="Kroeger et al., ECCV 
                     "correlation (Kuglin & Hines 1975) + forward splat")
 PREDICTORS.register("dmvfn", PredictorEntry(_dmvfn("dmvfn"), takes_weights=True),
                     source="Hu et al., CVPR 2023 (DMVFN), deterministic routing")
+PREDICTORS.register("track", PredictorEntry(_track), source="ours: flow + per-region displacement chains over "
+                    "four frames, least-squares constant acceleration (after SORT, Bewley et al. ICIP 2016)")
+PREDICTORS.register("track_net", PredictorEntry(_track_net, takes_weights=True),
+                    source="ours: track with a trained rotation-invariant torch motion model (apps/train_track.py)")
 PREDICTORS.register("dmvfn_lite", PredictorEntry(_dmvfn("dmvfn_lite"), takes_weights=True),
                     source="ours, after Hu et al.: grey, quarter resolution, 3 blocks")
 

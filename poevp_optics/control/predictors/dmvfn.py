@@ -28,6 +28,7 @@ from torch import nn
 
 from poevp_optics.core.exceptions import UserError
 from poevp_optics.control.predictors.base import Predictor
+from poevp_optics.control.predictors.flow import SATURATED
 from poevp_optics.core.paths import ASSETS_DIR
 
 ASSETS = ASSETS_DIR / "predictor"
@@ -278,6 +279,12 @@ class DMVFNPredictor(Predictor):
             return cv2.remap(img, xs + fx, ys + fy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
 
         pred = m * warp(frames[1], fl[0], fl[1]) + (1 - m) * warp(frames[0], fl[2], fl[3])
+        # the clip marker travels with the warp: where at least half of the blend comes from
+        # clipped pixels the prediction is clipped (a blend of 255 and its surround is not a
+        # measurement the mask law may read as unclipped)
+        clipped = [(f >= SATURATED).astype(np.float32) for f in frames]
+        frac = m * warp(clipped[1], fl[0], fl[1]) + (1 - m) * warp(clipped[0], fl[2], fl[3])
+        pred = np.where(frac >= 0.5, np.maximum(pred, 255.0), pred)
         return pred.astype(np.float32)
 
     def describe(self):
@@ -303,10 +310,14 @@ def default_weights(name: str) -> Path:
 
 
 def load_predictor(name: str, weights: Path | None) -> DMVFNPredictor:
-    """`dmvfn` loads full weights if shipped, else falls back to the lite weights (said so)."""
+    """`dmvfn` runs the full network with full weights only: with none given and none shipped
+    (they are trained on a GPU: `poevp train-predictor --model dmvfn`) it refuses in one line,
+    never falling back to another model under its name."""
     cfg = FULL if name == "dmvfn" else LITE
     path = weights or default_weights(name)
     if weights is None and name == "dmvfn" and not path.exists():
-        path, cfg, name = default_weights("dmvfn_lite"), LITE, "dmvfn(lite weights)"
+        raise WeightsError(f"predictor.name = 'dmvfn': the full DMVFN's weights are not shipped ({path} is "
+                           "absent; they need a GPU to train): set predictor.weights to a trained file, or use "
+                           "'dmvfn_lite', 'track_net' or 'flow'")
     model, meta = load_weights(path, expect=cfg)
     return DMVFNPredictor(model, name, path, meta)

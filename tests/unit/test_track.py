@@ -1,0 +1,152 @@
+"""Region trackers (`track`, `track_net`), the clip marker through every predictor and loop mode,
+and `dmvfn` without shipped weights (issue 26)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from poevp_optics.analysis.motion_paths import PathSpec, centres, render_sequence, saturated_centroid
+from poevp_optics.control.loop_step import CLIP_MARKER, resize_keeping_clip
+from poevp_optics.control.predictors import make_predictor
+from poevp_optics.control.predictors.dmvfn import WeightsError
+from poevp_optics.control.predictors.track import closed_form_displacement, region_tracks
+from poevp_optics.control.predictors.track_net import (TrackNet, TrackNetPredictor, default_weights, load_track_net,
+                                                       save_track_net)
+
+
+def test_closed_forms_of_the_extrapolation():
+    # constant velocity, constant acceleration (Newton forward difference), least-squares quadratic
+    np.testing.assert_allclose(closed_form_displacement([(3.0, -1.0)]), (3.0, -1.0))
+    np.testing.assert_allclose(closed_form_displacement([(12.0, 0.0), (10.0, 0.0)]), (14.0, 0.0))
+    # positions of a quadratic x(u) = 10 u + u^2 at u = -3..0: displacements (newest first) 9, 7, 5;
+    # the least-squares quadratic is exact: next displacement x(1) - x(0) = 11
+    np.testing.assert_allclose(closed_form_displacement([(9.0, 0), (7.0, 0), (5.0, 0)]), (11.0, 0.0), atol=1e-12)
+    # a reversal (change larger than the speed) is not read as acceleration: last displacement
+    np.testing.assert_allclose(closed_form_displacement([(-10.0, 0.0), (10.0, 0.0)]), (-10.0, 0.0))
+
+
+def test_measured_chain_is_the_path():
+    """The tracker follows a region back three frames: its displacements equal the path's
+    (sub-pixel phase correlation of the outlines; tolerance 0.6 px: the rounded, clipped edges)."""
+    path = PathSpec("accelerating", 12.0, 30.0, frames=5)
+    seq = render_sequence(path, (184, 320), seed=3)
+    tracks, labels = region_tracks(list(seq.frames[:4]))
+    plate = next(t for t in tracks if labels[int(seq.centre_px[3, 1]), int(seq.centre_px[3, 0])] == t.label)
+    truth = np.diff(seq.centre_px[:4], axis=0)[::-1]              # d_t, d_{t-1}, d_{t-2}
+    assert len(plate.displacements) == 3
+    np.testing.assert_allclose(np.asarray(plate.displacements), truth, atol=0.6)
+
+
+@pytest.mark.parametrize("kind", ["curved", "accelerating", "braking"])
+def test_track_beats_constant_velocity_on_changing_motion(kind):
+    """Where the velocity changes, constant acceleration over the chain is closer than `flow`'s
+    constant velocity: flow's error is the change of displacement per frame (>= 2 px here)."""
+    seq = render_sequence(PathSpec(kind, 32.0, 200.0, frames=6, turn_rad=0.15), (368, 640), seed=5)
+    errs = {}
+    for name in ("flow", "track"):
+        p = make_predictor(name)
+        pred = p(list(seq.frames[1:5]))
+        got = saturated_centroid(pred, seq.centre_px[5], radius=150)
+        errs[name] = float(np.hypot(*(got - saturated_centroid(seq.frames[5], seq.centre_px[5]))))
+    step_change = float(np.hypot(*np.diff(np.diff(seq.centre_px[3:6], axis=0), axis=0)[0]))
+    assert step_change > 2.0
+    assert errs["track"] < errs["flow"] / 1.5, errs
+
+
+def test_track_net_has_no_preferred_direction():
+    """Rotating or mirroring every displacement of the chains rotates or mirrors the prediction
+    (invariant features, coefficients on the displacements): exact to float32 rounding."""
+    torch.manual_seed(0)
+    net = TrackNet()
+    for p in net.parameters():
+        torch.nn.init.normal_(p, std=0.3)                   # a non-trivial network
+    disp = torch.randn(64, 3, 2) * 20
+    valid = (torch.rand(64, 3) > 0.2).float()
+    valid[:, 0] = 1
+    resp = torch.rand(64, 3)
+    out = net(disp, valid, resp)
+    for m in (torch.tensor([[0.0, -1.0], [1.0, 0.0]]), torch.tensor([[-1.0, 0.0], [0.0, 1.0]]),
+              torch.tensor([[0.6, -0.8], [0.8, 0.6]])):
+        np.testing.assert_allclose(net(disp @ m.T, valid, resp).detach(), (out @ m.T).detach(), atol=1e-3)
+
+
+def test_track_net_weights_round_trip_and_errors(tmp_path):
+    net = TrackNet()
+    path = tmp_path / "t.safetensors"
+    save_track_net(net, path, {"note": "x"})
+    loaded, meta = load_track_net(path)
+    assert meta["note"] == "x"
+    for (k, v), (_, w) in zip(net.state_dict().items(), loaded.state_dict().items()):
+        assert torch.equal(v, w), k
+    bad = tmp_path / "bad.safetensors"
+    bad.write_bytes(path.read_bytes()[:100])
+    with pytest.raises(WeightsError, match="not a readable safetensors"):
+        load_track_net(bad)
+    with pytest.raises(WeightsError, match="not found"):
+        load_track_net(tmp_path / "none.safetensors")
+
+
+def test_shipped_track_net_weights_load_with_their_record():
+    model, meta = load_track_net(default_weights())
+    assert {"command", "data", "split", "budget", "test"} <= set(meta)
+    pred = TrackNetPredictor(model, default_weights(), meta)
+    d = pred.describe()
+    assert d["weights"] == "assets/predictor/track_net.safetensors" and len(d["weights_sha256"]) == 16
+
+
+def test_dmvfn_without_shipped_weights_refuses_in_one_line():
+    with pytest.raises(WeightsError) as e:
+        make_predictor("dmvfn")
+    msg = str(e.value)
+    assert "not shipped" in msg and "predictor.weights" in msg and len(msg.splitlines()) == 1
+
+
+# ----------------------------------------------------------------------------- the clip marker
+def _history(mode: str, shape=(92, 160), x0=30, step=6, n=4):
+    """Frames of a 16x24 px clipped region moving `step` px/frame on a gradient, as each loop
+    mode hands them to the predictor: open/raw at the 8-bit clip (255), demodulated lifted above
+    it (a clipped pixel's estimate times the mask's clipped gain, here 22 x 255)."""
+    h, w = shape
+    top = 255.0 if mode in ("open", "raw") else 255.0 * 22
+    frames = []
+    for t in range(n):
+        f = np.tile(np.linspace(20, 120, w, dtype=np.float32), (h, 1))
+        f[40:56, x0 + step * t:x0 + step * t + 24] = top
+        frames.append(f)
+    return frames
+
+
+@pytest.mark.parametrize("mode", ["open", "raw", "demodulated"])
+@pytest.mark.parametrize("name", ["hold", "flow", "track", "track_net", "dmvfn_lite"])
+def test_a_clipped_region_stays_clipped_through_prediction_and_resize(name, mode):
+    """Whatever the predictor and loop mode, the region clipped in the inputs is still at least
+    the clip marker over >= 90 % of its area in the prediction placed on the sensor grid
+    (resized x1.5 bilinear, as the loop does; an unclipped 254 would let the law read it as a
+    measurement)."""
+    hist = _history(mode)
+    pred = make_predictor(name)(hist)
+    on_sensor = resize_keeping_clip(pred, (138, 240))
+    area_sensor = 16 * 24 * 1.5 * 1.5
+    assert np.count_nonzero(on_sensor >= CLIP_MARKER) >= 0.9 * area_sensor, name
+
+
+def test_resize_keeping_clip_marks_half_clipped_footprints():
+    img = np.zeros((4, 4), np.float32)
+    img[:, :2] = 255.0
+    img[:, 2] = 200.0
+    out = resize_keeping_clip(img, (2, 2))                # area average: left half clipped
+    assert (out[:, 0] >= CLIP_MARKER).all() and (out[:, 1] < CLIP_MARKER).all()
+
+
+def test_track_net_training_is_reproducible():
+    """Same command, same data hash and the same weights (seeded data, init and batches; the
+    shipped weights' record names the command and the hashes)."""
+    from poevp_optics.apps.train_track import train_track_net
+
+    kw = dict(train_sequences=6, val_sequences=2, test_sequences=2, frames=6, steps=30, progress=False)
+    a, b = train_track_net(**kw), train_track_net(**kw)
+    assert a["data"] == b["data"] and a["data"]["train"]["samples"] > 10
+    assert a["data"]["train"]["sha256"] != a["data"]["test"]["sha256"]
+    assert a["val"] == b["val"] and a["loss_last_200"] == b["loss_last_200"]
