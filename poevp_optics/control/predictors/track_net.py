@@ -157,10 +157,10 @@ class TrackNetPredictor(RegionTracker):
         return list(out.numpy().astype(np.float64))
 
     def describe(self) -> dict:
-        held = self.meta.get("test", {})
+        held = {k: v["track_net"] for k, v in self.meta.get("test", {}).items() if "track_net" in v}
         return {"name": self.name, **_weights_identity(self.weights_path),
-                "parameters": sum(p.numel() for p in self.model.parameters()),
-                "context_frames": MAX_CHAIN + 1, **({"test": held} if held else {})}
+                "parameters": sum(p.numel() for p in self.model.parameters()), "context_frames": MAX_CHAIN + 1,
+                **({"held_out_median_error_px": held} if held else {})}
 
 
 def load_predictor(weights: Path | None) -> TrackNetPredictor:
