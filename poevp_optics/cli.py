@@ -361,7 +361,7 @@ def _add_evaluate_parser(sub) -> None:
     p.add_argument("--baselines", help="ldr,fusion_classic,fusion_deghost (default all; '' for none)")
     p.add_argument("--search", choices=("frame", "vehicle"), help="ALPR search region (default frame)")
     p.add_argument("--paper-law", dest="paper_law",
-                   choices=("threshold_ratio", "threshold_exp", "exposure_controller", "target"),
+                   choices=("threshold_ratio", "threshold_exp", "threshold_linear", "exposure_controller", "target"),
                    help="ldr_highlight scenes: Eq. 2's reading (default threshold_ratio) or one of ours")
     p.add_argument("--e-reading", dest="e_reading", choices=("display", "linear"),
                    help="E -> plate peak: display (paper Sec. 4.A, 8-bit values x (E+1), default) or linear")

@@ -48,7 +48,7 @@ PAPER_VS, PAPER_A, PAPER_B = 200.0, 0.9, 0.0
 PAPER_LAW = "threshold_ratio"
 #: Paper Sec. 4.A: Eq. 3 multiplies the stored 8-bit values ("pixel values ... beyond 255").
 PAPER_E_DOMAIN = "display"
-PAPER_LAWS = ("threshold_ratio", "threshold_exp")
+PAPER_LAWS = ("threshold_ratio", "threshold_exp", "threshold_linear")
 #: Laws the protocol accepts: Eq. 2's two readings, and this project's (labelled ours in the report).
 PROTOCOL_LAWS = (*PAPER_LAWS, "exposure_controller", "target")
 KIND = "paper"

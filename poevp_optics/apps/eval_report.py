@@ -329,6 +329,10 @@ def law_text(law: str) -> str:
         extra = (f"; on a prediction clipped at 255 it dims by at most a Vs / 255 = {floor:.2f}, so a pixel of "
                  f"stored value O stays clipped where 0.71 O (E G + 1) > 255: at the highlight's centre "
                  f"any O above {ink} at E = 9, 29, 49 (plate ink is ~45 here)")
+    if law == "threshold_linear":
+        keep = 255.0 / (1.0 - PAPER_A)
+        extra = (f"; it dims every pixel above Vs tenfold (transmission 1 - a = {1.0 - PAPER_A:.1f}), so a pixel "
+                 f"stays clipped only where O (E G + 1) > {keep:.0f}")
     return f"mask law Eq. 2 (`{law}` reading) with (Vs, a, b) = (200, 0.9, 0){extra}"
 
 

@@ -4,6 +4,7 @@
 |------------------|----------------------------------------------------------------|-----------|
 | threshold_exp    | M = 255 if x < Vs, else 255 a^((x - b Vs) / (255 - x))          | paper Eq. 2, reading 1 |
 | threshold_ratio  | M = 255 if x < Vs, else 255 (a Vs / x + b)                      | paper Eq. 2, reading 2 |
+| threshold_linear | M = 255 if x < Vs, else 255 - a (x - b Vs) 255 / x              | paper Eq. 2, reading 3 |
 | target           | the largest level whose exposure brings the predicted signal to `target` x full well | ours |
 | exposure_controller | per-region controller: where from the prediction, how bright from past masks and captures; signal into [band_low, band_high] of full scale | ours (exposure_control.py) |
 | white            | M = 255 everywhere (the LDR twin)                               | - |
@@ -12,7 +13,15 @@ The paper's Eq. 2 is garbled in our copy (its second branch's symbols read, in o
 "255 a x b Vs 255 x"). Two readings fit its settings (Vs = 200; (a, b) = (0.9, 0) in
 simulation, (0.7, 0.2) in hardware): the exponential one matches the symbol order and tends to
 0 as x -> 255; the ratio one is the plain physical law (dim by Vs/x) and has a + b = 0.9 in both
-settings. Both are shipped; at x = 255 the exponential law is taken at its limit (0 for a < 1).
+settings. A third reading keeps every printed symbol in its order with the operators a fraction
+bar and a minus restore: "255 - a (x - b Vs) 255 / x", i.e. M = 255 [1 - a (1 - b Vs / x)]: the
+transmission falls from 1 - a (1 - b) at x = Vs towards 1 - a, so with the simulation's (a, b) =
+(0.9, 0) every pixel above Vs is dimmed tenfold (transmission 0.1, whatever x), and with the
+hardware's (0.7, 0.2) from 0.44 at Vs to 0.41 at 255; it is continuous at Vs only when b = 1.
+It is the one reading under which the paper's own simulation (clipped 8-bit predictions, E = 9 to
+49) can unclip a plate at all: the ratio reading dims a clipped pixel by at most a Vs / 255 =
+0.71, the exponential one to 0 (benchmarks/results/table2.md). All three are shipped; at x = 255
+the exponential law is taken at its limit (0 for a < 1).
 Outputs are finite and clipped to [0, 255] everywhere, then scaled to the DMD's 2^B - 1 levels.
 `min_level` (default 0) bars the lowest levels: level 0 passes only the off-state leakage, whose
 value depends on f-number, wavelength and angle (FACTS.md) and so is poorly calibrated for
@@ -83,6 +92,13 @@ def threshold_ratio(x: np.ndarray, vs: float, a: float, b: float) -> np.ndarray:
     """Paper Eq. 2, ratio reading: 255 (a Vs / x + b) above Vs."""
     x = _as_8bit(x)
     m = np.where(x < vs, 255.0, 255.0 * (a * vs / np.maximum(x, 1e-12) + b))
+    return np.clip(m, 0.0, 255.0)
+
+
+def threshold_linear(x: np.ndarray, vs: float, a: float, b: float) -> np.ndarray:
+    """Paper Eq. 2, third reading: 255 - a (x - b Vs) 255 / x above Vs (module docstring)."""
+    x = _as_8bit(x)
+    m = np.where(x < vs, 255.0, 255.0 - a * (x - b * vs) * 255.0 / np.maximum(x, 1e-12))
     return np.clip(m, 0.0, 255.0)
 
 
@@ -250,6 +266,8 @@ MASK_LAWS.register("threshold_exp", _paper_law(threshold_exp),
                    source="paper Eq. 2, exponential reading (module docstring)")
 MASK_LAWS.register("threshold_ratio", _paper_law(threshold_ratio),
                    source="paper Eq. 2, ratio reading (module docstring)")
+MASK_LAWS.register("threshold_linear", _paper_law(threshold_linear),
+                   source="paper Eq. 2, third reading: every printed symbol in order (module docstring)")
 MASK_LAWS.register("target", _target_law, source="ours: the largest level bringing the predicted "
                    "signal to `target` x full well")
 MASK_LAWS.register("exposure_controller", _controller_law,
