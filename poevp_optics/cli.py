@@ -259,7 +259,8 @@ def _eval_config(args):
            "predictors": tuple(args.predictors.split(",")) if args.predictors else None,
            "baselines": tuple(b for b in args.baselines.split(",") if b) if args.baselines is not None else None,
            "search": args.search, "loop_mode": args.loop_mode, "e_reading": args.e_reading,
-           "paper_law": args.paper_law}
+           "paper_law": args.paper_law, "camera": args.camera,
+           "paper_effects": tuple(x for x in args.paper_effects.split(",") if x) if args.paper_effects else None}
     return dataclasses.replace(cfg, **{k: v for k, v in new.items() if v is not None})
 
 
@@ -363,6 +364,12 @@ def _add_evaluate_parser(sub) -> None:
     p.add_argument("--paper-law", dest="paper_law",
                    choices=("threshold_ratio", "threshold_exp", "threshold_linear", "exposure_controller", "target"),
                    help="ldr_highlight scenes: Eq. 2's reading (default threshold_ratio) or one of ours")
+    p.add_argument("--camera", choices=("physical", "paper"),
+                   help="ldr_highlight scenes: this project's camera (default) or the paper's code-value simulation "
+                        "(noiseless Hadamard product, clip at 255: Table 2 like for like)")
+    p.add_argument("--paper-effects", dest="paper_effects",
+                   help="with --camera paper: add dmd_floor,smoothing,noise,linear_light (one at a time attributes "
+                        "the loss from the paper's camera to ours)")
     p.add_argument("--e-reading", dest="e_reading", choices=("display", "linear"),
                    help="E -> plate peak: display (paper Sec. 4.A, 8-bit values x (E+1), default) or linear")
     p.add_argument("--loop-mode", dest="loop_mode", choices=("open", "raw", "demodulated"),

@@ -35,6 +35,8 @@ import json
 import time
 from pathlib import Path
 
+import numpy as np
+
 from poevp_optics.camera.camera import Camera
 from poevp_optics.core.exceptions import UserError
 from poevp_optics.render.radiance import open_source
@@ -71,6 +73,30 @@ def paper_exposures(spec, cam: Camera) -> list:
     return list(open_source(spec, cam.guard_px).exposures(progress=False))
 
 
+def paper_camera_images(runner, spec, cfg):
+    """The paper's own simulation (apps/paper_camera.py) of one E: images, seconds and frame boxes,
+    with the predictors built once in runner.models."""
+    from poevp_optics.apps import paper_camera as pc
+    from poevp_optics.camera.sensor import resolve_sensor
+    from poevp_optics.control.predictors import PREDICTORS, make_predictor
+
+    def model_of(name):
+        if PREDICTORS[name].needs_truth:
+            return None
+        if name not in runner.models:
+            runner.models[name] = make_predictor(name, spec.predictor.weights, spec.predictor.resolution)
+        return runner.models[name]
+
+    seq = pc.paper_sequence(spec)
+    sensor = resolve_sensor(spec.sensor)
+    images, secs = pc.method_images(seq, cfg.methods, spec.mask, pc.effects_from(cfg.paper_effects), model_of,
+                                    contrast_ratio=spec.dmd.contrast_ratio,
+                                    saturation_e=sensor.saturation_capacity_e, read_noise_e=sensor.read_noise_e,
+                                    seed=spec.sensor.seed)
+    boxes = {t: seq.boxes.get(t) for t in range(len(seq.hdr))}
+    return images, {m: float(np.median(v)) if v else 0.0 for m, v in secs.items()}, boxes
+
+
 def run_paper(cfg, runner_cls, score, shift_px, log=print) -> list[dict]:
     """Every row of the paper protocol on cfg.scene: one cell per (E, method), frames from
     loop.init_frames on. `runner_cls(cfg, spec, cam)` builds apps/evaluate.py's Runner; `score`
@@ -88,8 +114,11 @@ def run_paper(cfg, runner_cls, score, shift_px, log=print) -> list[dict]:
         if not any(texts.values()):
             raise UserError(f"{spec.toml_path}: source.boxes: the paper protocol needs plate text "
                             "(the CSV's text column)")
-        images, secs = runner.method_images(ex)
-        boxes = {x.index: cam.box_to_sensor(x.roi) if x.roi else None for x in ex}
+        if getattr(cfg, "camera", "physical") == "paper":
+            images, secs, boxes = paper_camera_images(runner, spec, cfg)
+        else:
+            images, secs = runner.method_images(ex)
+            boxes = {x.index: cam.box_to_sensor(x.roi) if x.roi else None for x in ex}
         meta = {"kind": KIND, "speed_px": 0.0, "direction": 0, "change": "",
                 "measured_px_per_frame": shift_px(ex)}
         rows += score(runner, meta, texts, e, images, secs, boxes)

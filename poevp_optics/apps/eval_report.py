@@ -336,6 +336,15 @@ def law_text(law: str) -> str:
     return f"mask law Eq. 2 (`{law}` reading) with (Vs, a, b) = (200, 0.9, 0){extra}"
 
 
+def camera_text(cfg) -> str:
+    """Which camera formed the paper protocol's images (evaluate --camera)."""
+    if getattr(cfg, "camera", "physical") == "paper":
+        extra = f", plus {', '.join(cfg.paper_effects)}" if cfg.paper_effects else ""
+        return ("the paper's own simulation (apps/paper_camera.py: code values, noiseless per-pixel Hadamard "
+                f"product, cut off at 255, no smoothing, no DMD floor{extra})")
+    return "this project's DMD and sensor (noise, ADC) in place of the paper's noiseless cut-off at 255"
+
+
 def write_paper_tables(out: Path, rows: list[dict], cfg, seconds: float) -> dict:
     """evaluation.md/.csv, frames.csv and report.json of the paper protocol (apps/eval_paper.py)."""
     e_levels = sorted({float(r["E"]) for r in rows})
@@ -363,8 +372,7 @@ def write_paper_tables(out: Path, rows: list[dict], cfg, seconds: float) -> dict
         f"sRGB-decoded, E = 9, 29, 49, R = 50 px at 720x1280; {law_text(cfg.paper_law)}; loop `open` (paper Fig. 3); "
         f"plate text and boxes from the source's CSV ({', '.join(texts)}; the plate moves "
         f"{np.median([r['measured_px_per_frame'] for r in rows]):g} px/frame); frames < 2 (the loop's "
-        f"white start) not scored; this project's DMD and sensor (noise, ADC) in place of the paper's "
-        f"noiseless cut-off at 255. {len(rows)} reads, {seconds:.0f} s. Cells: full ALPR (PP-OCRv4 "
+        f"white start) not scored; {camera_text(cfg)}. {len(rows)} reads, {seconds:.0f} s. Cells: full ALPR (PP-OCRv4 "
         "detection + recognition on the whole frame) "
         "[Wilson 95 %] / recognition only (plate box).",
         *_paper_protocol_md(cells, cfg, e_levels, rendered), "\n## Findings\n", "\n".join(lines) + "\n"]) + "\n"

@@ -86,6 +86,8 @@ class EvalConfig:
     loop_mode: str = "demodulated"    # the scene's; open (paper Fig. 3) reads like hold (module docstring)
     e_reading: str = "display"         # E -> plate peak (peak_gain): paper's display-value reading
     paper_law: str = PAPER_LAW         # ldr_highlight scenes (the paper's protocol): Eq. 2's reading
+    camera: str = "physical"           # ldr_highlight scenes: physical, or the paper's code-value simulation
+    paper_effects: tuple[str, ...] = ()  # --camera paper: physical effects added (apps/paper_camera.py)
     quick: bool = False
 
     @property
@@ -123,6 +125,18 @@ def check_config(cfg: EvalConfig) -> None:
         raise UserError(f"evaluate: --e-reading: {cfg.e_reading!r}; choose from {', '.join(E_READINGS)}")
     if cfg.paper_law not in PROTOCOL_LAWS:
         raise UserError(f"evaluate: --paper-law: {cfg.paper_law!r}; choose from {', '.join(PROTOCOL_LAWS)}")
+    from poevp_optics.apps.paper_camera import CAMERAS, EFFECTS
+
+    if cfg.camera not in CAMERAS:
+        raise UserError(f"evaluate: --camera: {cfg.camera!r}; choose from {', '.join(CAMERAS)}")
+    bad = [n for n in cfg.paper_effects if n not in EFFECTS]
+    if bad:
+        raise UserError(f"evaluate: --paper-effects: unknown {bad}; choose from {', '.join(EFFECTS)}")
+    if (cfg.camera == "paper" or cfg.paper_effects) and not is_paper_scene(cfg.scene):
+        raise UserError(f"evaluate: --camera paper / --paper-effects: {cfg.scene} is not an ldr_highlight scene "
+                        "(the paper's simulation needs its LDR frames)")
+    if cfg.paper_effects and cfg.camera != "paper":
+        raise UserError("evaluate: --paper-effects: only with --camera paper")
     if cfg.frames < 4 or cfg.motion_frames < 6:
         raise UserError("evaluate: --frames: need >= 4 frames (>= 6 for motion kinds): 2 start the loop")
 
