@@ -1,4 +1,4 @@
-"""`poevp` command line: render, validate, compare, chart, sweep, evaluate, train-predictor, info.
+"""`poevp` command line: render, validate, compare, chart, sweep, evaluate, train-predictor, schema, info.
 
 Exit status: 0 done; 1 a sweep finished with failed points (`--allow-failed`: 0); 2 bad input
 (one line on stderr naming the file and key, or the flag; nothing written); 130 Ctrl-C; 143
@@ -337,7 +337,10 @@ def cmd_schema(args) -> int:
 
     text = schema_json()
     if args.out:
-        Path(args.out).write_text(text)
+        try:
+            Path(args.out).write_text(text)
+        except OSError as e:
+            raise UserError(f"--out {args.out}: {e.strerror or e}") from None
         print(f"wrote {args.out}", file=sys.stderr)
     else:
         sys.stdout.write(text)

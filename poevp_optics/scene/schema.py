@@ -6,7 +6,9 @@ from the registries (as registered when the schema is written), min / max (exclu
 level, every section, every table entry), and per `[source] kind` the keys that kind takes
 (scene/validate.py `check_source`). Descriptions carry the unit and the default, so an editor
 (taplo / Even Better TOML: `#:schema ./scene.schema.json` on the first line, or a schema
-association) completes and checks keys. Checks that combine keys or read files (timing fits
+association) completes and checks keys. Only keywords of draft 7 and later's common core are
+used (`items` with min/maxItems for fixed-length arrays, `const`, `if`/`then`, `propertyNames`),
+so older validators read it too. Checks that combine keys or read files (timing fits
 the frame, spectra resolve, files exist) stay with `poevp validate`.
 
 Reference: JSON Schema draft 2020-12, https://json-schema.org/draft/2020-12/json-schema-core
@@ -32,6 +34,9 @@ def _type_schema(tp, meta: dict) -> dict:
         args = get_args(tp)
         if len(args) == 2 and args[1] is Ellipsis:
             return {"type": "array", "items": _type_schema(args[0], meta)}
+        if len(set(args)) == 1:             # homogeneous (every fixed tuple here): `items`, valid in drafts 6-2020-12
+            return {"type": "array", "items": _type_schema(args[0], meta),
+                    "minItems": len(args), "maxItems": len(args)}
         return {"type": "array", "prefixItems": [_type_schema(a, meta) for a in args],
                 "minItems": len(args), "maxItems": len(args), "items": False}
     if tp is bool:
