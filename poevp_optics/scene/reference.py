@@ -279,10 +279,21 @@ def _source_kinds_all() -> tuple[str, ...]:
     return SOURCES.names()
 
 
+#: The package's folders along the chain (DESIGN.md): a params class in one of them is tabled in
+#: its own module; one in a package below them (a stage split into modules) anywhere in it.
+CHAIN_FOLDERS = ("poevp_optics", "core", "scene", "sources", "render", "materials", "camera", "control",
+                 "predictors", "analysis", "apps")
+
+
 def _tables_for(cls) -> dict[str, dict[str, str]]:
-    """The docstring key tables that describe `cls`'s fields: its module's, and for [source]
-    the kind modules' (each kind tables its own keys)."""
+    """The docstring key tables that describe `cls`'s fields: its module's (its package's, for a
+    stage that is a package), and for [source] the kind modules' (each kind tables its own keys)."""
     rows = docstring_tables(sys.modules[cls.__module__].__doc__)
+    package = cls.__module__.rpartition(".")[0]
+    if package.rpartition(".")[2] not in CHAIN_FOLDERS:      # a stage split into a package
+        for name in sorted(m for m in list(sys.modules) if m == package or m.startswith(package + ".")):
+            for key, row in docstring_tables(sys.modules[name].__doc__).items():
+                rows.setdefault(key, row)
     if cls.__name__ == "SourceSpec":
         from poevp_optics.sources.kinds import SOURCES
 

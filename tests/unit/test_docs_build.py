@@ -24,3 +24,16 @@ def test_docs_build_strict(tmp_path):
         pages = " ".join(p.read_text() for p in (site / "results").glob("*/index.html"))
         assert md.name in pages, md.name
     assert (site / "results" / "evaluate_predictors" / "examples.png").is_file()
+
+
+def test_readme_is_short_and_its_links_resolve():
+    import re
+
+    readme = (ROOT / "README.md").read_text()
+    assert len(readme.splitlines()) <= 150
+    assert "## What poevp guarantees" in readme and "make demo" in readme and "make test" in readme
+    links = re.findall(r"\]\(([^)#]+)(?:#[^)]*)?\)", readme)
+    assert len(links) >= 10
+    for link in links:
+        if not link.startswith("http"):
+            assert (ROOT / link).exists(), link
