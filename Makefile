@@ -3,7 +3,7 @@ VENV := .venv
 POEVP := $(VENV)/bin/poevp
 PYTEST := $(VENV)/bin/python -m pytest
 
-.PHONY: install demo test bench clean
+.PHONY: install demo test bench docs clean
 
 install:
 	bash scripts/setup.sh
@@ -17,5 +17,9 @@ test: install
 bench: install
 	$(VENV)/bin/python -m benchmarks
 
+# The documentation site (docs/, mkdocs.yml) into site/; warnings are errors.
+docs: install
+	NO_MKDOCS_2_WARNING=1 $(VENV)/bin/mkdocs build --strict
+
 clean:
-	rm -rf out build *.egg-info
+	rm -rf out build site *.egg-info

@@ -1,4 +1,4 @@
-"""`poevp` command line: render, validate, compare, chart, sweep, evaluate, train-predictor, info.
+"""`poevp` command line: render, validate, compare, chart, sweep, evaluate, train-predictor, schema, info.
 
 Exit status: 0 done; 1 a sweep finished with failed points (`--allow-failed`: 0); 2 bad input
 (one line on stderr naming the file and key, or the flag; nothing written); 130 Ctrl-C; 143
@@ -332,6 +332,22 @@ def cmd_info(args) -> int:
     return 0
 
 
+def cmd_schema(args) -> int:
+    """`poevp schema`: the JSON Schema of scene.toml (scene/schema.py) to stdout or --out."""
+    from poevp_optics.scene.schema import schema_json
+
+    text = schema_json()
+    if args.out:
+        try:
+            Path(args.out).write_text(text)
+        except OSError as e:
+            raise UserError(f"--out {args.out}: {e.strerror or e}") from None
+        print(f"wrote {args.out}", file=sys.stderr)
+    else:
+        sys.stdout.write(text)
+    return 0
+
+
 def _add_cluster_options(p) -> None:
     """`poevp sweep` on an existing Dask cluster (apps/cluster.py, apps/bundle.py)."""
     where = p.add_mutually_exclusive_group()
@@ -443,6 +459,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--weights-out", help="default: assets/predictor/<name>.safetensors")
     p.add_argument("--threads", type=_positive_int)
     p.set_defaults(func=cmd_train)
+
+    p = sub.add_parser("schema", help="JSON Schema of scene.toml (for editors: taplo, Even Better TOML)")
+    p.add_argument("--out", help="write it to this file (default: stdout)")
+    p.set_defaults(func=cmd_schema)
 
     p = sub.add_parser("info", help="versions, Mitsuba variant, libLLVM, devices")
     p.add_argument("--json", action="store_true")
