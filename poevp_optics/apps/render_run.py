@@ -72,31 +72,6 @@ class RunResult:
     timeline: str | None = None          # the timeline figure's file name (apps/timeline.py)
 
 
-def _shown_mask(clock, decision, i: int, rec: dict):
-    """The mask the DMD shows in frame i's window (timing_budget.MaskClock) and the capture's
-    switch argument for a late mask; the frame's budget record goes into `rec`."""
-    shown = clock.show(i, decision.levels, decision.init, decision.predict_seconds)
-    if shown.record and not shown.record.get("init"):
-        rec["timing_budget"] = {k: v for k, v in shown.record.items() if k != "frame"}
-    switch = (shown.late, shown.switch_s) if shown.late is not None else None
-    return shown.levels, switch
-
-
-def _attenuator_setting(spec, camera: Camera, step: LoopStep, decision, i: int, rec: dict) -> float:
-    """The global attenuator's transmission in frame i (camera/attenuator.py): the decision's,
-    unless its command (sent when the mask's compute ends) settles after the exposure starts;
-    budget.late_mask = 'ideal' takes it as on time, like the mask."""
-    if not spec.attenuator.enabled:
-        return 1.0
-    budget = rec.get("timing_budget")
-    command_s = None
-    if budget and spec.budget.late_mask != "ideal":
-        command_s = budget["compute_start_s"] + budget["compute_s"]
-    rec["attenuator"] = step.attenuator_state.apply(decision.transmission, command_s,
-                                                    camera.timing.exposure_window_s(i)[0])
-    return rec["attenuator"]["transmission"]
-
-
 def _capture(spec, camera: Camera, step: LoopStep | None, ex: RenderedExposure, res: RunResult) -> FrameCapture:
     """LDR twin (DMD all white), the loop's mask, the encoded capture and its reconstruction."""
     i = ex.index
@@ -110,22 +85,19 @@ def _capture(spec, camera: Camera, step: LoopStep | None, ex: RenderedExposure, 
     oracle_g = 1.0
     enc = ldr
     if camera.dmd:
+        cmd = step.command(i, truth)
+        rec.update(cmd.record)
+        if cmd.decision.predict_seconds is not None:
+            res.predict_seconds.append(cmd.decision.predict_seconds)
         tm = time.perf_counter()
-        oracle, oracle_g = oracle_decision(camera, spec.mask, truth, i, spec.attenuator)
+        if step.needs_truth and not cmd.decision.init:   # the oracle's own decision: not computed twice
+            oracle, oracle_g = cmd.decision.levels, cmd.decision.transmission
+        else:
+            oracle, oracle_g = oracle_decision(camera, spec.mask, truth, i, spec.attenuator)
         res.stage_seconds["mask"] += time.perf_counter() - tm
-        decision = step.next_mask(i, truth)
-        mask = decision.levels
-        if decision.init:
-            rec["init"] = True
-        if decision.fallback_px:
-            rec["prediction_fallback_pixels"] = decision.fallback_px     # held the last frame there
-        if decision.predict_seconds is not None:
-            res.predict_seconds.append(decision.predict_seconds)
-            rec["predict_seconds"] = decision.predict_seconds
-        mask, switch = _shown_mask(step.clock, decision, i, rec)
-        g = _attenuator_setting(spec, camera, step, decision, i, rec)
+        mask = cmd.levels
         enc = camera.capture(subs, mask, i, capture_seed(spec.sensor.seed, spec.render.seed, i, ENCODED_STREAM),
-                             **timing, **({"switch": switch} if switch else {}), transmission=g)
+                             **timing, **({"switch": cmd.switch} if cmd.switch else {}), transmission=cmd.transmission)
     for k in ("dmd", "relay", "sensor"):
         res.stage_seconds[k] += enc.seconds[k]
     if camera.objective is not None:         # the LDR twin formed the image; the encoded capture reuses it

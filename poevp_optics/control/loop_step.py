@@ -187,9 +187,30 @@ class MaskDecision:
     transmission: float = 1.0        # the global attenuator's commanded setting (camera/attenuator.py)
 
 
+@dataclass(frozen=True)
+class DMDCommand:
+    """What the DMD and the attenuator do in one frame's exposure window (mirror grid): the levels
+    shown from the window's start; a late mask (`late_levels`) replaces them at `switch_s` after
+    the start (timing_budget.MaskClock); the attenuator's transmission once its command settled
+    (camera/attenuator.py); `record` holds the frame's loop entries for report.json (init,
+    prediction_fallback_pixels, predict_seconds, timing_budget, attenuator)."""
+
+    levels: np.ndarray
+    late_levels: np.ndarray | None
+    switch_s: float | None
+    transmission: float
+    record: dict
+    decision: MaskDecision
+
+    @property
+    def switch(self) -> tuple | None:
+        """Camera.capture's `switch` argument: (late levels, switch time s), or None."""
+        return (self.late_levels, self.switch_s) if self.late_levels is not None else None
+
+
 class LoopStep:
     """The closed loop's state and its per-frame step (module docstring). State is real here:
-    the history of what the predictor has seen."""
+    the history of what the predictor has seen, the mask clock and the attenuator's setting."""
 
     HISTORY = 4
 
@@ -200,6 +221,7 @@ class LoopStep:
         reaches the DMD and what each window shows. attenuator: the global variable ND whose
         setting each decision carries (camera/attenuator.py)."""
         self.camera, self.mask, self.loop, self.predictor_spec = camera, mask, loop, predictor
+        self.budget = budget
         self.attenuator = attenuator
         self.attenuator_state = AttenuatorState(attenuator)
         self.needs_truth = PREDICTORS[predictor.name].needs_truth
@@ -225,6 +247,40 @@ class LoopStep:
         levels, g = predicted_decision(self.camera, self.mask, resize_keeping_clip(pred, self.camera.shape), index,
                                        self.controller, self.loop.mode in MASKED_MODES, self.attenuator)
         return MaskDecision(levels, False, time.perf_counter() - t0, n_bad, transmission=g)
+
+    def command(self, index: int, truth: np.ndarray | None = None) -> DMDCommand:
+        """The DMD command of frame `index`: the mask decision (`next_mask`), what the DMD shows
+        of it in the frame's window given when its compute ends (the mask clock), and the
+        attenuator's transmission then."""
+        decision = self.next_mask(index, truth)
+        rec: dict = {}
+        if decision.init:
+            rec["init"] = True
+        if decision.fallback_px:
+            rec["prediction_fallback_pixels"] = decision.fallback_px     # held the last frame there
+        if decision.predict_seconds is not None:
+            rec["predict_seconds"] = decision.predict_seconds
+        shown = self.clock.show(index, decision.levels, decision.init, decision.predict_seconds)
+        if shown.record and not shown.record.get("init"):
+            rec["timing_budget"] = {k: v for k, v in shown.record.items() if k != "frame"}
+        g = self._attenuator_setting(decision, index, rec)
+        late = shown.late is not None
+        return DMDCommand(shown.levels, shown.late if late else None, shown.switch_s if late else None, g, rec,
+                          decision)
+
+    def _attenuator_setting(self, decision: MaskDecision, index: int, rec: dict) -> float:
+        """The attenuator's transmission in frame `index`: the decision's, unless its command
+        (sent when the mask's compute ends) settles after the exposure starts; budget.late_mask
+        = 'ideal' takes it as on time, like the mask."""
+        if not self.attenuator.enabled:
+            return 1.0
+        budget = rec.get("timing_budget")
+        command_s = None
+        if budget and self.budget.late_mask != "ideal":
+            command_s = budget["compute_start_s"] + budget["compute_s"]
+        rec["attenuator"] = self.attenuator_state.apply(decision.transmission, command_s,
+                                                        self.camera.timing.exposure_window_s(index)[0])
+        return rec["attenuator"]["transmission"]
 
     def observe(self, index: int, ldr, enc, est, flags) -> None:
         """Take what the camera saw of frame `index` into the predictor's history and the
