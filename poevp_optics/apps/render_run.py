@@ -15,8 +15,8 @@ import numpy as np
 
 from poevp_optics.analysis.metrics import (crop, entropy_8bit, mask_iou, plate_white_fraction, relative_error,
                                           saturated_fraction, to_8bit)
-from poevp_optics.apps import night_road
 from poevp_optics.apps.outputs import OutputWriter, mask_png
+from poevp_optics.apps.report_extensions import active as report_extensions
 from poevp_optics.apps.run_report import build_report
 from poevp_optics.apps.temporal_check import temporal_error
 from poevp_optics.camera.camera import Camera
@@ -70,6 +70,7 @@ class RunResult:
     mid_frame: tuple | None = None
     write_seconds: float = 0.0
     timeline: str | None = None          # the timeline figure's file name (apps/timeline.py)
+    extensions: list = field(default_factory=list)   # the scene's report extensions and their state
 
 
 def _capture(spec, camera: Camera, step: LoopStep | None, ex: RenderedExposure, res: RunResult) -> FrameCapture:
@@ -185,18 +186,21 @@ def simulate(spec, camera: Camera, step: LoopStep | None, exposures, *, writer: 
     res = RunResult()
     mid = spec.timing.frames // 2
     causal = step is not None and not step.needs_truth
-    road_laws = night_road.scene_laws(spec) if spec.has_road else None
+    extensions = res.extensions = report_extensions(spec, causal)
     for ex in exposures:
         fc = _capture(spec, camera, step, ex, res)
         if ex.index == mid and not ex.basis and not spec.is_static:
             res.mid_frame = (ex, fc.mask)
         _metrics(camera, fc)
-        if road_laws is not None:
-            fc.record["plate"] = night_road.frame_record(spec, camera, fc, road_laws)
+        for ext, state in extensions:
+            if ext.frame is not None and not ext.after_observe:
+                fc.record[ext.key] = ext.frame(spec, camera, fc, step, state)
         if causal:
             step.observe(ex.index, fc.ldr, fc.enc, fc.est, fc.flags)
-            if spec.mask.law == "exposure_controller":
-                fc.record["exposure_controller"] = step.controller.summary()
+        for ext, state in extensions:
+            if ext.frame is not None and ext.after_observe:
+                fc.record[ext.key] = ext.frame(spec, camera, fc, step, state)
+        if causal:
             _against_oracle(spec, camera, fc)
         if camera.dmd:
             _law_comparison(spec, camera, fc, res, causal)
@@ -270,12 +274,9 @@ def run_frames(spec, out_dir: Path, progress: bool = True, *, renderer=None,
     else:
         temporal = temporal_error(spec, renderer, camera, *(res.mid_frame or (None, None)))
     report = build_report(spec, renderer, camera, step, res, setup_s=setup_s, t_run=t_run, temporal=temporal)
-    if spec.has_road:
-        report["night_road"] = night_road.summary(spec, camera, report["per_frame"])
-        report["notes"].append(f"night road: {report['night_road']['statement']}")
-        if write_images:
-            night_road.plot(out_dir / "night_road.png", report["night_road"],
-                            f"{spec.name}: plate peak over saturation vs distance")
+    for ext, _ in res.extensions:
+        if ext.finish is not None:
+            ext.finish(spec, camera, report, out_dir, write_images)
     write_report(out_dir, report)
     return report, res.kept
 
