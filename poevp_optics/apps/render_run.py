@@ -298,6 +298,10 @@ def run_frames(spec, out_dir: Path, progress: bool = True, *, renderer=None,
     else:
         temporal = temporal_error(spec, renderer, camera, *(res.mid_frame or (None, None)))
     report = build_report(spec, renderer, camera, step, res, setup_s=setup_s, t_run=t_run, temporal=temporal)
+    if spec.defaults_applied:          # the best loop the scene did not choose (scene/defaults.py)
+        report["defaults_applied"] = list(spec.defaults_applied)
+        report["notes"].append("defaults applied (the scene chose no mask law / loop mode / predictor): "
+                               + ", ".join(spec.defaults_applied))
     if spec.has_road:
         report["night_road"] = night_road.summary(spec, camera, report["per_frame"])
         report["notes"].append(f"night road: {report['night_road']['statement']}")
