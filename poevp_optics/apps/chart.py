@@ -416,6 +416,9 @@ def run_chart(spec: SceneSpec, out_dir: Path, progress: bool = True) -> dict:
                         "write": {"seconds": write_s}}
     report["total_seconds"] = time.perf_counter() - t_run
     write_report(out_dir, report)
+    from poevp_optics.apps.report_html import write_report_html
+
+    write_report_html(out_dir, report)                  # the images, DR curves and notes to look at
     return report
 
 

@@ -309,6 +309,10 @@ def run_frames(spec, out_dir: Path, progress: bool = True, *, renderer=None,
             night_road.plot(out_dir / "night_road.png", report["night_road"],
                             f"{spec.name}: plate peak over saturation vs distance")
     write_report(out_dir, report)
+    if write_images:
+        from poevp_optics.apps.report_html import write_report_html
+
+        write_report_html(out_dir, report, spec.plate.text)
     return report, res.kept
 
 
