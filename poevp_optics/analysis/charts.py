@@ -14,7 +14,7 @@ so the noise near black is not rectified); per patch, the mean over its inner pi
 captures, and sigma_t the RMS over pixels of the per-pixel standard deviation across captures
 (fixed-pattern noise excluded, as ISO 15739 asks). L dS/dL = dS/d ln L is a finite difference
 over the patch sequence (a constant flare pedestal drops out of it, its shot noise does not).
-The relay's flare pedestal on each patch (light spread from its neighbours) is subtracted
+The optics' flare pedestal on each patch (light spread from its neighbours) is subtracted
 from S before the difference, as a flare measurement on a black surround would allow. L_min is interpolated in log-log between the patches around the threshold. L_max: the standard
 takes the brightest unclipped patch; since the response is linear we refine it within one patch
 step to that patch's saturation luminance, L x (clip level / S) (reported with the
@@ -91,7 +91,7 @@ class PatchTable:
     clipped: np.ndarray        # bool
     snr: np.ndarray            # incremental SNR (NaN where clipped)
     mean_electrons: np.ndarray # mean signal electrons (flare included)
-    flare_electrons: np.ndarray  # noise-free electrons from the relay PSF's spread, mean
+    flare_electrons: np.ndarray  # noise-free electrons spread in by the optics (objective, relay), mean
     pixels: np.ndarray
     pedestal: np.ndarray       # relay flare pedestal, in the patch's estimate unit
 
@@ -243,11 +243,17 @@ LIMIT_WORDS = {"white_fill": "the DMD's white fill outside its display window",
                "mask_bit_depth": "the mask bit depth (smallest PWM step)",
                "chart": "the chart itself (its densest or clearest patch)",
                "sensor_noise": "sensor temporal noise (read, dark, quantisation)",
-               "relay_flare": "relay flare (light spread from brighter patches by the PSF)"}
+               "relay_flare": "relay flare (light spread from brighter patches by the relay's PSF and glare)",
+               "objective_flare": "objective flare (light spread from brighter patches by the objective's "
+                                  "PSF and veiling glare, before the DMD)",
+               "optics_flare": "flare of the objective and the relay (light spread from brighter patches)"}
 
 
-def attribute(ldr: dict, enc: dict, parts: dict, table_enc: PatchTable, noise_floor_e: float) -> dict:
-    """Which limit binds each end of the encoded DR, with the numbers behind it."""
+def attribute(ldr: dict, enc: dict, parts: dict, table_enc: PatchTable, noise_floor_e: float,
+              flare: tuple[str, str] = ("relay_flare", "")) -> dict:
+    """Which limit binds each end of the encoded DR, with the numbers behind it. `flare`: the
+    LIMIT_WORDS key of the optics that spread the light (apps/chart.py flare_source) and the
+    words naming them ("" : LIMIT_WORDS')."""
     upper = parts["binding"]
     if enc.get("limited_by_chart", {}).get("top"):
         upper = "chart"
@@ -256,15 +262,16 @@ def attribute(ldr: dict, enc: dict, parts: dict, table_enc: PatchTable, noise_fl
         lower = "chart"
     elif enc.get("l_min_cd_m2"):
         j = int(np.argmin(np.abs(np.log(table_enc.luminance_cd_m2 / enc["l_min_cd_m2"]))))
-        flare = max(table_enc.flare_electrons[j], 0.0)
-        if flare > noise_floor_e ** 2:                   # flare shot noise above the dark noise
-            lower = "relay_flare"
+        spread_e = max(table_enc.flare_electrons[j], 0.0)
+        if spread_e > noise_floor_e ** 2:                   # flare shot noise above the dark noise
+            lower = flare[0]
     gain = None
     if ldr.get("l_max_cd_m2") and enc.get("l_max_cd_m2"):
         gain = float(20 * math.log10(enc["l_max_cd_m2"] / ldr["l_max_cd_m2"]))
     return {"upper_end": upper, "lower_end": lower, "measured_gain_db": gain,
             "available_gain_db": parts["gain_db"], "transmission_floor": parts["floor"],
             "floor_parts": parts["parts"],
-            "explanation": (f"upper end set by {LIMIT_WORDS[upper]}; lower end by {LIMIT_WORDS[lower]}. "
+            "explanation": (f"upper end set by {LIMIT_WORDS[upper]}; lower end by "
+                            f"{flare[1] if lower == flare[0] and flare[1] else LIMIT_WORDS[lower]}. "
                             f"The darkest usable mask level passes {parts['floor']:.3g} of white "
                             f"({parts['gain_db']:.1f} dB of headroom above the LDR saturation)")}

@@ -157,19 +157,50 @@ def measure_camera(spec: SceneSpec, truth_field, regions, lum, dens, true_sig) -
         floor_e = charts.sensor_noise_floor_e(cam.params, spec.timing.exposure_s)
         res["limits"] = charts.attribute(res["details"]["ldr"]["iso15739"],
                                          res["details"]["encoded"]["iso15739"], res["parts"],
-                                         res["tables"]["encoded"], floor_e)
+                                         res["tables"]["encoded"], floor_e, flare_source(cam))
     res["psf"] = cam.psf.name if cam.psf is not None else "delta"
     res["psf_truncation"] = cam.psf.truncation_error if cam.psf is not None else 0.0
     if cam.objective is not None:
-        res["objective"] = objective_limit(cam, truth, regions, dens, res)
+        res["objective"] = objective_limit(cam, truth, regions, dens, res, spec.chart.roi_inset_px)
     res["seconds"] = time.perf_counter() - t0
     return res
 
 
-def objective_limit(cam: Camera, truth, regions, dens, res: dict) -> dict:
+def flare_source(cam: Camera) -> tuple[str, str]:
+    """(charts.LIMIT_WORDS key, words) of the optics whose spread is the chart's flare (the
+    capture minus the pinhole image, `_measure`): the objective's PSF (unless `delta`) and
+    veiling glare g (before the DMD), the relay's PSF (unless `delta`) and glare."""
+    obj, rel = [], []
+    o, r = cam.objective, cam.relay_spec
+    if o is not None and o.psf != "delta":
+        obj.append(f"the objective's {o.psf} PSF")
+    if o is not None and o.glare_fraction > 0:
+        obj.append(f"the objective's veiling glare (g = {o.glare_fraction:g}, before the DMD: no mask lowers it)")
+    if r.psf != "delta":
+        rel.append(f"the relay's {r.psf} PSF")
+    if r.glare_fraction > 0:
+        rel.append(f"the relay's glare (g = {r.glare_fraction:g})")
+    key = "optics_flare" if obj and rel else "objective_flare" if obj else "relay_flare"
+    spread = " and ".join(obj + rel) or "no optic (a pinhole image: only resampling spreads light)"
+    return key, f"flare (light spread from brighter patches) by {spread}"
+
+
+def whole_patch_area(region: np.ndarray, inset_px: int) -> int:
+    """A rectangular patch's whole area (px) from its measuring region, which
+    charts.patch_regions eroded by `inset_px`: the region's bounding box grown by the inset on
+    each side (the corners a noisy selection drops do not shrink it)."""
+    ys, xs = np.nonzero(region)
+    return int((ys.max() - ys.min() + 1 + 2 * inset_px) * (xs.max() - xs.min() + 1 + 2 * inset_px))
+
+
+def objective_limit(cam: Camera, truth, regions, dens, res: dict, inset_px: int = 0) -> dict:
     """How the objective's veiling glare limits the encoded DR (objective.glare_floor). Two
-    floors: the ISO 9358 VGI of the darkest patch in a white surround (a black disc of the patch's
-    equivalent radius sqrt(area / pi), mirrors: the closed form), and this chart's own: the glare
+    floors: the VGI of the darkest patch in a white surround, and this chart's own. The VGI
+    (ISO 9358:1994, read as ISO 18844:2017 reads flare: at the centre of the black patch, the
+    patch being the chart's element, not its measuring region) is the closed form for a black
+    disc of the *whole* patch's equivalent radius sqrt(area / pi) in mirrors (`whole_patch_area`);
+    the inset measuring region's radius (reported as measuring_radius_px) would give a VGI
+    11-34 % higher on dr_chart36. The chart's own floor: the glare
     the halo brings onto the darkest patch from every patch, g (H * x) (x the pinhole image),
     over the brightest patch's radiance. Glare is in the image the mirrors see, so the mask
     cannot lower either: a patch darker than the floor relative to the brightest gets more glare
@@ -180,8 +211,11 @@ def objective_limit(cam: Camera, truth, regions, dens, res: dict) -> dict:
 
     dark, bright = int(np.argmax(dens)), int(np.argmin(dens))
     scale = cam.registration.scale if cam.dmd is not None else 1.0
-    rho = math.sqrt(float(regions[dark].sum()) / math.pi) / scale
+    rho = math.sqrt(whole_patch_area(regions[dark], inset_px) / math.pi) / scale
     out = {**cam.objective_summary(), "glare": glare_floor(cam.objective, cam.mirror_shape, rho)}
+    out["glare"].update(black_patch="whole patch (ISO 18844): equivalent radius of the darkest patch's "
+                                    "rectangle; the VGI is read at its centre",
+                        measuring_radius_px=math.sqrt(float(regions[dark].sum()) / math.pi) / scale)
     glare_db = out["glare"]["floor_db"]
     if cam.objective.glare_fraction > 0:
         from poevp_optics.camera.objective import convolve_reflect, glare_kernel
@@ -416,6 +450,9 @@ def run_chart(spec: SceneSpec, out_dir: Path, progress: bool = True) -> dict:
                         "write": {"seconds": write_s}}
     report["total_seconds"] = time.perf_counter() - t_run
     write_report(out_dir, report)
+    from poevp_optics.apps.report_html import write_report_html
+
+    write_report_html(out_dir, report)                  # the images, DR curves and notes to look at
     return report
 
 

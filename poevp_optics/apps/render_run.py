@@ -274,10 +274,18 @@ def run_frames(spec, out_dir: Path, progress: bool = True, *, renderer=None,
     else:
         temporal = temporal_error(spec, renderer, camera, *(res.mid_frame or (None, None)))
     report = build_report(spec, renderer, camera, step, res, setup_s=setup_s, t_run=t_run, temporal=temporal)
+    if spec.defaults_applied:          # the best loop the scene did not choose (scene/defaults.py)
+        report["defaults_applied"] = list(spec.defaults_applied)
+        report["notes"].append("defaults applied (the scene chose no mask law / loop mode / predictor): "
+                               + ", ".join(spec.defaults_applied))
     for ext, _ in res.extensions:
         if ext.finish is not None:
             ext.finish(spec, camera, report, out_dir, write_images)
     write_report(out_dir, report)
+    if write_images:
+        from poevp_optics.apps.report_html import write_report_html
+
+        write_report_html(out_dir, report, spec.plate.text)
     return report, res.kept
 
 

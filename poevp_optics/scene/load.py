@@ -18,6 +18,7 @@ from typing import Any
 from poevp_optics.core.exceptions import SceneError
 from poevp_optics.core.params import Where, parse_params
 from poevp_optics.scene import validate
+from poevp_optics.scene.defaults import apply_best_loop
 from poevp_optics.scene.spec import SECTIONS, TABLE_SECTIONS, TOP_KEYS, SceneSpec
 
 
@@ -130,6 +131,8 @@ def build_spec(raw: dict, path: Path, ctx: Where | None = None, *, cross_checks:
                 raise ctx.fail(k, "expected a table")
         elif k not in TOP_KEYS:
             raise ctx.fail(k, f"unknown section (known: {', '.join([*SECTIONS, *TABLE_SECTIONS])})")
+    user_raw = raw
+    raw, defaults_applied = apply_best_loop(raw)     # a scene that does not choose its loop (defaults.py)
     description = raw.get("description", "")
     if not isinstance(description, str):
         raise ctx.fail("description", "expected a string")
@@ -179,6 +182,7 @@ def build_spec(raw: dict, path: Path, ctx: Where | None = None, *, cross_checks:
     return SceneSpec(name=scene_name(path), toml_path=path, xml_path=xml_path,
                      description=description, motion=tables["motion"], spectra=spectra_,
                      flicker=tables["flicker"], sheeting=tables["sheeting"],
-                     raw=MappingProxyType(raw), origin=ctx.origin, **sec)
+                     raw=MappingProxyType(user_raw), origin=ctx.origin, defaults_applied=defaults_applied,
+                     **sec)
 
 

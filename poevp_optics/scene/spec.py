@@ -88,6 +88,7 @@ class SceneSpec:
     attenuator: AttenuatorSpec
     raw: Mapping[str, Any]
     origin: str = ""               # the file and the --set overrides it was read with (messages)
+    defaults_applied: tuple[str, ...] = ()  # "section.key=value" of the best loop the scene did not choose (defaults.py)
 
     @property
     def accuracy(self) -> Accuracy:

@@ -105,6 +105,7 @@ def test_relay_flare_lowers_the_encoded_dr(tmp_path, default_run):
     base = default_run[0]["dynamic_range_db"]["encoded"]["iso15739"]
     assert r["dynamic_range_db"]["encoded"]["iso15739"] < base - 3
     assert r["limits"]["lower_end"] == "relay_flare"
+    assert "by the relay's glare (g = 0.05)" in r["limits"]["explanation"]      # the optic that spreads it
     # the LDR camera, with unattenuated patches 1e3 x saturation, is flooded by the glare
     assert r["dynamic_range_db"]["ldr"]["iso15739"] < 40
 
@@ -156,8 +157,8 @@ def test_objective_glare_floor_is_reported_and_matches_its_closed_form(tmp_path,
     from scipy.integrate import quad
 
     g, rc_deg, ro_deg, n = 0.02, 0.05, 5.0, 2.0
-    r, _ = chart(tmp_path, "objective.glare_fraction=0.02", "objective.glare_core_radius_deg=0.05",
-                 "objective.glare_outer_radius_deg=5.0")
+    r, out = chart(tmp_path, "objective.glare_fraction=0.02", "objective.glare_core_radius_deg=0.05",
+                   "objective.glare_outer_radius_deg=5.0")
     o = r["objective"]
     rho = o["glare"]["black_radius_px"]
     f_px = 0.025 / 7.56e-6                            # focal length in mirrors (objective defaults)
@@ -170,6 +171,28 @@ def test_objective_glare_floor_is_reported_and_matches_its_closed_form(tmp_path,
     beyond = quad(lambda x: 2 * math.pi * x * halo(x), rho, ro, points=[rc] if rho < rc else None, limit=200)[0]
     vgi = g * beyond / total
     assert o["glare"]["vgi"] == pytest.approx(vgi, rel=1e-6)
+    # rho is the whole darkest patch's (ISO 18844: the black patch, not its measuring region):
+    # the layout's 20 mm patches at a 25 mm pitch (scene.xml) make its side 0.8 x the pitch of
+    # the two densest patches' centroids in the written radiance; within a pixel a side
+    import cv2
+    from poevp_optics.core.io import read_exr
+
+    y = read_exr(out / "radiance.exr")[0]["Y"].astype(np.float64)
+    dark2 = sorted(r["patches"]["encoded"], key=lambda p: -p["density"])[:2]
+    cents = []
+    for row in dark2:
+        sel = (np.abs(y - row["true_signal"]) <= 1e-3 * row["true_signal"]).astype(np.uint8)
+        _, _, stats, cen = cv2.connectedComponentsWithStats(sel)
+        cents.append(cen[1 + np.argmax(stats[1:, 4])])
+    side = 0.8 * float(np.hypot(*(cents[0] - cents[1])))          # sensor px
+    px_per_mirror = math.sqrt(dark2[0]["pixels"] / math.pi) / o["glare"]["measuring_radius_px"]
+    whole_side = math.sqrt(math.pi) * rho * px_per_mirror            # the square of the report's disc
+    assert abs(whole_side - side) <= 1.0, (whole_side, side)
+    assert rho > o["glare"]["measuring_radius_px"]
+    # the lower end names the optic that spreads the light: the objective's veiling glare
+    if r["limits"]["lower_end"] != "sensor_noise":
+        assert r["limits"]["lower_end"] == "objective_flare"
+        assert "the objective's veiling glare (g = 0.02" in r["limits"]["explanation"]
     assert o["glare"]["floor_db"] == pytest.approx(-20 * math.log10(vgi), abs=1e-6)
     assert o["dmd_floor_db"] == pytest.approx(r["limits"]["available_gain_db"])
     cap = r["dynamic_range_db"]["ldr"]["iso15739"] + o["dmd_floor_db"]

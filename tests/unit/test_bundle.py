@@ -25,6 +25,12 @@ from poevp_optics.scene.load import load_scene
 from tests.conftest import SCENES
 
 
+def _smoke_toml() -> str:
+    """smoke's scene.toml without its last section, the pinned [predictor] (the fixtures name their own)."""
+    toml = (SCENES / "smoke" / "scene.toml").read_text()
+    return toml[:toml.rindex("[predictor]")]
+
+
 @pytest.fixture
 def client_scene(tmp_path):
     """smoke, rearranged as users arrange scenes: the XML in a sibling folder (`../shared`),
@@ -39,7 +45,7 @@ def client_scene(tmp_path):
     lamp.parent.mkdir()
     wl = np.arange(380, 781, 5)
     lamp.write_text("wavelength_nm,value\n" + "".join(f"{w},{1 + 0.001 * (w - 380)}\n" for w in wl))
-    toml = (SCENES / "smoke" / "scene.toml").read_text()
+    toml = _smoke_toml()
     toml = toml.replace('source = "cie:LED-B4"', f'source = "file:{lamp}"')
     toml = toml.replace("[render]\n", '[render]\nxml = "../shared/scene.xml"\n')
     toml += '\n[predictor]\nname = "dmvfn_lite"\nweights = "w/lite.safetensors"\nresolution = [48, 64]\n'
@@ -234,7 +240,7 @@ def lamp_sheet_scene(tmp_path):
     (folder / "tables" / "sheet.csv").write_text(
         "# efficiency = 0.3\nalpha_deg,beta_deg,ra_cd_per_lx_m2\n"
         + "".join(f"{a},{b},{v}\n" for b, row in ra.items() for a, v in row.items()))
-    toml = (SCENES / "smoke" / "scene.toml").read_text()
+    toml = _smoke_toml()
     lamp = toml[toml.index("[spectra.lamp]"):toml.index("[spectra.white]")]
     (folder / "scene.toml").write_text(toml.replace(lamp, "") + LAMP_SHEET_TOML)
     return folder / "scene.toml"
