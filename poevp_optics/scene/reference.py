@@ -443,11 +443,29 @@ def markdown() -> str:
     return "\n".join(out) + "\n"
 
 
+def _best_loop_md(sec: str) -> list[str]:
+    """The note on a loop section whose defaults depend on its choosing key (scene/defaults.py)."""
+    from poevp_optics.scene.defaults import BEST_LOOP, ROAD_ONLY
+
+    if sec not in BEST_LOOP:
+        return []
+    choosing, values = BEST_LOOP[sec]
+    vals = ", ".join(f"`{k} = {toml_value(v)}`" for k, v in values.items())
+    road = ROAD_ONLY.get(sec)
+    extra = (" On a `[road]` scene also " + ", ".join(f"`{k} = {toml_value(v)}`" for k, v in road.items()) + "."
+             if road else "")
+    return ["", f"**Default loop.** A scene with a DMD that does not set `{sec}.{choosing}` gets the project's "
+                f"best causal loop for every key of this section it leaves out: {vals}.{extra} A scene that "
+                f"sets `{choosing}` gets the defaults in the table below; the run's report lists what was "
+                "applied (`defaults_applied`)."]
+
+
 def _section_md(sec: str, cls, is_table: bool, by_sec: dict) -> list[str]:
     doc = (inspect.getdoc(cls) or "").split("\n\n")[0].replace("\n", " ")
     out = [f"## [{sec}]", "", f"{_md(doc)} Owner: `{cls.__module__}.{cls.__name__}`."]
     if is_table:
         out.append(f"Any number of entries, each a table `[{sec}]` with the keys below.")
+    out += _best_loop_md(sec)
     out.append("")
     for sub in [s for s in by_sec if s == sec or s.startswith(sec + ".")]:
         rows = by_sec[sub]
