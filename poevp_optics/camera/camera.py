@@ -2,7 +2,7 @@
 
 The optical path of the real camera (DESIGN.md): objective -> image on the DMD -> each mirror
 sends light to the relay for its PWM share of the exposure -> relay lens (PSF) -> sensor. The
-renderer draws a pinhole image; the objective stage (objective.py: field-dependent PSF,
+renderer draws a pinhole image; the objective stage (objective/: field-dependent PSF,
 vignetting, veiling glare) turns it into the image the mirrors see, so the mask multiplies the
 blurred, vignetted, glare-veiled image and cannot remove the glare. The relay PSF acts on
 (mask x objective image), and the sensor sees the registered, blurred DMD-plane image.
@@ -143,7 +143,7 @@ class Camera:
     # ------------------------------------------------------------------ objective
     def dmd_image(self, radiance: np.ndarray) -> np.ndarray:
         """The image the objective forms on the DMD from a pinhole render (mirror grid, float32):
-        (1 - g) B(V x) + g H * (V x) (objective.py); the input itself when the stage is skipped.
+        (1 - g) B(V x) + g H * (V x) (objective/); the input itself when the stage is skipped.
         The last few results are kept by the input's identity (captures of one frame reuse them)."""
         if self.objective is None:
             return radiance

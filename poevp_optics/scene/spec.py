@@ -11,7 +11,7 @@
 | [source]             | SourceSpec       | sources/kinds.py (kinds: mitsuba_source.py, exr_sequence.py, ldr_highlight.py) |
 | [road]               | RoadSpec         | sources/road.py (night-road geometry; only road scenes) |
 | [sheeting.<param>]   | SheetingSpec     | render/materials/retroreflective.py |
-| [objective]          | ObjectiveSpec    | camera/objective.py |
+| [objective]          | ObjectiveSpec    | camera/objective/   |
 | [attenuator]         | AttenuatorSpec   | camera/attenuator.py (global variable ND before the DMD) |
 | [dmd]                | DMDSpec          | camera/dmd.py (registration: camera/registration.py) |
 | [relay]              | RelaySpec        | camera/relay.py |
