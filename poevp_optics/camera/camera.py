@@ -28,7 +28,7 @@ from poevp_optics.camera.relay import PSFContext, RelaySpec, build_psf, convolve
 from poevp_optics.camera.sensor import NoiseSwitches, Sensor, SensorSpec, pixel_etendue_m2_sr, resolve_sensor
 from poevp_optics.core.accuracy import Accuracy
 from poevp_optics.core.timing import TimingSpec
-from poevp_optics.sources import spectra
+from poevp_optics.core import spectra
 
 
 _IDENTITY = type("IdentityRegistration", (), {"scale": 1.0, "rotation_deg": 0.0, "offset_px": (0.0, 0.0)})()
@@ -230,7 +230,7 @@ class Camera:
         """Exposure (s) per DMD level of each emitter-group image: 'rest' sees the whole
         exposure; a PWM lamp only its drive: the exact integral over the lamp's on-intervals
         (plus off_fraction of the rest). `lit`: DMD levels in use (False: DMD off / absent)."""
-        from poevp_optics.sources.flicker import on_intervals
+        from poevp_optics.core.flicker import on_intervals
 
         sched = self.schedule(frame_index)
         t0, t1 = sched.exposure_start_s, sched.exposure_start_s + sched.exposure_s

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from poevp_optics.camera.objective.params import ObjectiveParams
-from poevp_optics.sources import spectra
+from poevp_optics.core import spectra
 
 #: Bump when a change alters cached PSF grids or relative-illumination tables.
 CACHE_VERSION = 2

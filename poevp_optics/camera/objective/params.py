@@ -11,7 +11,7 @@ from typing import get_type_hints
 
 import numpy as np
 
-from poevp_optics.sources import spectra
+from poevp_optics.core import spectra
 from poevp_optics.core.exceptions import ParamError
 from poevp_optics.core.params import Where, check_value, param
 from poevp_optics.core.registry import Registry
