@@ -288,11 +288,11 @@ class DMVFNPredictor(Predictor):
         return pred.astype(np.float32)
 
     def describe(self):
-        return {"name": self.name, **_weights_identity(self.weights_path),
+        return {"name": self.name, **weights_identity(self.weights_path),
                 "parameters": count_parameters(self.model), **{k: v for k, v in self.meta.items() if k in ("validation",)}}
 
 
-def _weights_identity(path: Path | None) -> dict:
+def weights_identity(path: Path | None) -> dict:
     """The weights file as the report names it: shipped weights relative to the assets folder
     (the same on every clone), others absolute; plus the first 16 hex of its SHA-256."""
     if path is None:

@@ -28,7 +28,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from poevp_optics.control.predictors.dmvfn import WeightsError, _weights_identity
+from poevp_optics.control.predictors.dmvfn import WeightsError, weights_identity
 from poevp_optics.control.predictors.track import MAX_CHAIN, RegionTrack, RegionTracker
 from poevp_optics.core.paths import ASSETS_DIR
 
@@ -158,7 +158,7 @@ class TrackNetPredictor(RegionTracker):
 
     def describe(self) -> dict:
         held = {k: v["track_net"] for k, v in self.meta.get("test", {}).items() if "track_net" in v}
-        return {"name": self.name, **_weights_identity(self.weights_path),
+        return {"name": self.name, **weights_identity(self.weights_path),
                 "parameters": sum(p.numel() for p in self.model.parameters()), "context_frames": MAX_CHAIN + 1,
                 **({"held_out_median_error_px": held} if held else {})}
 
