@@ -5,8 +5,8 @@
 | [render]             | RenderSpec       | render/renderer.py |
 | [timing]             | TimingSpec       | core/timing.py |
 | [motion.<id>]        | MotionSpec       | sources/motion.py |
-| [spectra.<param>]    | SpectrumSpec     | sources/spectra.py |
-| [flicker.<param>]    | FlickerSpec      | sources/flicker.py |
+| [spectra.<param>]    | SpectrumSpec     | core/spectra.py |
+| [flicker.<param>]    | FlickerSpec      | core/flicker.py |
 | [plate]              | PlateSpec        | sources/plates.py |
 | [source]             | SourceSpec       | sources/kinds.py (kinds: mitsuba_source.py, exr_sequence.py, ldr_highlight.py) |
 | [road]               | RoadSpec         | sources/road.py (night-road geometry; only road scenes) |

@@ -1,12 +1,9 @@
 """The objective's on-disk cache of PSF grids and relative-illumination tables
-($POEVP_CACHE_DIR/objective, core.runtime.cache_dir): content keys and atomic writes."""
+($POEVP_CACHE_DIR/objective; core/cache.py's load-or-build with atomic writes): the content key and
+the folder."""
 
 from __future__ import annotations
 
-import hashlib
-import json
-import os
-import tempfile
 from dataclasses import asdict
 from pathlib import Path
 
@@ -14,13 +11,15 @@ import numpy as np
 
 from poevp_optics.camera.objective.params import ObjectiveParams
 from poevp_optics.core import spectra
+from poevp_optics.core.cache import digest, json_digest
+from poevp_optics.core.runtime import cache_dir as package_cache_dir
 
 #: Bump when a change alters cached PSF grids or relative-illumination tables.
 CACHE_VERSION = 2
 
-def resolve_cache_dir(cache_dir) -> Path:
-    from poevp_optics.core.runtime import cache_dir as package_cache_dir
 
+def resolve_cache_dir(cache_dir) -> Path:
+    """`cache_dir` when given, else the package cache's objective/ folder."""
     return Path(cache_dir) if cache_dir is not None else package_cache_dir("objective")
 
 
@@ -35,21 +34,14 @@ def cache_key(kind: str, params: ObjectiveParams, image_shape, keys) -> str:
     CACHE_VERSION, optiland's version and the QE table's content."""
     p = asdict(params)
     qe = spectra.load_spectrum(params.qe, emissive=True)
-    blob = json.dumps({"kind": kind, "v": CACHE_VERSION, "optiland": _optiland_version(),
-                       "shape": [int(image_shape[0]), int(image_shape[1])],
-                       "params": {k: p[k] for k in keys},
-                       "qe": hashlib.sha256(np.ascontiguousarray(qe).tobytes()).hexdigest()},
-                      sort_keys=True)
-    return hashlib.sha256(blob.encode()).hexdigest()[:32]
+    return json_digest({"kind": kind, "v": CACHE_VERSION, "optiland": _optiland_version(),
+                        "shape": [int(image_shape[0]), int(image_shape[1])],
+                        "params": {k: p[k] for k in keys},
+                        "qe": digest(np.ascontiguousarray(qe).tobytes(), algo="sha256", length=64)},
+                       algo="sha256", length=32, sort_keys=True)
 
 
-def atomic_savez(path: Path, **arrays):
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp-", suffix=".npz")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            np.savez(fh, **arrays)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+def save_npz(path: Path, arrays: dict) -> None:
+    """Write `arrays` as an uncompressed .npz to `path` (the name kept as given)."""
+    with open(path, "wb") as fh:
+        np.savez(fh, **arrays)

@@ -11,10 +11,11 @@ from typing import Callable
 
 import numpy as np
 
-from poevp_optics.camera.objective.cache import atomic_savez, cache_key, resolve_cache_dir
+from poevp_optics.camera.objective.cache import cache_key, resolve_cache_dir, save_npz
 from poevp_optics.camera.objective.params import (OBJECTIVE_PSFS, ObjectiveParamError, ObjectiveParams, band,
                                                   sensor_band)
 from poevp_optics.camera.objective.prescriptions import build_lens, check_field, corner_radius_m
+from poevp_optics.core.cache import cached
 
 @dataclass(frozen=True, eq=False)
 class PSFGrid:
@@ -294,20 +295,22 @@ _GRID_KEYS = ("prescription", "f_number", "focal_length_m", "pixel_pitch_m", "wa
 def _prescription_grid(params: ObjectiveParams, image_shape, cache_dir=None) -> PSFGrid:
     """Field-dependent PSF of the `prescription` (optiland FFT PSFs, Kramer Harrison, optiland
     0.6.3, `optiland.psf.FFTPSF`), at `field_samples` nodes per quadrant axis and the band's
-    wavelengths, resampled to the pixel grid; cached on disk."""
+    wavelengths, resampled to the pixel grid; cached on disk (an unreadable file is rebuilt)."""
     path = resolve_cache_dir(cache_dir) / f"psf-{cache_key('psf_grid', params, image_shape, _GRID_KEYS)}.npz"
-    if path.is_file():
-        try:
-            with np.load(path) as z:
-                return PSFGrid(str(z["name"]), z["node_y_px"], z["node_x_px"], z["kernels"],
-                               float(z["truncation_error"]), str(z["note"]), tuple(int(v) for v in z["image_shape"]))
-        except (OSError, KeyError, ValueError):
-            path.unlink(missing_ok=True)              # unreadable: rebuild
-    g = _prescription_grid_build(params, image_shape)
-    atomic_savez(path, name=np.array(g.name), node_y_px=g.node_y_px, node_x_px=g.node_x_px,
-                  kernels=g.kernels, truncation_error=np.array(g.truncation_error), note=np.array(g.note),
-                  image_shape=np.array(g.image_shape))
-    return g
+    return cached(path, lambda: _prescription_grid_build(params, image_shape), load=_load_grid,
+                  save=_save_grid, unreadable=(OSError, KeyError, ValueError))
+
+
+def _load_grid(path) -> PSFGrid:
+    with np.load(path) as z:
+        return PSFGrid(str(z["name"]), z["node_y_px"], z["node_x_px"], z["kernels"],
+                       float(z["truncation_error"]), str(z["note"]), tuple(int(v) for v in z["image_shape"]))
+
+
+def _save_grid(path, g: PSFGrid) -> None:
+    save_npz(path, {"name": np.array(g.name), "node_y_px": g.node_y_px, "node_x_px": g.node_x_px,
+                    "kernels": g.kernels, "truncation_error": np.array(g.truncation_error),
+                    "note": np.array(g.note), "image_shape": np.array(g.image_shape)})
 
 
 @dataclass(frozen=True)

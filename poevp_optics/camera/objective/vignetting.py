@@ -10,9 +10,10 @@ from typing import Callable
 
 import numpy as np
 
-from poevp_optics.camera.objective.cache import atomic_savez, cache_key, resolve_cache_dir
+from poevp_optics.camera.objective.cache import cache_key, resolve_cache_dir, save_npz
 from poevp_optics.camera.objective.params import VIGNETTING, ObjectiveParams, band
 from poevp_optics.camera.objective.prescriptions import build_lens, check_field
+from poevp_optics.core.cache import cached
 
 def field_angle_rad(params: ObjectiveParams, image_shape) -> np.ndarray:
     """Field angle of each pixel centre: tan(theta) = r / f, r its distance from the image centre
@@ -96,15 +97,16 @@ def _ri_prescription(params, image_shape, cache_dir=None):
     tmax = float(theta.max())
     check_field(params, math.degrees(tmax))
     path = resolve_cache_dir(cache_dir) / f"ri-{cache_key('ri', params, image_shape, _RI_KEYS)}.npz"
-    if path.is_file():
-        with np.load(path) as z:
-            th, ri = z["theta_rad"], z["ri"]
-    else:
-        th, ri = ri_profile(params, tmax)
-        atomic_savez(path, theta_rad=th, ri=ri)
+    th, ri = cached(path, lambda: ri_profile(params, tmax), load=_load_ri,
+                    save=lambda tmp, v: save_npz(tmp, {"theta_rad": v[0], "ri": v[1]}))
     if tmax == 0:
         return np.ones(theta.shape)
     return CubicSpline(th, ri)(theta)
+
+
+def _load_ri(path):
+    with np.load(path) as z:
+        return z["theta_rad"], z["ri"]
 
 
 @dataclass(frozen=True)
