@@ -4,4 +4,4 @@ Stages (see DESIGN.md): scene -> render (Mitsuba, spectral) -> DMD (DrJit PWM) -
 -> sensor (noise, ADC) -> reconstruct; the mask loop closes through a torch predictor.
 """
 
-__version__ = "0.2.0"
+from poevp_optics.core.version import __version__  # noqa: F401 (the one definition is core/version.py)

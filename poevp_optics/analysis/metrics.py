@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from poevp_optics.core.units import to_8bit  # noqa: F401 (re-exported: control/ uses it too, so it lives in core/)
+
 
 def crop(img: np.ndarray, box) -> np.ndarray:
     if box is None:
@@ -37,11 +39,6 @@ def local_entropy(img_8bit: np.ndarray, radius_px: int = 4) -> np.ndarray:
         with np.errstate(divide="ignore", invalid="ignore"):
             out -= np.where(p > 0, p * np.log2(p), 0.0)
     return out
-
-
-def to_8bit(dn: np.ndarray, max_dn: int) -> np.ndarray:
-    """Scale DN of any bit depth to the 0-255 range (for entropy and previews)."""
-    return np.clip(np.asarray(dn, dtype=np.float64) * (255.0 / max_dn), 0, 255)
 
 
 def saturated_fraction(dn: np.ndarray, max_dn: int) -> float:

@@ -25,7 +25,6 @@ mask's lag, not motion blur. K = 2 radiance nodes (both ends of the exposure) pe
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -37,7 +36,7 @@ from poevp_optics.camera.dmd import node_time_weights_s, node_times_s
 from poevp_optics.core.exceptions import SceneError
 from poevp_optics.core.frame import Frame, Quantity
 from poevp_optics.core.io import atomic_path
-from poevp_optics.core.runtime import cache_dir
+from poevp_optics.core.cache import cache_file, digest, json_digest
 from poevp_optics.core.seeds import render_seeds
 from poevp_optics.core.units import PHOTON_RADIANCE_UNIT
 from poevp_optics.render.exposures import RenderedExposure, rel_error, union_box
@@ -181,11 +180,11 @@ def node_times(spec, frames: int, nodes: int = NODES) -> np.ndarray:
 
 def content_key(spec, seq: SequenceSpec, offsets: np.ndarray, spp: int, nodes: int) -> str:
     """Cache key: the scene's files, the sequence, its poses and the render settings."""
-    files = [hashlib.sha1(Path(p).read_bytes()).hexdigest() for p in (spec.toml_path, spec.xml_path)]
+    files = [digest(Path(p).read_bytes(), length=40) for p in (spec.toml_path, spec.xml_path)]
     blob = [files, dataclasses.asdict(seq), np.round(offsets, 6).tolist(), list(spec.render.resolution), spp,
             spec.render.seed, spec.accuracy.mc_splits,
             EXPOSURE_S, nodes, __version__, CACHE_VERSION]
-    return hashlib.sha1(json.dumps(blob, default=str).encode()).hexdigest()[:16]
+    return json_digest(blob, default=str)
 
 
 def _exposures(spec, renders: dict, times: np.ndarray) -> list[RenderedExposure]:
@@ -237,7 +236,7 @@ def render_sequences(spec, seqs: list[SequenceSpec], cal: Calibration, guard_px:
     for j, seq in enumerate(seqs):
         times = node_times(spec, seq.frames, nodes_for_speed(seq.speed_px, spec.timing.fps))
         offs = poses(seq, cal, spec.timing.fps, times.ravel())
-        path = cache_dir("eval") / f"{content_key(spec, seq, offs, acc.spp, times.shape[1])}.npz"
+        path = cache_file("eval", f"{content_key(spec, seq, offs, acc.spp, times.shape[1])}.npz")
         plan.append((seq, times, offs, path))
         if not path.is_file():
             missing.append(j)

@@ -12,7 +12,7 @@ the whole frame's peak, down to saturation: 20 log10 of peak over saturation) be
 attenuation floor (mask bit depth: the darkest usable level's PWM share, 20 log10 255 = 48.1 dB
 for 8 bits; contrast ratio: off-state leakage, 1/CR; together dmd.attenuation_parts) and the
 objective's glare floor (the veil g H * (V x) that the objective lays on the plate, over the
-plate's peak: it is in the image the mirrors see, so no mask lowers it; objective.py), and which
+plate's peak: it is in the image the mirrors see, so no mask lowers it; camera/objective/), and which
 binds: the DMD when the demand exceeds its floor (the plate stays saturated by the difference),
 the glare when the veil over the plate is above the printed ink's closed-form luminance (the
 characters lose their contrast whatever the mask).

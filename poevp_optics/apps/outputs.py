@@ -1,29 +1,18 @@
-"""What a run writes: the [outputs] keys and the writer of a render run's files."""
+"""What a run writes: the writer of a render run's files (the [outputs] keys, `OutputsSpec`, are in
+scene/outputs.py; re-exported here)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from poevp_optics import __version__
 from poevp_optics.analysis.metrics import to_8bit
-from poevp_optics.analysis.tonemap import TONEMAPPERS, tonemap
+from poevp_optics.analysis.tonemap import tonemap
 from poevp_optics.core.io import write_dn, write_exr, write_png
-from poevp_optics.core.params import param
 from poevp_optics.core.units import PHOTON_RADIANCE_UNIT
-
-
-@dataclass(frozen=True)
-class OutputsSpec:
-    """[outputs]: which files a run writes."""
-
-    radiance_exr: bool = param(True)
-    subframes_exr: bool = param(False)
-    previews: bool = param(True)
-    contact_sheet: bool = param(True)
-    tonemap: str = param("reinhard2004", choices=TONEMAPPERS)
+from poevp_optics.scene.outputs import OutputsSpec  # noqa: F401 (re-exported: it moved to scene/)
 
 
 def mask_png(levels: np.ndarray, top: int) -> np.ndarray:

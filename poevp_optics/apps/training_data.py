@@ -7,7 +7,6 @@ and lateral offset, high-beam intensity, exposure time. Frames are at the predic
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import string
@@ -71,18 +70,18 @@ def build_dataset(n_sequences: int, frames: int, seed: int, resolution=(368, 640
     """(N, T, H, W) uint8, cached by its parameters."""
     from tqdm import tqdm
 
-    key = hashlib.sha1(json.dumps([n_sequences, frames, seed, list(resolution), "v1"]).encode()).hexdigest()[:16]
-    path = cache_dir() / f"seq_{key}.npz"
-    if path.exists():
-        return np.load(path)["frames"]
-    rng = np.random.default_rng(seed)
-    seqs = []
-    for i in tqdm(range(n_sequences), desc="render training sequences", disable=not progress or None):
-        seqs.append(render_ldr_sequence(sequence_overrides(rng, resolution), frames, seed * 100000 + i))
-    arr = np.stack(seqs)
-    from poevp_optics.core.io import atomic_path
+    from poevp_optics.core.cache import cached, json_digest
 
-    with atomic_path(path) as tmp:
+    def build():
+        rng = np.random.default_rng(seed)
+        seqs = []
+        for i in tqdm(range(n_sequences), desc="render training sequences", disable=not progress or None):
+            seqs.append(render_ldr_sequence(sequence_overrides(rng, resolution), frames, seed * 100000 + i))
+        return np.stack(seqs)
+
+    def save(tmp, arr):
         with open(tmp, "wb") as f:
             np.savez_compressed(f, frames=arr)
-    return arr
+
+    path = cache_dir() / f"seq_{json_digest([n_sequences, frames, seed, list(resolution), 'v1'])}.npz"
+    return cached(path, build, load=lambda p: np.load(p)["frames"], save=save)

@@ -2,7 +2,7 @@
 
 The optical path of the real camera (DESIGN.md): objective -> image on the DMD -> each mirror
 sends light to the relay for its PWM share of the exposure -> relay lens (PSF) -> sensor. The
-renderer draws a pinhole image; the objective stage (objective.py: field-dependent PSF,
+renderer draws a pinhole image; the objective stage (objective/: field-dependent PSF,
 vignetting, veiling glare) turns it into the image the mirrors see, so the mask multiplies the
 blurred, vignetted, glare-veiled image and cannot remove the glare. The relay PSF acts on
 (mask x objective image), and the sensor sees the registered, blurred DMD-plane image.
@@ -28,7 +28,7 @@ from poevp_optics.camera.relay import PSFContext, RelaySpec, build_psf, convolve
 from poevp_optics.camera.sensor import NoiseSwitches, Sensor, SensorSpec, pixel_etendue_m2_sr, resolve_sensor
 from poevp_optics.core.accuracy import Accuracy
 from poevp_optics.core.timing import TimingSpec
-from poevp_optics.sources import spectra
+from poevp_optics.core import spectra
 
 
 _IDENTITY = type("IdentityRegistration", (), {"scale": 1.0, "rotation_deg": 0.0, "offset_px": (0.0, 0.0)})()
@@ -143,7 +143,7 @@ class Camera:
     # ------------------------------------------------------------------ objective
     def dmd_image(self, radiance: np.ndarray) -> np.ndarray:
         """The image the objective forms on the DMD from a pinhole render (mirror grid, float32):
-        (1 - g) B(V x) + g H * (V x) (objective.py); the input itself when the stage is skipped.
+        (1 - g) B(V x) + g H * (V x) (objective/); the input itself when the stage is skipped.
         The last few results are kept by the input's identity (captures of one frame reuse them)."""
         if self.objective is None:
             return radiance
@@ -230,7 +230,7 @@ class Camera:
         """Exposure (s) per DMD level of each emitter-group image: 'rest' sees the whole
         exposure; a PWM lamp only its drive: the exact integral over the lamp's on-intervals
         (plus off_fraction of the rest). `lit`: DMD levels in use (False: DMD off / absent)."""
-        from poevp_optics.sources.flicker import on_intervals
+        from poevp_optics.core.flicker import on_intervals
 
         sched = self.schedule(frame_index)
         t0, t1 = sched.exposure_start_s, sched.exposure_start_s + sched.exposure_s

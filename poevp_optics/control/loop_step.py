@@ -25,7 +25,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from poevp_optics.analysis.metrics import to_8bit
 from poevp_optics.camera.attenuator import AttenuatorSpec, AttenuatorState, choose_transmission
 from poevp_optics.control.exposure_control import ExposureController
 from poevp_optics.control.masks import ATTENUATED_LAWS, MaskSpec, mask_levels, predicted_electrons, reach_electrons
@@ -33,6 +32,7 @@ from poevp_optics.control.timing_budget import BudgetSpec, MaskClock
 from poevp_optics.control.predictors import PREDICTORS, PredictorSpec, checked_prediction, make_predictor
 from poevp_optics.core.params import param
 from poevp_optics.core.registry import Registry
+from poevp_optics.core.units import to_8bit
 
 
 def resize_to(img: np.ndarray, shape) -> np.ndarray:

@@ -295,7 +295,7 @@ def _clean_stale(out: Path) -> list[str]:
 
 
 def _write_marker(folder: Path, kind: str) -> None:
-    from poevp_optics import __version__
+    from poevp_optics.core.version import __version__
 
     write_json(folder / MARKER, {"kind": kind, "poevp_version": __version__,
                                  "written_utc": datetime.datetime.now(datetime.timezone.utc)

@@ -130,17 +130,28 @@ def choose_variant(mode: str, requested: str = "auto") -> tuple[str, str]:
     return "scalar_spectral", "no CUDA or LLVM backend: scalar fallback"
 
 
-def set_variant(variant: str) -> None:
-    """Activate a Mitsuba variant (the only call site of mi.set_variant) and register our Python
-    plugins with it (materials/: retroreflective sheeting, photometric lamps)."""
-    import mitsuba as mi
+#: Called after every `set_variant`: render/__init__.py registers its Mitsuba plugins here (the
+#: materials and emitters written in Python), so core/ imports nothing of ours (DESIGN's table).
+_VARIANT_HOOKS: list = []
 
-    from poevp_optics.render.materials import register_plugins
+
+def on_variant(hook) -> None:
+    """Call `hook()` after every `set_variant` from now on (once per hook)."""
+    if hook not in _VARIANT_HOOKS:
+        _VARIANT_HOOKS.append(hook)
+
+
+def set_variant(variant: str) -> None:
+    """Activate a Mitsuba variant (the only call site of mi.set_variant) and run the hooks that
+    register our Python plugins with it (render/__init__.py: retroreflective sheeting,
+    photometric lamps; any import of poevp_optics.render installs it)."""
+    import mitsuba as mi
 
     if mi.variant() != variant:
         mi.set_variant(variant)
         mi.set_log_level(mi.LogLevel.Error)  # Mitsuba's warnings are not ours to print
-    register_plugins()
+    for hook in _VARIANT_HOOKS:
+        hook()
 
 
 def register_asset_dir(path) -> None:

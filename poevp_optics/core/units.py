@@ -6,6 +6,8 @@ definition fixes 683 lm W-1 at 540 THz, i.e. 555.016 nm, which rounds to 683.002
 CIE 1924 V(lambda) peak of 555 nm).
 """
 
+import numpy as np
+
 PLANCK_J_S = 6.62607015e-34
 SPEED_OF_LIGHT_M_PER_S = 299792458.0
 LUMINOUS_EFFICACY_MAX_LM_PER_W = 683.002
@@ -19,3 +21,8 @@ PHOTON_RADIANCE_UNIT = "e- s-1 m-2 sr-1"
 def photons_per_joule(wavelength_nm):
     """Photons per joule of radiant energy at `wavelength_nm` (array-like): lambda / (h c)."""
     return (wavelength_nm / NM_PER_M) / (PLANCK_J_S * SPEED_OF_LIGHT_M_PER_S)
+
+
+def to_8bit(dn: np.ndarray, max_dn: int) -> np.ndarray:
+    """Scale DN of any bit depth to the 0-255 range (for entropy and previews); float64."""
+    return np.clip(np.asarray(dn, dtype=np.float64) * (255.0 / max_dn), 0, 255)

@@ -5,13 +5,13 @@
 | [render]             | RenderSpec       | render/renderer.py |
 | [timing]             | TimingSpec       | core/timing.py |
 | [motion.<id>]        | MotionSpec       | sources/motion.py |
-| [spectra.<param>]    | SpectrumSpec     | sources/spectra.py |
-| [flicker.<param>]    | FlickerSpec      | sources/flicker.py |
+| [spectra.<param>]    | SpectrumSpec     | core/spectra.py |
+| [flicker.<param>]    | FlickerSpec      | core/flicker.py |
 | [plate]              | PlateSpec        | sources/plates.py |
 | [source]             | SourceSpec       | sources/kinds.py (kinds: mitsuba_source.py, exr_sequence.py, ldr_highlight.py) |
 | [road]               | RoadSpec         | sources/road.py (night-road geometry; only road scenes) |
 | [sheeting.<param>]   | SheetingSpec     | render/materials/retroreflective.py |
-| [objective]          | ObjectiveSpec    | camera/objective.py |
+| [objective]          | ObjectiveSpec    | camera/objective/   |
 | [attenuator]         | AttenuatorSpec   | camera/attenuator.py (global variable ND before the DMD) |
 | [dmd]                | DMDSpec          | camera/dmd.py (registration: camera/registration.py) |
 | [relay]              | RelaySpec        | camera/relay.py |
@@ -21,7 +21,7 @@
 | [loop]               | LoopSpec         | control/loop_step.py |
 | [budget]             | BudgetSpec       | control/timing_budget.py |
 | [chart]              | ChartSpec        | analysis/charts.py |
-| [outputs]            | OutputsSpec      | apps/outputs.py |
+| [outputs]            | OutputsSpec      | scene/outputs.py (the writer: apps/outputs.py) |
 
 Accuracy settings (spp, nodes, MC splits, PSF support, ...) are gathered into one
 core.accuracy.Accuracy by `SceneSpec.accuracy`.
@@ -36,7 +36,6 @@ from typing import Any, Mapping
 import numpy as np
 
 from poevp_optics.analysis.charts import ChartSpec
-from poevp_optics.apps.outputs import OutputsSpec
 from poevp_optics.camera.attenuator import AttenuatorSpec
 from poevp_optics.camera.dmd import DMDSpec
 from poevp_optics.camera.objective import ObjectiveSpec
@@ -50,6 +49,7 @@ from poevp_optics.core.accuracy import Accuracy
 from poevp_optics.core.timing import TimingSpec
 from poevp_optics.render.materials.retroreflective import SheetingSpec
 from poevp_optics.render.renderer import RenderSpec
+from poevp_optics.scene.outputs import OutputsSpec
 from poevp_optics.sources.flicker import FlickerSpec
 from poevp_optics.sources.kinds import SourceSpec
 from poevp_optics.sources.motion import MotionSpec

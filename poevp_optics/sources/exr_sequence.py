@@ -5,7 +5,7 @@
 | frames              | str        | -                         | required | glob of OpenEXR files, relative to the scene's folder, read in sorted order |
 | channel             | str        | -                         | "Y"      | the channel read |
 | unit                | str        | -                         | required | what the values are (`UNITS` below) |
-| spectrum            | str        | -                         | -        | SPD of the light (sources/spectra.py source): `radiance_w`, and `relative` with a luminance |
+| spectrum            | str        | -                         | -        | SPD of the light (core/spectra.py source): `radiance_w`, and `relative` with a luminance |
 | scale               | float      | e- s-1 m-2 sr-1 per value | -        | `relative`: photon radiance of the value 1 |
 | luminance_cd_per_m2 | float      | cd m-2                    | -        | `relative`: luminance at `reference_pixel` |
 | reference_pixel     | [int, int] | input px [y, x]           | -        | `relative`: where that luminance is |

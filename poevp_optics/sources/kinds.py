@@ -66,7 +66,7 @@ class SourceSpec:
     video: str = param("")                              # ldr_highlight: one video file (OpenCV)
     channel: str = param("Y")                           # exr_sequence: the EXR channel
     unit: str = param("", choices=EXR_UNITS)            # exr_sequence: what the values are (required)
-    spectrum: str = param("")                           # SPD of the light (sources/spectra.py source)
+    spectrum: str = param("")                           # SPD of the light (core/spectra.py source)
     scale: float = param(math.nan, gt=0)                # e- s-1 m-2 sr-1 per value (per linear 1: LDR)
     luminance_cd_per_m2: float = param(math.nan, gt=0)  # photometric anchor (with spectrum)
     reference_pixel: tuple[int, int] = param((-1, -1), length=2, min=0, unset=-1)   # [y, x], input px
@@ -95,7 +95,7 @@ class SourceSpec:
 def open_frames(spec, guard_px: int, sensor_qe: str) -> FrameSequenceSource:
     """A frame source (`[source] kind` other than mitsuba) on a mirror grid with `guard_px`
     mirrors beyond each edge of render.resolution; sensor_qe: the sensor's QE table (a
-    sources/spectra.py source), for units that need its response."""
+    core/spectra.py source), for units that need its response."""
     kind = SOURCES[spec.source.kind]
     if kind.open is None:
         raise ValueError(f"[source] kind {spec.source.kind!r} is rendered, not read: render/radiance.py opens it")

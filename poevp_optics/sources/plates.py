@@ -12,13 +12,12 @@ Characters use OpenCV's Hershey duplex font (deterministic, no font files needed
 
 from __future__ import annotations
 
-import hashlib
-import os
 from pathlib import Path
 
 import cv2
 import numpy as np
 
+from poevp_optics.core.cache import cache_file, digest
 from poevp_optics.core.io import write_png
 from dataclasses import dataclass
 from poevp_optics.core.params import param as _param
@@ -69,9 +68,7 @@ def plate_texture(text: str, width_px: int = 1040, height_px: int = 220,
 
 def cached_plate_path(text: str, width_px: int = 1040, height_px: int = 220) -> Path:
     """Write (once) and return a plate texture PNG for `text` in the user cache folder."""
-    root = Path(os.environ.get("POEVP_CACHE_DIR", Path.home() / ".cache" / "poevp_optics")) / "plates"
-    key = hashlib.sha1(f"{text}|{width_px}|{height_px}|v1".encode()).hexdigest()[:16]
-    path = root / f"plate_{key}.png"
+    path = cache_file("plates", f"plate_{digest(f'{text}|{width_px}|{height_px}|v1')}.png")
     if not path.exists():
         write_png(path, plate_texture(text, width_px, height_px))
     return path

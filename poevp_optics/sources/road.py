@@ -36,7 +36,6 @@ which sits 2 mm proud of the recess floor; the tail lamps are separate emitting 
 
 from __future__ import annotations
 
-import hashlib
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -201,12 +200,10 @@ def write_ply(path: Path, verts: np.ndarray, tris: np.ndarray) -> None:
 
 def cached_car_mesh() -> Path:
     """The car mesh's PLY in the package cache (written once per MESH_VERSION and layout)."""
-    from poevp_optics.core.runtime import cache_dir
+    from poevp_optics.core.cache import cache_file, digest
 
     verts, tris = car_rear_mesh()
-    key = hashlib.sha1(verts.tobytes() + tris.tobytes() + str(MESH_VERSION).encode()).hexdigest()[:16]
-    path = cache_dir("meshes") / f"car_rear_{key}.ply"
+    path = cache_file("meshes", f"car_rear_{digest(verts.tobytes() + tris.tobytes() + str(MESH_VERSION).encode())}.ply")
     if not path.is_file():
-        path.parent.mkdir(parents=True, exist_ok=True)
-        write_ply(path, verts, tris)
+        write_ply(path, verts, tris)                    # atomic; creates the folder
     return path

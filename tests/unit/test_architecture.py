@@ -16,6 +16,7 @@ from tests.conftest import ROOT, SCENES
 
 PKG = ROOT / "poevp_optics"
 MAX_FUNCTION_LINES = 80
+MAX_MODULE_LINES = 600          # issue 29: one job per module
 
 
 def _modules() -> dict[str, ast.Module]:
@@ -146,6 +147,14 @@ def test_no_function_is_longer_than_80_lines():
                 n = node.end_lineno - node.lineno + 1
                 if n > MAX_FUNCTION_LINES:
                     long.append(f"{name}.{node.name}: {n} lines")
+    assert not long, long
+
+
+def test_no_module_is_longer_than_600_lines():
+    """Issue 29: a module over 600 lines holds more than one job (camera/objective.py had 1087
+    and became the camera/objective/ package)."""
+    long = {str(p.relative_to(ROOT)): n for p in PKG.rglob("*.py")
+            if (n := len(p.read_text().splitlines())) > MAX_MODULE_LINES}
     assert not long, long
 
 
