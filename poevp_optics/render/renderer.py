@@ -47,7 +47,9 @@ _EMISSIVE_KINDS = ("intensity", "radiance", "irradiance")
 class RenderSpec:
     """[render]: the Mitsuba scene and its sampling; spp, subframes, pwm_nodes, temporal_spp,
     mc_splits, sampler, light_selection, target_rel_error and max_spp are accuracy settings
-    (core/accuracy.py)."""
+    (core/accuracy.py). roi_spp: samples per pixel added over `roi_shape`'s image box (the plate),
+    pooled with `spp` there (exposures.add_roi_samples; ignored when target_rel_error > 0, which
+    aims the frame's renders at the ROI error already)."""
 
     xml: str = param("scene.xml")
     spp: int = param(16, min=1, max=1 << 20)
@@ -65,7 +67,8 @@ class RenderSpec:
     target_rel_error: float = param(0.0, min=0.0, max=1.0,              # 0: off; else render/progressive.py
                                     why="a relative MC error (ROI, or frame) between 0 and 1")
     max_spp: int = param(4096, min=1, max=1 << 20)      # cap of the error-targeted render per radiance sample
-    roi_spp: int = param(0, min=0, max=1 << 20)         # 0: off; else the ROI box's extra spp (render_box)
+    roi_spp: int = param(0, min=0, max=1 << 20)         # 0: off; else spp added over the ROI shape's box
+    #                                                     (exposures.add_roi_samples; untargeted renders)
 
 
 @dataclass(frozen=True)

@@ -74,3 +74,22 @@ def test_headline_leads_with_the_roi_error_and_states_the_clipped_share():
     assert line.startswith("7.27% plate (ROI)")
     assert "0.017% of pixels clipped" in line and "2.10%" in line and "306.40% with the clipped" in line
     assert "pixel median 0.90%" in line
+
+
+def test_demo_states_the_dmd_it_simulates_and_the_keys_for_its_own_mirrors():
+    """night_road at 184x320 is the DLP6500 (1920 x 1080 mirrors, TI DLPS053) at 1/6 scale: the
+    keys scale the objective's focal length and the mask's sizes in mirrors by 6 (areas by 36)."""
+    from poevp_optics.cli import _dmd_scale_line
+    from poevp_optics.scene.load import load_scene
+    from tests.conftest import SCENES
+
+    spec = load_scene(SCENES / "night_road")
+    line = _dmd_scale_line(spec)
+    k = 1920 / spec.render.resolution[1]
+    assert "DLP6500" in line and f"1/{k:.3g} scale" in line
+    assert "--set render.resolution=[1080,1920]" in line
+    assert f"objective.focal_length_m={spec.objective.focal_length_m * 6:.6g}" in line
+    assert f"mask.smooth_px={spec.mask.smooth_px * 6:.4g}" in line
+    assert f"attenuator.serve_min_mirrors={spec.attenuator.serve_min_mirrors * 36}" in line
+    full = load_scene(SCENES / "night_road", line.split("render time): ")[1].replace("--set ", "").split())
+    assert "at its own 1920x1080 mirrors" in _dmd_scale_line(full)
