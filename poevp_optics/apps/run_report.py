@@ -240,7 +240,10 @@ def stage_sections(spec, renderer, step, res, setup_s: float, causal: bool) -> d
                                     "in the encoded capture (full scale whatever the estimate), "
                                     "clipped_fraction of it left out; rel_error_pixel_median/_p90: each unclipped "
                                     "pixel's own standard error / its radiance, median and 90th percentile "
-                                    "(a few lamp-edge pixels 1e4x the road dominate the RMS figures)",
+                                    "(a few lamp-edge pixels 1e4x the road dominate the RMS figures; each pixel's "
+                                    "error comes from mc_splits replicates, so these two scatter by ~2x "
+                                    "between runs where a third of the pixels, the sky seen directly, "
+                                    "carry no MC noise)",
             "path": renderer.plan.mode, "path_reason": renderer.plan.reason,
             "variant": renderer.variant, "variant_reason": renderer.variant_reason,
             "static": spec.is_static,
