@@ -80,6 +80,8 @@ def stages(h: int, w: int, frames: int, extra: list[str]) -> dict:
            "mask + predictor (loop)": st["mask"]["seconds"] + (st.get("predict", {}).get("total_seconds") or 0.0),
            "temporal check": r["errors"]["temporal"].get("seconds") or 0.0,
            "writing": r["io_seconds"]}
+    # the rest: the LDR twin's and the oracle mask's captures, metrics, the night-road records
+    cpu["other"] = r["total_seconds"] - sum(cpu.values())
     pf = r["per_frame"]
     return {"cpu": cpu, "total_cpu": r["total_seconds"], "wall": wall, "frames": frames,
             "plate_error": st["render"]["rel_error_roi"], "frame_unclipped": st["render"].get("rel_error_unclipped"),
