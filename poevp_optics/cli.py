@@ -115,7 +115,7 @@ def cmd_render(args) -> int:
     print(f"poevp: rendered {report['frames']} frames of {spec.name} at "
           f"{report['resolution'][0]}x{report['resolution'][1]} ({r['path']}, {r['variant']}) in "
           f"{report['total_seconds']:.1f} s; MC rel. error " + mc_error_line(r, spec)
-          + _target_line(r) + f" -> {out}/report.json" + _dmd_scale_line(spec))
+          + _target_line(r) + f" -> {out}/report.json" + dmd_scale_line(spec))
     return 0
 
 
@@ -145,7 +145,7 @@ def mc_error_line(r: dict, spec) -> str:
     return "; ".join(parts)
 
 
-def _dmd_scale_line(spec) -> str:
+def dmd_scale_line(spec) -> str:
     """Which DMD the run simulates and at what scale; how to render its own mirror count."""
     known = DMD_MIRRORS.get(spec.dmd.controller) if spec.dmd.enabled else None
     if known is None:

@@ -79,12 +79,12 @@ def test_headline_leads_with_the_roi_error_and_states_the_clipped_share():
 def test_demo_states_the_dmd_it_simulates_and_the_keys_for_its_own_mirrors():
     """night_road at 184x320 is the DLP6500 (1920 x 1080 mirrors, TI DLPS053) at 1/6 scale: the
     keys scale the objective's focal length and the mask's sizes in mirrors by 6 (areas by 36)."""
-    from poevp_optics.cli import _dmd_scale_line
+    from poevp_optics.cli import dmd_scale_line
     from poevp_optics.scene.load import load_scene
     from tests.conftest import SCENES
 
     spec = load_scene(SCENES / "night_road")
-    line = _dmd_scale_line(spec)
+    line = dmd_scale_line(spec)
     k = 1920 / spec.render.resolution[1]
     assert "DLP6500" in line and f"1/{k:.3g} scale" in line
     assert "--set render.resolution=[1080,1920]" in line
@@ -92,4 +92,4 @@ def test_demo_states_the_dmd_it_simulates_and_the_keys_for_its_own_mirrors():
     assert f"mask.smooth_px={spec.mask.smooth_px * 6:.4g}" in line
     assert f"attenuator.serve_min_mirrors={spec.attenuator.serve_min_mirrors * 36}" in line
     full = load_scene(SCENES / "night_road", line.split("render time): ")[1].replace("--set ", "").split())
-    assert "at its own 1920x1080 mirrors" in _dmd_scale_line(full)
+    assert "at its own 1920x1080 mirrors" in dmd_scale_line(full)
