@@ -112,14 +112,60 @@ def cmd_render(args) -> int:
     spec, out, report = run_job("render", args.scene, _overrides(args), out=args.out, threads=args.threads,
                                 progress=not args.quiet)
     r = report["stages"]["render"]
-    frame, roi = r["rel_error"], r["rel_error_roi"]
     print(f"poevp: rendered {report['frames']} frames of {spec.name} at "
           f"{report['resolution'][0]}x{report['resolution'][1]} ({r['path']}, {r['variant']}) in "
-          f"{report['total_seconds']:.1f} s; MC rel. error "
-          + (f"{frame:.2%} frame" if frame is not None else
-             "- (black frame)" if spec.source.renders else f"- (radiance from [source] {spec.source.kind})")
-          + (f", {roi:.2%} ROI" if roi is not None else "") + _target_line(r) + f" -> {out}/report.json")
+          f"{report['total_seconds']:.1f} s; MC rel. error " + mc_error_line(r, spec)
+          + _target_line(r) + f" -> {out}/report.json" + dmd_scale_line(spec))
     return 0
+
+
+#: Mirror arrays (rows, columns) of the DMDs the controllers drive (TI DLP6500 DLPS053: 1920 x 1080;
+#: DLP9000 DLPS036: 2560 x 1600): the camera at its own resolution renders one pixel per mirror.
+DMD_MIRRORS = {"dlpc900_dlp6500": ("DLP6500", (1080, 1920)), "dlpc900_dlp9000": ("DLP9000", (1600, 2560))}
+
+
+def mc_error_line(r: dict, spec) -> str:
+    """The MC error headline: the ROI (plate) error first, then the frame's over the pixels that
+    are not clipped in the capture, its clipped share, and the all-pixel figure beside it."""
+    frame, roi = r.get("rel_error"), r.get("rel_error_roi")
+    unclipped, clipped = r.get("rel_error_unclipped"), r.get("clipped_fraction")
+    if frame is None:
+        return ("- (black frame)" if spec.source.renders else
+                f"- (radiance from [source] {spec.source.kind})")
+    parts = []
+    if roi is not None:
+        parts.append(f"{roi:.2%} {spec.render.roi_shape or 'ROI'} (ROI)")
+    med, p90 = r.get("rel_error_pixel_median"), r.get("rel_error_pixel_p90")
+    if unclipped is not None:
+        pix = f"pixel median {med:.2%}, p90 {p90:.2%}; " if med is not None else ""
+        parts.append(f"frame without the {clipped:.3%} of pixels clipped in the capture: {pix}"
+                     f"RMS / mean {unclipped:.2%} ({frame:.2%} with the clipped)")
+    else:
+        parts.append(f"{frame:.2%} frame")
+    return "; ".join(parts)
+
+
+def dmd_scale_line(spec) -> str:
+    """Which DMD the run simulates and at what scale; how to render its own mirror count."""
+    known = DMD_MIRRORS.get(spec.dmd.controller) if spec.dmd.enabled else None
+    if known is None:
+        return ""
+    name, (h, w) = known
+    rh, rw = spec.render.resolution
+    if (rh, rw) == (h, w):
+        return f"\npoevp: the {name} camera at its own {w}x{h} mirrors"
+    k = w / rw
+    sets = [f"render.resolution=[{h},{w}]"]
+    obj = getattr(spec, "objective", None)
+    if obj is not None and getattr(obj, "psf", "delta") != "delta":
+        sets.append(f"objective.focal_length_m={obj.focal_length_m * k:.6g}")
+    if spec.mask.smooth_px:
+        sets.append(f"mask.smooth_px={spec.mask.smooth_px * k:.4g}")
+    if spec.attenuator.enabled:
+        sets.append(f"attenuator.serve_min_mirrors={round(spec.attenuator.serve_min_mirrors * k * k)}")
+    return (f"\npoevp: simulates the {name} camera ({w}x{h} mirrors) at 1/{k:.3g} scale ({rw}x{rh} mirrors, "
+            f"the same field); the real resolution (~{k * k:.0f}x the render time): "
+            + " ".join(f"--set {x}" for x in sets))
 
 
 def _target_line(r: dict) -> str:

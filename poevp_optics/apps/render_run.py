@@ -26,6 +26,7 @@ from poevp_optics.core.exceptions import SceneError
 from poevp_optics.core.report import write_report
 from poevp_optics.core.seeds import ENCODED_STREAM, LDR_STREAM, capture_seed
 from poevp_optics.core.frame import RenderedExposure
+from poevp_optics.render.progressive import pixel_rel_errors, rel_error_unclipped
 from poevp_optics.render.radiance import open_source
 
 #: Mask laws compared beside the scene's own on every oracle run: the paper's two readings of
@@ -132,6 +133,28 @@ def _metrics(camera: Camera, fc: FrameCapture) -> None:
                                              "encoded": plate_white_fraction(to_8bit(enc, max_dn), box)}
 
 
+def unclipped_mc_error(camera: Camera, ex: RenderedExposure, capture_dn: np.ndarray) -> dict:
+    """The frame's MC error where the camera can see it: over the render grid's field of view
+    (guard band excluded), leaving out the mirrors whose sensor pixels are clipped in the capture
+    (`capture_dn` >= max DN: full scale whatever the radiance estimate). Returns
+    {"rel_error_unclipped": RMS standard error / mean radiance there (None: no MC error, or no
+    pixel left), "clipped_fraction": share of the field of view left out, and over the pixels
+    left, the median and 90th percentile of each pixel's own relative error
+    (progressive.pixel_rel_errors)}."""
+    clipped_s = np.asarray(capture_dn) >= camera.params.max_dn - 0.5
+    clipped_m = camera.to_mirror(clipped_s.astype(np.float32)) > 0      # bilinear: any touch
+    g = camera.guard_px
+    h, w = camera.mirror_shape[0] - 2 * g, camera.mirror_shape[1] - 2 * g
+    view = np.s_[g:g + h, g:g + w]
+    mean, var, clip = ex.radiance.data[view], ex.variance[view], clipped_m[view]
+    err, frac = rel_error_unclipped(mean, var, clip)
+    if ex.rel_error is None:
+        return {"rel_error_unclipped": None, "clipped_fraction": frac}
+    med, p90 = pixel_rel_errors(mean, var, clip)
+    return {"rel_error_unclipped": err, "clipped_fraction": frac, "rel_error_pixel_median": med,
+            "rel_error_pixel_p90": p90}
+
+
 def _against_oracle(spec, camera: Camera, fc: FrameCapture) -> None:
     """A causal predictor's frame: the oracle mask's capture and the mask's error against it."""
     max_dn, box, i = camera.params.max_dn, fc.box, fc.exposure.index
@@ -192,6 +215,7 @@ def simulate(spec, camera: Camera, step: LoopStep | None, exposures, *, writer: 
         if ex.index == mid and not ex.basis and not spec.is_static:
             res.mid_frame = (ex, fc.mask)
         _metrics(camera, fc)
+        fc.record.update(unclipped_mc_error(camera, ex, fc.enc.dn))
         for ext, state in extensions:
             if ext.frame is not None and not ext.after_observe:
                 fc.record[ext.key] = ext.frame(spec, camera, fc, step, state)

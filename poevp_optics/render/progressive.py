@@ -68,6 +68,32 @@ def rel_error(mean: np.ndarray, var: np.ndarray, box=None) -> float | None:
     return float(np.sqrt(np.mean(var, dtype=np.float64)) / m)
 
 
+def rel_error_unclipped(mean: np.ndarray, var: np.ndarray, clipped: np.ndarray) -> tuple[float | None, float]:
+    """`rel_error` over the pixels that are not `clipped` (bool, mean's shape): pixels clipped in
+    the capture read full scale whatever their radiance, so their MC error does not reach the
+    camera's output. Returns (RMS standard error / mean radiance over the unclipped pixels, or
+    None when none are left or their mean is not > 0; the clipped fraction)."""
+    keep = ~np.asarray(clipped, dtype=bool)
+    frac = float(1.0 - np.mean(keep)) if keep.size else 0.0
+    if not keep.any():
+        return None, frac
+    m = float(np.mean(mean[keep], dtype=np.float64))
+    if m <= 0:
+        return None, frac
+    return float(np.sqrt(np.mean(var[keep], dtype=np.float64)) / m), frac
+
+
+def pixel_rel_errors(mean: np.ndarray, var: np.ndarray, clipped: np.ndarray) -> tuple[float | None, float | None]:
+    """Median and 90th percentile over the unclipped pixels with mean > 0 of each pixel's own
+    relative MC error sqrt(var) / mean (None, None when there are none). Unlike `rel_error`, a
+    few bright pixels (lamp edges 1e4x the road) cannot dominate it."""
+    keep = ~np.asarray(clipped, dtype=bool) & (np.asarray(mean) > 0)
+    if not keep.any():
+        return None, None
+    r = np.sqrt(np.asarray(var, dtype=np.float64)[keep]) / np.asarray(mean, dtype=np.float64)[keep]
+    return float(np.median(r)), float(np.percentile(r, 90))
+
+
 def rel_error_of(reps: Replicates, box) -> float | None:
     """`rel_error` of the replicates' mean over `box` (or the frame)."""
     return rel_error(reps.mean, reps.variance_of_mean(), box)

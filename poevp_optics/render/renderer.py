@@ -47,7 +47,9 @@ _EMISSIVE_KINDS = ("intensity", "radiance", "irradiance")
 class RenderSpec:
     """[render]: the Mitsuba scene and its sampling; spp, subframes, pwm_nodes, temporal_spp,
     mc_splits, sampler, light_selection, target_rel_error and max_spp are accuracy settings
-    (core/accuracy.py)."""
+    (core/accuracy.py). roi_spp: samples per pixel added over `roi_shape`'s image box (the plate),
+    pooled with `spp` there (exposures.add_roi_samples; ignored when target_rel_error > 0, which
+    aims the frame's renders at the ROI error already)."""
 
     xml: str = param("scene.xml")
     spp: int = param(16, min=1, max=1 << 20)
@@ -65,6 +67,8 @@ class RenderSpec:
     target_rel_error: float = param(0.0, min=0.0, max=1.0,              # 0: off; else render/progressive.py
                                     why="a relative MC error (ROI, or frame) between 0 and 1")
     max_spp: int = param(4096, min=1, max=1 << 20)      # cap of the error-targeted render per radiance sample
+    roi_spp: int = param(0, min=0, max=1 << 20)         # 0: off; else spp added over the ROI shape's box
+    #                                                     (exposures.add_roi_samples; untargeted renders)
 
 
 @dataclass(frozen=True)
@@ -444,6 +448,63 @@ class Renderer:
             bad = int(np.count_nonzero(~np.isfinite(arr)))
             raise FloatingPointError(f"{self.spec.xml_path}: render produced {bad} NaN/Inf pixels")
         return arr
+
+    def render_box(self, seed: int, spp: int, box) -> np.ndarray:
+        """`spp` samples per pixel of the pixels in `box` (y0, x0, y1, x1, end-exclusive, on the
+        rendered grid) only: (y1 - y0, x1 - x0) float64 photon radiance, the same estimator as
+        one mi.render call restricted to those pixels. The lanes are pixel-major with `spp`
+        consecutive samples per pixel, as Mitsuba's wavefront render orders them (so a
+        stratified sampler stratifies each pixel's samples), and each lane draws its dimensions
+        in the order of Mitsuba's SamplingIntegrator::render_sample (film position, then the
+        integrator's own); the camera's box filter keeps a sample in its pixel. Mono path only
+        (the spectral path's `specfilm` weights wavelengths in the film). `self.last_spp`: the
+        sampler's count."""
+        mi = self.mi
+        if self.plan.mode != "mono":
+            raise SceneError(f"{self.spec.toml_path}: render.roi_spp: the ROI box render needs the mono "
+                             f"path (this scene renders {self.plan.mode}: {self.plan.reason})")
+        if self.light_weights is None:
+            self.select_lights()
+        t0 = time.perf_counter()
+        y0, x0, y1, x1 = box
+        h, w = y1 - y0, x1 - x0
+        sampler = mi.load_dict(SAMPLERS[self.spec.render.sampler].mitsuba_dict(int(spp)))
+        n = int(sampler.sample_count())
+        hh, ww = (k + 2 * self.guard_px for k in self.spec.render.resolution)
+        lanes = h * w * n
+        sampler.set_samples_per_wavefront(n)                 # lane % n: the sample index in its pixel
+        sampler.seed(int(seed) & 0x7FFFFFFF, lanes)
+        pix = np.arange(h * w, dtype=np.int64)
+        py = (y0 + pix // w).astype(np.float32)
+        px = (x0 + pix % w).astype(np.float32)
+        idx = mi.UInt32(np.repeat(np.arange(h * w, dtype=np.uint32), n))
+        import drjit as dr
+
+        pos = sampler.next_2d()
+        fx = (dr.gather(mi.Float, mi.Float(px), idx) + pos.x) / ww
+        fy = (dr.gather(mi.Float, mi.Float(py), idx) + pos.y) / hh
+        ray, ray_w = self.sensor.sample_ray(mi.Float(self.sensor.shutter_open()), mi.Float(0.5),
+                                            mi.Point2f(fx, fy), mi.Point2f(0.5, 0.5))
+        L, _, _ = self.scene.integrator().sample(self.scene, sampler, ray, None, True)
+        val = np.array(ray_w * L, dtype=np.float64)
+        val = val.reshape(-1, lanes).mean(axis=0) if val.size != lanes else val.ravel()
+        out = val.reshape(h * w, n).mean(axis=1).reshape(h, w)
+        self.stats.seconds += time.perf_counter() - t0
+        self.stats.calls += 1
+        self.last_spp = n
+        if not np.all(np.isfinite(out)):
+            raise FloatingPointError(f"{self.spec.xml_path}: ROI render produced NaN/Inf pixels")
+        return out
+
+    def render_box_with_error(self, seeds: list[int], spp: int, box) -> tuple[np.ndarray, np.ndarray, int]:
+        """`render_box` in len(seeds) equal independent-seed parts: (mean, variance of the mean,
+        spp used), as `render_with_error`."""
+        n = len(seeds)
+        parts = [self.render_box(s, max(1, spp // n), box) for s in seeds]
+        used = self.last_spp * n
+        mean = sum(parts) / n
+        var = sum((m - mean) ** 2 for m in parts) / (n * (n - 1))
+        return mean, var, used
 
     def render_with_error(self, seeds: list[int], spp: int) -> tuple[np.ndarray, np.ndarray]:
         """Render `spp` samples split over len(seeds) independent renders.
