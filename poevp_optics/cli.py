@@ -115,7 +115,9 @@ def cmd_render(args) -> int:
     print(f"poevp: rendered {report['frames']} frames of {spec.name} at "
           f"{report['resolution'][0]}x{report['resolution'][1]} ({r['path']}, {r['variant']}) in "
           f"{report['total_seconds']:.1f} s; MC rel. error " + mc_error_line(r, spec)
-          + _target_line(r) + f" -> {out}/report.json" + dmd_scale_line(spec))
+          + _target_line(r) + f" -> {out}/report.json"
+          + (f", {out}/report.html (open it in a browser)" if (Path(out) / "report.html").is_file() else "")
+          + dmd_scale_line(spec))
     return 0
 
 
@@ -136,10 +138,13 @@ def mc_error_line(r: dict, spec) -> str:
     if roi is not None:
         parts.append(f"{roi:.2%} {spec.render.roi_shape or 'ROI'} (ROI)")
     med, p90 = r.get("rel_error_pixel_median"), r.get("rel_error_pixel_p90")
-    if unclipped is not None:
-        pix = f"pixel median {med:.2%}, p90 {p90:.2%}; " if med is not None else ""
-        parts.append(f"frame without the {clipped:.3%} of pixels clipped in the capture: {pix}"
-                     f"RMS / mean {unclipped:.2%} ({frame:.2%} with the clipped)")
+    if unclipped is not None and med is not None:
+        parts.append(f"per pixel over the {1 - clipped:.2%} of the frame not clipped in the capture: median "
+                     f"{med:.2%}, p90 {p90:.2%} (RMS / mean {unclipped:.2%}, {frame:.2%} with the clipped: "
+                     f"set by the brightest pixels)")
+    elif unclipped is not None:
+        parts.append(f"frame without the {clipped:.3%} of pixels clipped in the capture: RMS / mean "
+                     f"{unclipped:.2%} ({frame:.2%} with the clipped)")
     else:
         parts.append(f"{frame:.2%} frame")
     return "; ".join(parts)

@@ -72,8 +72,10 @@ def test_headline_leads_with_the_roi_error_and_states_the_clipped_share():
          "rel_error_pixel_median": 0.009, "rel_error_pixel_p90": 0.089}
     line = mc_error_line(r, spec)
     assert line.startswith("7.27% plate (ROI)")
-    assert "0.017% of pixels clipped" in line and "2.10%" in line and "306.40% with the clipped" in line
-    assert "pixel median 0.90%" in line
+    assert "over the 99.98% of the frame not clipped" in line and "2.10%" in line and "306.40% with the clipped" in line
+    assert "median 0.90%, p90 8.90%" in line
+    r2 = {k: v for k, v in r.items() if "pixel" not in k}
+    assert "without the 0.017% of pixels clipped" in mc_error_line(r2, spec)
 
 
 def test_demo_states_the_dmd_it_simulates_and_the_keys_for_its_own_mirrors():
