@@ -74,12 +74,18 @@ def signals_deferred():
         signal.pthread_sigmask(signal.SIG_SETMASK, old)
 
 
+_THREADS: int | None = None
+
+
 def set_threads(n: int | None) -> None:
-    """Thread count for DrJit's LLVM backend, torch and OpenCV (None: leave the defaults)."""
+    """Thread count for DrJit's LLVM backend, torch, OpenCV and SciPy's FFTs (`fft_workers`;
+    None: leave the defaults)."""
+    global _THREADS
     if n is None:
         return
     if isinstance(n, bool) or not isinstance(n, int) or n < 1:
         raise ValueError(f"thread count must be an integer >= 1, got {n!r}")
+    _THREADS = int(n)
     import drjit as dr
 
     dr.set_thread_count(int(n))
@@ -95,6 +101,13 @@ def set_threads(n: int | None) -> None:
         cv2.setNumThreads(int(n))
     except ImportError:
         pass
+
+
+def fft_workers() -> int:
+    """Threads for SciPy's FFTs (scipy.fft.set_workers): the run's thread count, else the CPUs.
+    pocketfft splits the independent 1-D transforms of an axis between threads, so the result is
+    the same for any count."""
+    return _THREADS or os.cpu_count() or 1
 
 
 def backend_available(name: str) -> bool:

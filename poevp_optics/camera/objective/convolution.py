@@ -6,6 +6,11 @@ from __future__ import annotations
 import numpy as np
 
 from poevp_optics.camera.objective.psfs import PSFGrid
+from poevp_optics.core import runtime
+
+#: Kernel spectra of convolve_reflect by (kernel identity, cropped size, FFT shape): the glare
+#: kernel is the same for every frame of a run, so its FFT is taken once per image size.
+_KERNEL_SPECTRA: dict = {}
 
 def convolve_reflect(image: np.ndarray, kernel: np.ndarray) -> np.ndarray:
     """Same-size linear convolution of an image continued by reflection over the kernel's reach
@@ -20,9 +25,16 @@ def convolve_reflect(image: np.ndarray, kernel: np.ndarray) -> np.ndarray:
     k = kernel[c - ry:c + ry + 1, c - rx:c + rx + 1]
     padded = np.pad(np.asarray(image, np.float64), ((ry, ry), (rx, rx)), mode="symmetric")
     shape = (sfft.next_fast_len(padded.shape[0], real=True), sfft.next_fast_len(padded.shape[1], real=True))
-    spec = sfft.rfft2(padded, s=shape)
-    spec *= sfft.rfft2(k, s=shape)
-    full = sfft.irfft2(spec, s=shape)
+    workers = runtime.fft_workers()
+    key = (id(kernel), k.shape, shape)
+    hit = _KERNEL_SPECTRA.get(key)
+    if hit is None or hit[0] is not kernel:
+        if len(_KERNEL_SPECTRA) >= 8:
+            _KERNEL_SPECTRA.pop(next(iter(_KERNEL_SPECTRA)))
+        hit = _KERNEL_SPECTRA[key] = (kernel, sfft.rfft2(k, s=shape, workers=workers))   # holds the kernel
+    spec = sfft.rfft2(padded, s=shape, workers=workers)
+    spec *= hit[1]
+    full = sfft.irfft2(spec, s=shape, workers=workers)
     return full[2 * ry:2 * ry + h, 2 * rx:2 * rx + w]
 
 
@@ -46,8 +58,14 @@ def field_convolve(image: np.ndarray, grid: PSFGrid) -> np.ndarray:
     """Spatially varying convolution: sum over nodes of K_n * (w_n x), w_n bilinear hat weights
     over the node grid (clamped beyond it), on the image continued by reflection; float64.
     Each node convolves only the rows and columns where its weight is non-zero (overlap-add)."""
+    from scipy import fft as sfft
     from scipy.signal import fftconvolve
 
+    with sfft.set_workers(runtime.fft_workers()):
+        return _field_convolve(image, grid, fftconvolve)
+
+
+def _field_convolve(image: np.ndarray, grid: PSFGrid, fftconvolve) -> np.ndarray:
     img = np.asarray(image, np.float64)
     h, w = img.shape
     r = grid.radius_px
