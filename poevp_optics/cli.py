@@ -77,6 +77,10 @@ def _add_run_options(p: argparse.ArgumentParser) -> None:
                    metavar="HxW", key=lambda v: v, help="shorthand for --set render.resolution=[H,W]")
     p.add_argument("--seed", dest="overrides", action=_Override, type=int, metavar="S",
                    key=lambda v: f"render.seed={v}", help="shorthand for --set render.seed=S")
+    p.add_argument("--dmd-mirrors", dest="dmd_mirrors", action="store_true",
+                   help="render at the DMD's own mirror count (night_road: the DLP6500's 1920x1080, 6x the "
+                        "default scale), the sizes in mirrors and the objective's focal length scaled with it; "
+                        "applied after every --set")
     p.add_argument("--accuracy", choices=("fast", "default", "reference"), default="default",
                    help="spp, MC error target, sub-frames and PSF support together, applied after "
                         "every --set (fast: 5 %% target within the scene's spp, K/2; reference: "
@@ -93,6 +97,15 @@ def _overrides(args) -> list[str]:
     from poevp_optics.core.exceptions import SceneError
     from poevp_optics.scene.load import accuracy_overrides, parse_override
     out = list(args.overrides)
+    if getattr(args, "dmd_mirrors", False):
+        from poevp_optics.apps.headline import dmd_scale_overrides
+        from poevp_optics.scene.load import load_scene
+
+        name, _, sets = dmd_scale_overrides(load_scene(args.scene, out))
+        if not name:
+            raise SceneError(f"{args.scene}: --dmd-mirrors: dmd.controller names no DMD of known mirror count "
+                             "(dlpc900_dlp6500, dlpc900_dlp9000) or the DMD is disabled")
+        out += sets
     preset = getattr(args, "accuracy", "default")
     if preset != "default":
         added = accuracy_overrides(args.scene, out, preset)
@@ -107,6 +120,8 @@ def _overrides(args) -> list[str]:
 
 
 def cmd_render(args) -> int:
+    from poevp_optics.apps.headline import dmd_scale_line, mc_error_line, target_line
+
     from poevp_optics.apps.runner import run_job
 
     spec, out, report = run_job("render", args.scene, _overrides(args), out=args.out, threads=args.threads,
@@ -115,71 +130,10 @@ def cmd_render(args) -> int:
     print(f"poevp: rendered {report['frames']} frames of {spec.name} at "
           f"{report['resolution'][0]}x{report['resolution'][1]} ({r['path']}, {r['variant']}) in "
           f"{report['total_seconds']:.1f} s; MC rel. error " + mc_error_line(r, spec)
-          + _target_line(r) + f" -> {out}/report.json"
+          + target_line(r) + f" -> {out}/report.json"
           + (f", {out}/report.html (open it in a browser)" if (Path(out) / "report.html").is_file() else "")
           + dmd_scale_line(spec))
     return 0
-
-
-#: Mirror arrays (rows, columns) of the DMDs the controllers drive (TI DLP6500 DLPS053: 1920 x 1080;
-#: DLP9000 DLPS036: 2560 x 1600): the camera at its own resolution renders one pixel per mirror.
-DMD_MIRRORS = {"dlpc900_dlp6500": ("DLP6500", (1080, 1920)), "dlpc900_dlp9000": ("DLP9000", (1600, 2560))}
-
-
-def mc_error_line(r: dict, spec) -> str:
-    """The MC error headline: the ROI (plate) error first, then the frame's over the pixels that
-    are not clipped in the capture, its clipped share, and the all-pixel figure beside it."""
-    frame, roi = r.get("rel_error"), r.get("rel_error_roi")
-    unclipped, clipped = r.get("rel_error_unclipped"), r.get("clipped_fraction")
-    if frame is None:
-        return ("- (black frame)" if spec.source.renders else
-                f"- (radiance from [source] {spec.source.kind})")
-    parts = []
-    if roi is not None:
-        parts.append(f"{roi:.2%} {spec.render.roi_shape or 'ROI'} (ROI)")
-    med, p90 = r.get("rel_error_pixel_median"), r.get("rel_error_pixel_p90")
-    if unclipped is not None and med is not None:
-        parts.append(f"per pixel over the {1 - clipped:.2%} of the frame not clipped in the capture: median "
-                     f"{med:.2%}, p90 {p90:.2%} (RMS / mean {unclipped:.2%}, {frame:.2%} with the clipped: "
-                     f"set by the brightest pixels)")
-    elif unclipped is not None:
-        parts.append(f"frame without the {clipped:.3%} of pixels clipped in the capture: RMS / mean "
-                     f"{unclipped:.2%} ({frame:.2%} with the clipped)")
-    else:
-        parts.append(f"{frame:.2%} frame")
-    return "; ".join(parts)
-
-
-def dmd_scale_line(spec) -> str:
-    """Which DMD the run simulates and at what scale; how to render its own mirror count."""
-    known = DMD_MIRRORS.get(spec.dmd.controller) if spec.dmd.enabled else None
-    if known is None:
-        return ""
-    name, (h, w) = known
-    rh, rw = spec.render.resolution
-    if (rh, rw) == (h, w):
-        return f"\npoevp: the {name} camera at its own {w}x{h} mirrors"
-    k = w / rw
-    sets = [f"render.resolution=[{h},{w}]"]
-    obj = getattr(spec, "objective", None)
-    if obj is not None and getattr(obj, "psf", "delta") != "delta":
-        sets.append(f"objective.focal_length_m={obj.focal_length_m * k:.6g}")
-    if spec.mask.smooth_px:
-        sets.append(f"mask.smooth_px={spec.mask.smooth_px * k:.4g}")
-    if spec.attenuator.enabled:
-        sets.append(f"attenuator.serve_min_mirrors={round(spec.attenuator.serve_min_mirrors * k * k)}")
-    return (f"\npoevp: simulates the {name} camera ({w}x{h} mirrors) at 1/{k:.3g} scale ({rw}x{rh} mirrors, "
-            f"the same field); the real resolution (~{k * k:.0f}x the render time): "
-            + " ".join(f"--set {x}" for x in sets))
-
-
-def _target_line(r: dict) -> str:
-    """' (target 1.00 %: met, 16-64 spp)' for an error-targeted render, else ''."""
-    if not r.get("target"):
-        return ""
-    used = r.get("spp_used") or {}
-    met = "met" if r.get("met") else r.get("note", "not met")
-    return f" (target {r['target']:.2%}: {met}; {used.get('min')}-{used.get('max')} spp)"
 
 
 def cmd_validate(args) -> int:

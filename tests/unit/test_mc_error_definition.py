@@ -65,7 +65,7 @@ def test_unclipped_error_without_clipping_is_the_plain_error_and_all_clipped_is_
 
 
 def test_headline_leads_with_the_roi_error_and_states_the_clipped_share():
-    from poevp_optics.cli import mc_error_line
+    from poevp_optics.apps.headline import mc_error_line
 
     spec = SimpleNamespace(render=SimpleNamespace(roi_shape="plate"), source=SimpleNamespace(renders=True))
     r = {"rel_error": 3.064, "rel_error_roi": 0.0727, "rel_error_unclipped": 0.021, "clipped_fraction": 0.00017,
@@ -81,7 +81,7 @@ def test_headline_leads_with_the_roi_error_and_states_the_clipped_share():
 def test_demo_states_the_dmd_it_simulates_and_the_keys_for_its_own_mirrors():
     """night_road at 184x320 is the DLP6500 (1920 x 1080 mirrors, TI DLPS053) at 1/6 scale: the
     keys scale the objective's focal length and the mask's sizes in mirrors by 6 (areas by 36)."""
-    from poevp_optics.cli import dmd_scale_line
+    from poevp_optics.apps.headline import dmd_scale_line
     from poevp_optics.scene.load import load_scene
     from tests.conftest import SCENES
 
@@ -93,5 +93,9 @@ def test_demo_states_the_dmd_it_simulates_and_the_keys_for_its_own_mirrors():
     assert f"objective.focal_length_m={spec.objective.focal_length_m * 6:.6g}" in line
     assert f"mask.smooth_px={spec.mask.smooth_px * 6:.4g}" in line
     assert f"attenuator.serve_min_mirrors={spec.attenuator.serve_min_mirrors * 36}" in line
-    full = load_scene(SCENES / "night_road", line.split("render time): ")[1].replace("--set ", "").split())
+    full = load_scene(SCENES / "night_road", line.split("i.e. ")[1].replace("--set ", "").split())
     assert "at its own 1920x1080 mirrors" in dmd_scale_line(full)
+    from poevp_optics.cli import _overrides, build_parser
+
+    args = build_parser().parse_args(["render", str(SCENES / "night_road"), "--dmd-mirrors"])
+    assert _overrides(args) == line.split("i.e. ")[1].replace("--set ", "").split()
