@@ -1,8 +1,10 @@
 """`poevp` command line: render, validate, compare, chart, sweep, evaluate, train-predictor, info.
 
-Exit status: 0 done; 1 a sweep finished with failed points (`--allow-failed`: 0); 2 bad input
-(one line on stderr naming the file and key, or the flag; nothing written); 130 Ctrl-C; 143
-SIGTERM (both: a message, partial output removed, earlier outputs untouched).
+Exit status: 0 done; 1 a sweep finished with failed points (`--allow-failed`: 0), or the
+environment failed (disk full, out of memory, too many open files) or an internal error (one
+line; `--debug` or POEVP_DEBUG=1 shows the traceback); 2 bad input (one line on stderr naming
+the file and key, or the flag, or the path; nothing written); 130 Ctrl-C; 143 SIGTERM (both: a
+message, partial output removed, earlier outputs untouched).
 """
 
 from __future__ import annotations
@@ -41,6 +43,15 @@ def _int_at_least(low: int):
 
 _positive_int = _int_at_least(1)
 _count = _int_at_least(0)
+
+
+def _threads(text: str) -> int:
+    """--threads: 1 to runtime.max_threads()."""
+    n = _positive_int(text)
+    if n > runtime.max_threads():
+        raise argparse.ArgumentTypeError(f"{n} threads is above the limit {runtime.max_threads()} "
+                                         f"(8 per core, at least 64; this machine has {os.cpu_count()} cores)")
+    return n
 
 
 def _resolution_override(text: str) -> str:
@@ -85,7 +96,7 @@ def _add_run_options(p: argparse.ArgumentParser) -> None:
 
 def _add_job_options(p: argparse.ArgumentParser, out_help: str) -> None:
     p.add_argument("--out", help=out_help)
-    p.add_argument("--threads", type=_positive_int, help="DrJit/torch/OpenCV threads (default: all cores)")
+    p.add_argument("--threads", type=_threads, help="DrJit/torch/OpenCV threads (default: all cores)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
@@ -376,6 +387,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     parser = _OneLineParser(prog="poevp", description="POE-VP DMD camera simulator")
     parser.add_argument("--version", action="version", version=f"poevp_optics {__version__}")
+    parser.add_argument("--debug", action="store_true",
+                        help="show tracebacks and library warnings (also POEVP_DEBUG=1; any position)")
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("render", help="render a scene: radiance frames, previews, report.json")
@@ -415,7 +428,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--retry-failed", action="store_true", help="rerun points recorded as failed")
     p.add_argument("--allow-failed", action="store_true",
                    help="exit 0 even when points failed (default: exit 1)")
-    p.add_argument("--threads", type=_positive_int,
+    p.add_argument("--threads", type=_threads,
                    help="DrJit/torch/OpenCV threads per worker (default cores // workers)")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=cmd_sweep)
@@ -434,7 +447,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-steps", type=_positive_int)
     p.add_argument("--out", default="out/train", help="checkpoints (resumable)")
     p.add_argument("--weights-out", help="default: assets/predictor/<name>.safetensors")
-    p.add_argument("--threads", type=_positive_int)
+    p.add_argument("--threads", type=_threads)
     p.set_defaults(func=cmd_train)
 
     p = sub.add_parser("info", help="versions, Mitsuba variant, libLLVM, devices")
@@ -445,7 +458,38 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run one command; returns the exit status (module docstring)."""
+    """Run one command; returns the exit status (module docstring). Every failure is one line
+    on stderr (core/failures.py); `--debug` (anywhere before `--`) or POEVP_DEBUG=1 lets the
+    traceback and library warnings through instead."""
+    import warnings
+
+    from poevp_optics.core.failures import debug_requested
+
+    from_shell = argv is None
+    argv = list(sys.argv[1:] if argv is None else argv)
+    debug = debug_requested(argv)
+    argv = [a for i, a in enumerate(argv) if not (a == "--debug" and "--" not in argv[:i])]
+    if from_shell:                     # SIGTERM after the command's own handling: still one line
+        runtime.sigterm_exits(_TERMINATED)
+    if debug:
+        return _run(argv, debug)
+    with warnings.catch_warnings(record=True) as caught:
+        rc = _run(argv, debug)
+    if caught:
+        first = caught[0]
+        print(f"poevp: note: {len(caught)} library warning(s) during the run, first "
+              f"{first.category.__name__}: {' '.join(str(first.message).split())[:200]} "
+              "(--debug shows them)", file=sys.stderr)
+    return rc
+
+
+_TERMINATED = ("poevp: terminated (SIGTERM); partial output removed, earlier outputs and finished "
+               "sweep points kept")
+
+
+def _run(argv: list[str], debug: bool) -> int:
+    from poevp_optics.core.failures import describe
+
     try:
         args = build_parser().parse_args(argv)
     except SystemExit as e:                        # --help, --version, argument errors
@@ -464,10 +508,13 @@ def main(argv: list[str] | None = None) -> int:
                   file=sys.stderr)
             return 130
         if _caused_by(e, runtime.Terminated):
-            print("poevp: terminated (SIGTERM); partial output removed, earlier outputs and finished "
-                  "sweep points kept", file=sys.stderr)
+            print(_TERMINATED, file=sys.stderr)
             return 143
-        raise
+        if debug or isinstance(e, SystemExit):
+            raise
+        message, rc = describe(e)
+        print(f"poevp: error: {message}", file=sys.stderr)
+        return rc
 
 
 def _caused_by(e: BaseException, kind: type) -> bool:

@@ -193,6 +193,77 @@ def _contains(outer: Path, inner: Path) -> bool:
     return inner == outer or outer in inner.parents
 
 
+#: Characters a staging or parked name adds to the output folder's (`.<name>.staging-<pid>-<8>`).
+_STAGING_EXTRA = 40
+
+
+def _checked_path(given: str, where: str) -> Path:
+    """`given` made absolute, symbolic links resolved; OutputError for a name too long for the
+    file system (with room for the staging name beside it) or a symbolic-link loop."""
+    out = Path(os.path.abspath(given))
+    probe = out
+    while probe.parent != probe:
+        try:
+            if probe.is_dir():
+                break
+        except OSError:                        # a name too long, a loop: look further up
+            pass
+        probe = probe.parent
+    try:
+        name_max = os.pathconf(probe, "PC_NAME_MAX")
+        path_max = os.pathconf(probe, "PC_PATH_MAX")
+    except (OSError, ValueError):
+        name_max, path_max = 255, 4096
+    for part in out.parts:
+        if len(os.fsencode(part)) + _STAGING_EXTRA > name_max:
+            raise OutputError(f"{where}: the name {part[:40]}... is {len(os.fsencode(part))} bytes; this "
+                              f"file system allows {name_max} (and poevp needs {_STAGING_EXTRA} more for "
+                              "its staging folder beside it): give a shorter name")
+    if len(os.fsencode(str(out))) + _STAGING_EXTRA > path_max:
+        raise OutputError(f"{where}: the path is {len(os.fsencode(str(out)))} bytes; this file system "
+                          f"allows {path_max}: give a shorter path")
+    try:
+        resolved = out.resolve()               # raises on a loop anywhere on the path
+        if os.path.lexists(out):
+            return resolved
+        return out
+    except (RuntimeError, OSError) as e:       # Python 3.11 raises RuntimeError for a loop
+        if isinstance(e, OSError) and e.errno not in (errno.ELOOP, errno.ENOENT):
+            raise OutputError(f"{where}: {e.strerror or e}") from None
+        raise OutputError(f"{where}: symbolic links on the path form a loop or point nowhere "
+                          "(it does not resolve); give a path that resolves") from None
+
+
+def free_bytes(path: str | os.PathLike) -> int:
+    """Free bytes for an unprivileged writer on the file system that holds `path` (or its
+    nearest existing parent): shutil.disk_usage's `free`."""
+    p = Path(os.path.abspath(path))
+    while not p.exists() and p.parent != p:
+        p = p.parent
+    return shutil.disk_usage(p).free
+
+
+def check_free_space(out_dir: str | os.PathLike, need_bytes: int, what: str) -> None:
+    """Refuse (OutputError, before any work) when the file system of `out_dir` has less free
+    space than `need_bytes` (a run-size estimate, core/run_size.py): `what` names the run."""
+    try:
+        free = free_bytes(out_dir)
+    except OSError:
+        return                         # cannot tell: the writers' own errors still apply
+    if need_bytes > free:
+        raise OutputError(f"--out {out_dir}: {what} needs about {_size(need_bytes)} on disk, "
+                          f"{_size(free)} free there; free space, give --out on another disk, or "
+                          "make the run smaller")
+
+
+def _size(n: float) -> str:
+    for unit in ("B", "KiB", "MiB", "GiB", "TiB"):
+        if abs(n) < 1024 or unit == "TiB":
+            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
+        n /= 1024
+    return f"{n:.1f} TiB"
+
+
 def check_output(out_dir: str | os.PathLike, kind: str, *, protect: tuple = ()) -> Path:
     """Apply the output policy's checks to `out_dir` (module docstring); return it absolute.
 
@@ -203,10 +274,8 @@ def check_output(out_dir: str | os.PathLike, kind: str, *, protect: tuple = ()) 
     given = str(out_dir)
     if not given.strip():
         raise OutputError("--out: empty path")
-    out = Path(os.path.abspath(given))
-    if out.exists() or out.is_symlink():
-        out = out.resolve()
     where = f"--out {given}"
+    out = _checked_path(given, where)
     if out.parent == out:
         raise OutputError(f"{where}: the file-system root cannot be an output folder")
     cwd = Path.cwd().resolve()
