@@ -88,6 +88,10 @@ def _add_run_options(p: argparse.ArgumentParser) -> None:
                    metavar="HxW", key=lambda v: v, help="shorthand for --set render.resolution=[H,W]")
     p.add_argument("--seed", dest="overrides", action=_Override, type=int, metavar="S",
                    key=lambda v: f"render.seed={v}", help="shorthand for --set render.seed=S")
+    p.add_argument("--yes", action="store_true",
+                   help="run even when the run-size estimate (CPU time, disk) is above the limits "
+                        "(POEVP_MAX_CPU_HOURS, default 4; POEVP_MAX_DISK, default 20G); free space is "
+                        "still checked")
     p.add_argument("--accuracy", choices=("fast", "default", "reference"), default="default",
                    help="spp, MC error target, sub-frames and PSF support together, applied after "
                         "every --set (fast: 5 %% target within the scene's spp, K/2; reference: "
@@ -121,6 +125,7 @@ def cmd_render(args) -> int:
     from poevp_optics.apps.runner import run_job
 
     spec, out, report = run_job("render", args.scene, _overrides(args), out=args.out, threads=args.threads,
+                                yes=args.yes,
                                 progress=not args.quiet)
     r = report["stages"]["render"]
     frame, roi = r["rel_error"], r["rel_error_roi"]
@@ -145,11 +150,13 @@ def _target_line(r: dict) -> str:
 def cmd_validate(args) -> int:
     from poevp_optics.apps.memory import fits_note
     from poevp_optics.apps.preflight import check_run
+    from poevp_optics.apps.runner import check_size
     from poevp_optics.scene.load import load_scene
     spec = load_scene(args.scene, _overrides(args))
     job = args.job or ("chart" if spec.chart.patches else "render")
-    pf = check_run(spec, job, load=args.load)
+    pf = check_run(spec, job, load=not args.no_load)
     plan = pf.plan
+    size = check_size(spec, job, plan, None, args.yes)
     if not spec.source.renders:
         what = f"source {plan.mode}: {plan.reason}" + "".join(f"; note: {n}" for n in plan.notes)
     else:
@@ -157,7 +164,8 @@ def cmd_validate(args) -> int:
                 f"{'static' if spec.is_static else ('PWM lamps on static geometry: ' + ', '.join(spec.flicker)) if spec.geometry_static else 'moving: ' + ', '.join(spec.motion)}; "
                 f"render path {plan.mode} ({plan.reason})")
     print(f"poevp: {spec.toml_path} is valid for `poevp {job}`: {spec.timing.frames} frames, "
-          f"{spec.render.resolution[0]}x{spec.render.resolution[1]}, {what}; {fits_note(pf.memory)}")
+          f"{spec.render.resolution[0]}x{spec.render.resolution[1]}, {what}; {fits_note(pf.memory)}; "
+          f"run size: {size.describe()}")
     return 0
 
 
@@ -178,6 +186,7 @@ def cmd_compare(args) -> int:
     if not preds or not modes:
         raise SceneError("--predictors/--modes: give at least one of each")
     _, out, rows = run_job("compare", args.scene, _overrides(args), out=args.out, threads=args.threads,
+                                yes=args.yes,
                            progress=not args.quiet, check={"predictors": tuple(preds)},
                            predictors=preds, modes=modes)
     for r in rows:
@@ -195,6 +204,7 @@ def cmd_chart(args) -> int:
     from poevp_optics.apps.runner import run_job
 
     spec, out, r = run_job("chart", args.scene, _overrides(args), out=args.out, threads=args.threads,
+                                yes=args.yes,
                            progress=not args.quiet)
     dr = r["dynamic_range_db"]
     line = "  ".join(f"{mode} {dr[mode]['iso15739']:.1f} dB" for mode in dr if dr[mode].get("iso15739") is not None)
@@ -400,7 +410,10 @@ def build_parser() -> argparse.ArgumentParser:
     _add_run_options(p)
     p.add_argument("--job", choices=JOBS.names(),
                    help="check the scene for this command (default: chart for a [chart] scene, else render)")
-    p.add_argument("--load", action="store_true", help="also load the XML in Mitsuba")
+    p.add_argument("--load", action="store_true", help="(the default) load the XML in Mitsuba as render does")
+    p.add_argument("--no-load", action="store_true",
+                   help="skip loading the XML in Mitsuba (faster; an include or parameter Mitsuba "
+                        "refuses is then found by render only)")
     p.set_defaults(func=cmd_validate)
 
     p = sub.add_parser("compare", help="one render, several predictors x loop modes: table + figure")

@@ -63,9 +63,29 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
         os.umask(umask)
         os.chmod(tmp, 0o666 & ~umask)  # mkstemp creates 0600
         os.replace(tmp, path)
+    except OSError as e:               # name the file being written, not its temporary twin
+        if e.filename is not None and os.fsdecode(e.filename) == str(tmp):
+            e.filename = str(path)
+        raise
     finally:
         if tmp.exists():
             tmp.unlink()
+
+
+#: Below this many free bytes a failed write is taken for a full disk.
+_NEARLY_FULL = 1 << 20
+
+
+def write_error(path: str | os.PathLike, what: str) -> OSError:
+    """An OSError for a library's failed write of `path` (OpenEXR, OpenCV give no errno):
+    ENOSPC when the text says so or the file system is (nearly) full, else EIO."""
+    try:
+        full = free_bytes(Path(path).parent) < _NEARLY_FULL
+    except OSError:
+        full = False
+    if full or "no space left" in what.lower():
+        return OSError(errno.ENOSPC, "No space left on device", str(path))
+    return OSError(errno.EIO, f"could not write the file ({' '.join(what.split())[:300]})", str(path))
 
 
 def write_json(path: str | os.PathLike, obj) -> None:
@@ -97,8 +117,13 @@ def write_exr(path: str | os.PathLike, channels: Mapping[str, np.ndarray],
     for k, v in (attributes or {}).items():
         header[k] = str(v)
     with atomic_path(path) as tmp:
-        with OpenEXR.File(header, chans) as f:
-            f.write(str(tmp))
+        try:
+            with OpenEXR.File(header, chans) as f:
+                f.write(str(tmp))
+        except OSError:
+            raise
+        except Exception as e:  # noqa: BLE001 - OpenEXR raises RuntimeError for I/O failures
+            raise write_error(path, f"OpenEXR: {e}") from None
 
 
 def read_exr(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict]:
@@ -118,7 +143,7 @@ def write_png(path: str | os.PathLike, image: np.ndarray) -> None:
         img = img[..., ::-1]  # OpenCV writes BGR
     with atomic_path(path) as tmp:
         if not cv2.imwrite(str(tmp), img):
-            raise OSError(f"could not write PNG {path}")
+            raise write_error(path, "OpenCV could not write the PNG")
 
 
 def read_png(path: str | os.PathLike) -> np.ndarray:
@@ -425,7 +450,12 @@ def staged_dir(out_dir: str | os.PathLike, *, kind: str, protect: tuple = ()) ->
         try:
             os.chmod(stage, 0o777 & ~_umask())
             _write_marker(stage, kind)
-            yield stage
+            try:
+                yield stage
+            except OSError as e:       # name the file as it would be in --out
+                if e.filename is not None and os.fsdecode(e.filename).startswith(str(stage) + os.sep):
+                    e.filename = str(out / os.path.relpath(os.fsdecode(e.filename), stage))
+                raise
             _commit(stage, out)
         finally:
             if stage.exists():
