@@ -45,6 +45,16 @@ _positive_int = _int_at_least(1)
 _count = _int_at_least(0)
 
 
+def _seeds(text: str) -> int:
+    """--seeds: 1 to apps/run_size.MAX_SEEDS."""
+    from poevp_optics.apps.run_size import MAX_SEEDS
+
+    n = _positive_int(text)
+    if n > MAX_SEEDS:
+        raise argparse.ArgumentTypeError(f"{n} seeds is above the limit {MAX_SEEDS} per point")
+    return n
+
+
 def _threads(text: str) -> int:
     """--threads: 1 to runtime.max_threads()."""
     n = _positive_int(text)
@@ -234,7 +244,7 @@ def cmd_sweep(args) -> int:
                scheduler=args.scheduler, scheduler_file=args.scheduler_file, shared_fs=args.shared_fs,
                retries=args.retries, job=args.job, base_overrides=_overrides(args),
                metric=args.plot, progress=not args.quiet, retry_failed=args.retry_failed,
-               threads=args.threads)
+               threads=args.threads, yes=args.yes, rebuild=args.rebuild)
     n_failed = 0
     if df is not None:
         n_ok = int((df["status"] == "ok").sum())
@@ -432,13 +442,17 @@ def build_parser() -> argparse.ArgumentParser:
     _add_run_options(p)
     p.add_argument("--grid", action="append", default=[], required=True,
                    help="KEY=v1,v2,... | KEY=start:stop:num | KEY=log:start:stop:num (repeatable)")
-    p.add_argument("--seeds", type=_positive_int, default=1, help="seeds per point (render.seed, sensor.seed)")
+    p.add_argument("--seeds", type=_seeds, default=1, help="seeds per point (render.seed, sensor.seed), "
+                   "at most 1000")
     p.add_argument("--out", help="default out/<scene>-sweep; rerunning the same sweep resumes")
     p.add_argument("--workers", type=_positive_int, help="local Dask worker processes (default: cores)")
     _add_cluster_options(p)
     p.add_argument("--job", default="render", choices=sweep_jobs())
     p.add_argument("--plot", metavar="METRIC", help="column to plot, e.g. metrics.saturated_fraction_roi.encoded")
     p.add_argument("--retry-failed", action="store_true", help="rerun points recorded as failed")
+    p.add_argument("--rebuild", action="store_true",
+                   help="a results table or sweep.json that does not read is rebuilt from the points' "
+                        "own report.json files (points without one run again)")
     p.add_argument("--allow-failed", action="store_true",
                    help="exit 0 even when points failed (default: exit 1)")
     p.add_argument("--threads", type=_threads,
