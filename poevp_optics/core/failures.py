@@ -7,7 +7,7 @@ for internal errors (a bug: the line says so and that `--debug` or POEVP_DEBUG=1
 traceback). Exit statuses: cli.py's module docstring.
 
 `quiet_native_stderr()` captures what C libraries (OpenEXR, Mitsuba) print straight to file
-descriptor 2 during a block, so that their text can be folded into our one line instead of
+descriptors 1 and 2 during a block, so that their text can be folded into our one line instead of
 appearing loose on the terminal.
 """
 
@@ -108,28 +108,28 @@ def debug_requested(argv: list[str]) -> bool:
 
 @contextlib.contextmanager
 def quiet_native_stderr() -> Iterator[list[str]]:
-    """Capture what C code writes to file descriptor 2 within the block; the text lands in the
-    yielded list (one string) when the block ends, so the caller can fold it into its error.
-    With POEVP_DEBUG set the text is written through as well."""
+    """Capture what C code writes to file descriptors 1 and 2 within the block (OpenEXR prints
+    its warnings to stdout, Mitsuba its log to stderr); the text lands in the yielded list (one
+    string) when the block ends, so the caller can fold it into its error. With POEVP_DEBUG set
+    the text is written through to stderr as well. Python code in the block must not print."""
     captured: list[str] = []
-    try:
-        fd = sys.stderr.fileno()
-    except (AttributeError, ValueError, OSError):      # pytest capture without a real fd
-        fd = 2
-    try:
-        saved = os.dup(fd)
-    except OSError:
-        yield captured
-        return
-    with tempfile.TemporaryFile() as tmp:
-        with contextlib.suppress(Exception):
-            sys.stderr.flush()
-        os.dup2(tmp.fileno(), fd)
+    saved = []
+    with contextlib.ExitStack() as stack:
+        tmp = stack.enter_context(tempfile.TemporaryFile())
+        for stream, fd in ((sys.stdout, 1), (sys.stderr, 2)):
+            with contextlib.suppress(Exception):
+                stream.flush()
+            try:
+                saved.append((fd, os.dup(fd)))
+                os.dup2(tmp.fileno(), fd)
+            except OSError:
+                pass
         try:
             yield captured
         finally:
-            os.dup2(saved, fd)
-            os.close(saved)
+            for fd, old in saved:
+                os.dup2(old, fd)
+                os.close(old)
             tmp.seek(0)
             text = tmp.read().decode(errors="replace")
             captured.append(" ".join(text.split()))

@@ -127,11 +127,21 @@ def write_exr(path: str | os.PathLike, channels: Mapping[str, np.ndarray],
 
 
 def read_exr(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict]:
-    """Read an OpenEXR file: (channels by name as float32 arrays, header dict)."""
-    with OpenEXR.File(str(path), separate_channels=True) as f:
-        part = f.parts[0]
-        chans = {name: np.array(c.pixels, dtype=np.float32) for name, c in part.channels.items()}
-        return chans, dict(part.header)
+    """Read an OpenEXR file: (channels by name as float32 arrays, header dict). What OpenEXR
+    prints itself on a damaged file is folded into the exception's text, never printed loose."""
+    from poevp_optics.core.failures import quiet_native_stderr
+
+    try:
+        with quiet_native_stderr() as printed:
+            with OpenEXR.File(str(path), separate_channels=True) as f:
+                part = f.parts[0]
+                chans = {name: np.array(c.pixels, dtype=np.float32) for name, c in part.channels.items()}
+                return chans, dict(part.header)
+    except OSError:
+        raise
+    except Exception as e:  # noqa: BLE001 - the binding raises RuntimeError variants
+        extra = " ".join(printed).strip()
+        raise RuntimeError(" ".join(f"{e} {extra}".split())[:400]) from None
 
 
 def write_png(path: str | os.PathLike, image: np.ndarray) -> None:
