@@ -502,7 +502,7 @@ def main(argv: list[str] | None = None) -> int:
         return _run(argv, debug)
     with warnings.catch_warnings(record=True) as caught:
         rc = _run(argv, debug)
-    if caught:
+    if caught and rc == 0:             # a failure's one line says what went wrong; --debug shows them
         first = caught[0]
         print(f"poevp: note: {len(caught)} library warning(s) during the run, first "
               f"{first.category.__name__}: {' '.join(str(first.message).split())[:200]} "
