@@ -488,6 +488,7 @@ def main(argv: list[str] | None = None) -> int:
     """Run one command; returns the exit status (module docstring). Every failure is one line
     on stderr (core/failures.py); `--debug` (anywhere before `--`) or POEVP_DEBUG=1 lets the
     traceback and library warnings through instead."""
+    import atexit
     import warnings
 
     from poevp_optics.core.failures import debug_requested
@@ -498,16 +499,36 @@ def main(argv: list[str] | None = None) -> int:
     argv = [a for i, a in enumerate(argv) if not (a == "--debug" and "--" not in argv[:i])]
     if from_shell:                     # SIGTERM after the command's own handling: still one line
         runtime.sigterm_exits(_TERMINATED)
+        atexit.register(_exit_after_cleanup)
     if debug:
-        return _run(argv, debug)
+        rc = _EXIT[0] = _run(argv, debug)
+        return rc
     with warnings.catch_warnings(record=True) as caught:
-        rc = _run(argv, debug)
+        rc = _EXIT[0] = _run(argv, debug)
     if caught and rc == 0:             # a failure's one line says what went wrong; --debug shows them
         first = caught[0]
         print(f"poevp: note: {len(caught)} library warning(s) during the run, first "
               f"{first.category.__name__}: {' '.join(str(first.message).split())[:200]} "
               "(--debug shows them)", file=sys.stderr)
     return rc
+
+
+_EXIT: list = [None]
+
+
+def _exit_after_cleanup() -> None:
+    """The last exit handler (registered first): every output is written and every other exit
+    handler (Dask, multiprocessing, temporary files) has run, so leave now with the command's
+    status. The interpreter's own teardown after this point resets signal handlers to the
+    defaults, where a SIGTERM would end the process silently (-15)."""
+    if _EXIT[0] is None:
+        return
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except Exception:  # noqa: BLE001 - a closed pipe: nothing more to say
+            pass
+    os._exit(_EXIT[0])
 
 
 _TERMINATED = ("poevp: terminated (SIGTERM); partial output removed, earlier outputs and finished "
