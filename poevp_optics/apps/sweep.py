@@ -111,6 +111,7 @@ def parse_grid(text: str) -> tuple[str, list]:
     if count is not None and count.isdigit() and int(count) > MAX_SWEEP_RUNS:
         raise RunTooLarge(f"--grid {text}: {int(count)} values; a sweep runs at most {MAX_SWEEP_RUNS} "
                           "points x seeds: give fewer")
+    if parts[0] == "log" and len(parts) == 4 and all(_is_number(p) for p in parts[1:]):
         a, b, n = float(parts[1]), float(parts[2]), parts[3]
         if not n.isdigit() or int(n) < 1 or a <= 0 or b <= 0:
             raise SceneError(f"--grid {text}: a log range needs start, stop > 0 and an integer count")
