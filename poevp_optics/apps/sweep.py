@@ -418,16 +418,17 @@ def _read_table_checked(out: Path, rebuild: bool, keys: set[str]):
                           "the points' own reports (points/*/report.json), or give another --out")
 
 
-def _check_sweep_size(specs, job: str, seeds: int, out: Path, where: Path, yes: bool) -> None:
-    """The whole sweep's run size (each point x seeds) within the limits and the free space."""
+def _check_sweep_size(specs, job: str, seeds: int, where: Path, yes: bool) -> list:
+    """The whole sweep's run size (each point x seeds) within the limits; returns each point's
+    size (one seed) for the free-space check of the runs still to do (_run_sweep)."""
     from poevp_optics.apps import run_size
-    from poevp_optics.core.io import check_free_space
 
+    sizes = [run_size.estimate(sp, job) for sp in specs]
     total = run_size.RunSize(0.0, 0, 0)
-    for sp in specs:
-        total = total + run_size.estimate(sp, job).times(seeds)
+    for size in sizes:
+        total = total + size.times(seeds)
     run_size.check(total, where=str(where), yes=yes, what=f"this sweep ({len(specs)} points x {seeds} seeds)")
-    check_free_space(out, total.disk_bytes, f"this sweep ({len(specs)} points x {seeds} seeds)")
+    return sizes
 
 
 def sweep(scene: str, grid_args: list[str], *, out: Path, seeds: int = 1, workers: int | None = None,
@@ -483,7 +484,12 @@ def sweep(scene: str, grid_args: list[str], *, out: Path, seeds: int = 1, worker
         biggest = max(specs, key=lambda sp: estimate_run(sp, job).total_bytes)
         check_memory(biggest, job, workers=n_workers,
                      where=f"{toml} (largest sweep point, {n_workers} at once)")
-    _check_sweep_size(specs, job, seeds, Path(os.path.abspath(out)), toml, yes)
+    sizes = _check_sweep_size(specs, job, seeds, toml, yes)
+    if not (Path(out) / "results.parquet").exists():   # a new sweep: refused before writing anything
+        from poevp_optics.core.io import check_free_space
+
+        check_free_space(out, seeds * sum(sz.disk_bytes for sz in sizes),
+                         f"this sweep ({len(specs)} points x {seeds} seeds)")
     record = _record(toml, job, seeds, dict(grid), dict(base_raw), point_refs)
     plan = make_plan("shared" if cl.local or shared_fs else "bundle", resolve_scene_path(scene),
                      [r for refs in point_refs for r in refs])
@@ -504,7 +510,7 @@ def sweep(scene: str, grid_args: list[str], *, out: Path, seeds: int = 1, worker
             write_json(mpath, record)
             with sigterm_raises():
                 return _run_sweep(scene, out, keys, combos, point_refs, plan, seeds, base, job, dask, metric,
-                                  progress, retry_failed, log, tqdm, rebuild)
+                                  progress, retry_failed, log, tqdm, rebuild, sizes)
     finally:
         dask.close()
 
@@ -550,7 +556,7 @@ class _Dask:
 
 
 def _run_sweep(scene, out, keys, combos, point_refs, plan, seeds, base, job, dask, metric, progress,
-               retry_failed, log, tqdm, rebuild=False):
+               retry_failed, log, tqdm, rebuild=False, sizes=None):
     import shutil
     import tomllib
 
@@ -585,6 +591,11 @@ def _run_sweep(scene, out, keys, combos, point_refs, plan, seeds, base, job, das
     todo = [t for t in tasks if t[0]["point_key"] not in done]
     log(f"poevp sweep: {len(tasks)} runs ({len(combos)} points x {seeds} seeds), "
         f"{len(rows)} already finished, {len(todo)} to run -> {out}")
+    if todo and sizes:                 # room for the runs still to do (io.check_free_space)
+        from poevp_optics.core.io import check_free_space
+
+        check_free_space(out, sum(sizes[t[0]["point"]].disk_bytes for t in todo),
+                         f"the {len(todo)} sweep runs still to do")
     df = write_table(rows, out) if rows else None
     if todo:
         df = _execute(todo, rows, out, job, plan, dask, progress, log, tqdm)

@@ -204,6 +204,16 @@ def test_sweep_bounds_are_refused_before_allocating(scene, tmp_path):
     assert not (tmp_path / "sw").exists()
 
 
+def test_sweep_free_space_is_checked_before_writing(scene, tmp_path, monkeypatch, capsys):
+    import poevp_optics.core.io as io
+
+    monkeypatch.setattr(io, "free_bytes", lambda p: 10_000)
+    assert main(["sweep", str(scene), "--grid", "timing.frames=1,2", "--out", str(tmp_path / "sw")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "this sweep (2 points x 1 seeds) needs about" in err[0]
+    assert not (tmp_path / "sw").exists()
+
+
 # ---------------------------------------------------------------------------- sweep state
 def test_sweep_state_is_verified_on_resume(scene, tmp_path, monkeypatch, capsys):
     import pandas as pd
