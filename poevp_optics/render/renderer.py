@@ -296,6 +296,10 @@ class Renderer:
                 self.scene = mi.load_file(str(spec.xml_path), **self.plan.xml_params)
         except Exception as e:  # noqa: BLE001 - Mitsuba raises RuntimeError with a long trace
             raise SceneError(mitsuba_load_error(str(e) or type(e).__name__, spec, printed)) from None
+        if "".join(printed).strip():   # Mitsuba's log of a scene that loads: a warning, not loose text
+            import warnings
+
+            warnings.warn(f"Mitsuba loading {spec.xml_path.name}: {''.join(printed)[:500]}", stacklevel=2)
         self.params = mi.traverse(self.scene)
         # Moving objects: analytic shapes and emitters expose `to_world`; meshes bake their
         # transform into `vertex_positions`, which we translate directly (motion is a translation).
