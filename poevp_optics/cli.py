@@ -1,8 +1,10 @@
 """`poevp` command line: render, validate, compare, chart, sweep, evaluate, train-predictor, schema, info.
 
-Exit status: 0 done; 1 a sweep finished with failed points (`--allow-failed`: 0); 2 bad input
-(one line on stderr naming the file and key, or the flag; nothing written); 130 Ctrl-C; 143
-SIGTERM (both: a message, partial output removed, earlier outputs untouched).
+Exit status: 0 done; 1 a sweep finished with failed points (`--allow-failed`: 0), or the
+environment failed (disk full, out of memory, too many open files) or an internal error (one
+line; `--debug` or POEVP_DEBUG=1 shows the traceback); 2 bad input (one line on stderr naming
+the file and key, or the flag, or the path; nothing written); 130 Ctrl-C; 143 SIGTERM (both: a
+message, partial output removed, earlier outputs untouched).
 """
 
 from __future__ import annotations
@@ -43,6 +45,25 @@ _positive_int = _int_at_least(1)
 _count = _int_at_least(0)
 
 
+def _seeds(text: str) -> int:
+    """--seeds: 1 to apps/run_size.MAX_SEEDS."""
+    from poevp_optics.apps.run_size import MAX_SEEDS
+
+    n = _positive_int(text)
+    if n > MAX_SEEDS:
+        raise argparse.ArgumentTypeError(f"{n} seeds is above the limit {MAX_SEEDS} per point")
+    return n
+
+
+def _threads(text: str) -> int:
+    """--threads: 1 to runtime.max_threads()."""
+    n = _positive_int(text)
+    if n > runtime.max_threads():
+        raise argparse.ArgumentTypeError(f"{n} threads is above the limit {runtime.max_threads()} "
+                                         f"(8 per core, at least 64; this machine has {os.cpu_count()} cores)")
+    return n
+
+
 def _resolution_override(text: str) -> str:
     try:
         h, w = (int(v) for v in text.lower().split("x"))
@@ -81,6 +102,10 @@ def _add_run_options(p: argparse.ArgumentParser) -> None:
                    help="render at the DMD's own mirror count (night_road: the DLP6500's 1920x1080, 6x the "
                         "default scale), the sizes in mirrors and the objective's focal length scaled with it; "
                         "applied after every --set")
+    p.add_argument("--yes", action="store_true",
+                   help="run even when the run-size estimate (CPU time, disk) is above the limits "
+                        "(POEVP_MAX_CPU_HOURS, default 4; POEVP_MAX_DISK, default 20G); free space is "
+                        "still checked")
     p.add_argument("--accuracy", choices=("fast", "default", "reference"), default="default",
                    help="spp, MC error target, sub-frames and PSF support together, applied after "
                         "every --set (fast: 5 %% target within the scene's spp, K/2; reference: "
@@ -89,7 +114,7 @@ def _add_run_options(p: argparse.ArgumentParser) -> None:
 
 def _add_job_options(p: argparse.ArgumentParser, out_help: str) -> None:
     p.add_argument("--out", help=out_help)
-    p.add_argument("--threads", type=_positive_int, help="DrJit/torch/OpenCV threads (default: all cores)")
+    p.add_argument("--threads", type=_threads, help="DrJit/torch/OpenCV threads (default: all cores)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
@@ -125,6 +150,7 @@ def cmd_render(args) -> int:
     from poevp_optics.apps.runner import run_job
 
     spec, out, report = run_job("render", args.scene, _overrides(args), out=args.out, threads=args.threads,
+                                yes=args.yes,
                                 progress=not args.quiet)
     r = report["stages"]["render"]
     print(f"poevp: rendered {report['frames']} frames of {spec.name} at "
@@ -139,11 +165,13 @@ def cmd_render(args) -> int:
 def cmd_validate(args) -> int:
     from poevp_optics.apps.memory import fits_note
     from poevp_optics.apps.preflight import check_run
+    from poevp_optics.apps.runner import check_size
     from poevp_optics.scene.load import load_scene
     spec = load_scene(args.scene, _overrides(args))
     job = args.job or ("chart" if spec.chart.patches else "render")
-    pf = check_run(spec, job, load=args.load)
+    pf = check_run(spec, job, load=not args.no_load)
     plan = pf.plan
+    size = check_size(spec, job, plan, None, args.yes)
     if not spec.source.renders:
         what = f"source {plan.mode}: {plan.reason}" + "".join(f"; note: {n}" for n in plan.notes)
     else:
@@ -151,7 +179,8 @@ def cmd_validate(args) -> int:
                 f"{'static' if spec.is_static else ('PWM lamps on static geometry: ' + ', '.join(spec.flicker)) if spec.geometry_static else 'moving: ' + ', '.join(spec.motion)}; "
                 f"render path {plan.mode} ({plan.reason})")
     print(f"poevp: {spec.toml_path} is valid for `poevp {job}`: {spec.timing.frames} frames, "
-          f"{spec.render.resolution[0]}x{spec.render.resolution[1]}, {what}; {fits_note(pf.memory)}")
+          f"{spec.render.resolution[0]}x{spec.render.resolution[1]}, {what}; {fits_note(pf.memory)}; "
+          f"run size: {size.describe()}")
     return 0
 
 
@@ -172,6 +201,7 @@ def cmd_compare(args) -> int:
     if not preds or not modes:
         raise SceneError("--predictors/--modes: give at least one of each")
     _, out, rows = run_job("compare", args.scene, _overrides(args), out=args.out, threads=args.threads,
+                                yes=args.yes,
                            progress=not args.quiet, check={"predictors": tuple(preds)},
                            predictors=preds, modes=modes)
     for r in rows:
@@ -189,6 +219,7 @@ def cmd_chart(args) -> int:
     from poevp_optics.apps.runner import run_job
 
     spec, out, r = run_job("chart", args.scene, _overrides(args), out=args.out, threads=args.threads,
+                                yes=args.yes,
                            progress=not args.quiet)
     dr = r["dynamic_range_db"]
     line = "  ".join(f"{mode} {dr[mode]['iso15739']:.1f} dB" for mode in dr if dr[mode].get("iso15739") is not None)
@@ -218,7 +249,7 @@ def cmd_sweep(args) -> int:
                scheduler=args.scheduler, scheduler_file=args.scheduler_file, shared_fs=args.shared_fs,
                retries=args.retries, job=args.job, base_overrides=_overrides(args),
                metric=args.plot, progress=not args.quiet, retry_failed=args.retry_failed,
-               threads=args.threads)
+               threads=args.threads, yes=args.yes, rebuild=args.rebuild)
     n_failed = 0
     if df is not None:
         n_ok = int((df["status"] == "ok").sum())
@@ -404,6 +435,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     parser = _OneLineParser(prog="poevp", description="POE-VP DMD camera simulator")
     parser.add_argument("--version", action="version", version=f"poevp_optics {__version__}")
+    parser.add_argument("--debug", action="store_true",
+                        help="show tracebacks and library warnings (also POEVP_DEBUG=1; any position)")
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("render", help="render a scene: radiance frames, previews, report.json")
@@ -415,7 +448,10 @@ def build_parser() -> argparse.ArgumentParser:
     _add_run_options(p)
     p.add_argument("--job", choices=JOBS.names(),
                    help="check the scene for this command (default: chart for a [chart] scene, else render)")
-    p.add_argument("--load", action="store_true", help="also load the XML in Mitsuba")
+    p.add_argument("--load", action="store_true", help="(the default) load the XML in Mitsuba as render does")
+    p.add_argument("--no-load", action="store_true",
+                   help="skip loading the XML in Mitsuba (faster; an include or parameter Mitsuba "
+                        "refuses is then found by render only)")
     p.set_defaults(func=cmd_validate)
 
     p = sub.add_parser("compare", help="one render, several predictors x loop modes: table + figure")
@@ -434,16 +470,20 @@ def build_parser() -> argparse.ArgumentParser:
     _add_run_options(p)
     p.add_argument("--grid", action="append", default=[], required=True,
                    help="KEY=v1,v2,... | KEY=start:stop:num | KEY=log:start:stop:num (repeatable)")
-    p.add_argument("--seeds", type=_positive_int, default=1, help="seeds per point (render.seed, sensor.seed)")
+    p.add_argument("--seeds", type=_seeds, default=1, help="seeds per point (render.seed, sensor.seed), "
+                   "at most 1000")
     p.add_argument("--out", help="default out/<scene>-sweep; rerunning the same sweep resumes")
     p.add_argument("--workers", type=_positive_int, help="local Dask worker processes (default: cores)")
     _add_cluster_options(p)
     p.add_argument("--job", default="render", choices=sweep_jobs())
     p.add_argument("--plot", metavar="METRIC", help="column to plot, e.g. metrics.saturated_fraction_roi.encoded")
     p.add_argument("--retry-failed", action="store_true", help="rerun points recorded as failed")
+    p.add_argument("--rebuild", action="store_true",
+                   help="a results table or sweep.json that does not read is rebuilt from the points' "
+                        "own report.json files (points without one run again)")
     p.add_argument("--allow-failed", action="store_true",
                    help="exit 0 even when points failed (default: exit 1)")
-    p.add_argument("--threads", type=_positive_int,
+    p.add_argument("--threads", type=_threads,
                    help="DrJit/torch/OpenCV threads per worker (default cores // workers)")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=cmd_sweep)
@@ -462,7 +502,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-steps", type=_positive_int)
     p.add_argument("--out", default="out/train", help="checkpoints (resumable)")
     p.add_argument("--weights-out", help="default: assets/predictor/<name>.safetensors")
-    p.add_argument("--threads", type=_positive_int)
+    p.add_argument("--threads", type=_threads)
     p.set_defaults(func=cmd_train)
 
     p = sub.add_parser("schema", help="JSON Schema of scene.toml (for editors: taplo, Even Better TOML)")
@@ -477,7 +517,59 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run one command; returns the exit status (module docstring)."""
+    """Run one command; returns the exit status (module docstring). Every failure is one line
+    on stderr (core/failures.py); `--debug` (anywhere before `--`) or POEVP_DEBUG=1 lets the
+    traceback and library warnings through instead."""
+    import atexit
+    import warnings
+
+    from poevp_optics.core.failures import debug_requested
+
+    from_shell = argv is None
+    argv = list(sys.argv[1:] if argv is None else argv)
+    debug = debug_requested(argv)
+    argv = [a for i, a in enumerate(argv) if not (a == "--debug" and "--" not in argv[:i])]
+    if from_shell:                     # SIGTERM after the command's own handling: still one line
+        runtime.sigterm_exits(_TERMINATED)
+        atexit.register(_exit_after_cleanup)
+    if debug:
+        rc = _EXIT[0] = _run(argv, debug)
+        return rc
+    with warnings.catch_warnings(record=True) as caught:
+        rc = _EXIT[0] = _run(argv, debug)
+    if caught and rc == 0:             # a failure's one line says what went wrong; --debug shows them
+        first = caught[0]
+        print(f"poevp: note: {len(caught)} library warning(s) during the run, first "
+              f"{first.category.__name__}: {' '.join(str(first.message).split())[:200]} "
+              "(--debug shows them)", file=sys.stderr)
+    return rc
+
+
+_EXIT: list = [None]
+
+
+def _exit_after_cleanup() -> None:
+    """The last exit handler (registered first): every output is written and every other exit
+    handler (Dask, multiprocessing, temporary files) has run, so leave now with the command's
+    status. The interpreter's own teardown after this point resets signal handlers to the
+    defaults, where a SIGTERM would end the process silently (-15)."""
+    if _EXIT[0] is None:
+        return
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except Exception:  # noqa: BLE001 - a closed pipe: nothing more to say
+            pass
+    os._exit(_EXIT[0])
+
+
+_TERMINATED = ("poevp: terminated (SIGTERM); partial output removed, earlier outputs and finished "
+               "sweep points kept")
+
+
+def _run(argv: list[str], debug: bool) -> int:
+    from poevp_optics.core.failures import describe
+
     try:
         args = build_parser().parse_args(argv)
     except SystemExit as e:                        # --help, --version, argument errors
@@ -496,10 +588,13 @@ def main(argv: list[str] | None = None) -> int:
                   file=sys.stderr)
             return 130
         if _caused_by(e, runtime.Terminated):
-            print("poevp: terminated (SIGTERM); partial output removed, earlier outputs and finished "
-                  "sweep points kept", file=sys.stderr)
+            print(_TERMINATED, file=sys.stderr)
             return 143
-        raise
+        if debug or isinstance(e, SystemExit):
+            raise
+        message, rc = describe(e)
+        print(f"poevp: error: {message}", file=sys.stderr)
+        return rc
 
 
 def _caused_by(e: BaseException, kind: type) -> bool:

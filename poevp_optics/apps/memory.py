@@ -193,6 +193,16 @@ def _render_shape(spec) -> tuple[int, int]:
     return h + 2 * g, w + 2 * g
 
 
+def rendered_grid(spec) -> tuple[int, int]:
+    """The rendered (mirror) grid's (H, W), guard bands included (apps/run_size.py)."""
+    return _render_shape(spec)
+
+
+def radiance_samples(spec) -> int:
+    """Radiance images rendered per exposure (apps/run_size.py)."""
+    return _subframes(spec)
+
+
 def _objective_part(spec, k: int) -> Part | None:
     from poevp_optics.camera.objective import memory_bytes
 

@@ -93,11 +93,78 @@ def _fail(spec: SceneSpec, key: str, msg: str) -> SceneError:
 
 
 # ---------------------------------------------------------------------------- XML
-def _xml_root(spec: SceneSpec):
+#: Deepest chain of <include> files followed (Mitsuba has no limit; a loop would not end).
+MAX_INCLUDE_DEPTH = 16
+#: Leading bytes of the image formats Mitsuba's bitmap texture reads (Bitmap::detect_file_format).
+_IMAGE_MAGIC = (b"\x89PNG", b"\xff\xd8", b"\x76\x2f\x31\x01", b"#?", b"PF", b"Pf", b"P6", b"P5", b"BM")
+
+
+def _parse_xml(path: Path, via: str = ""):
     try:
-        return ET.parse(spec.xml_path).getroot()
+        return ET.parse(path).getroot()
     except ET.ParseError as e:
-        raise SceneError(f"{spec.xml_path}: malformed XML: {e}") from None
+        raise SceneError(f"{path}: malformed XML{via}: {e}") from None
+    except (OSError, RecursionError) as e:
+        raise SceneError(f"{path}: cannot read the XML{via}: {getattr(e, 'strerror', None) or e}") from None
+
+
+def _xml_root(spec: SceneSpec):
+    """The scene's XML with every <include> replaced by the included file's elements (paths
+    relative to the including file, as Mitsuba resolves them); a missing or looping include is
+    a SceneError naming the file that includes it."""
+    def expand(root, path: Path, chain: tuple):
+        for parent in list(root.iter()):
+            for i, child in enumerate(list(parent)):
+                if child.tag != "include":
+                    continue
+                name = child.get("filename") or ""
+                inc = (path.parent / name).resolve()
+                if not name or not inc.is_file():
+                    raise SceneError(f"{path}: <include filename={name!r}>: file not found: {inc}")
+                if inc in chain or len(chain) >= MAX_INCLUDE_DEPTH:
+                    raise SceneError(f"{path}: <include filename={name!r}>: includes itself or nests deeper "
+                                     f"than {MAX_INCLUDE_DEPTH} files")
+                sub = expand(_parse_xml(inc, f" (included by {path.name})"), inc, chain + (inc,))
+                parent.remove(child)
+                for j, el in enumerate(list(sub)):
+                    parent.insert(i + j, el)
+        return root
+
+    return expand(_parse_xml(spec.xml_path), spec.xml_path, (spec.xml_path.resolve(),))
+
+
+def _check_parameters_used(spec: SceneSpec, root, xml_params: dict[str, str]) -> None:
+    """Every parameter the TOML binds is written `$name` somewhere in the XML (Mitsuba refuses
+    a scene given parameters it does not use: 'Found unused parameters')."""
+    import re
+
+    used = set()
+    for el in root.iter():
+        if el.tag == "default":
+            continue
+        for v in el.attrib.values():
+            used.update(re.findall(r"\$([A-Za-z_][A-Za-z0-9_]*)", v))
+    for name in sorted(set(xml_params) - used):
+        key = (f"spectra.{name}" if name in spec.spectra else
+               "plate.text" if name == spec.plate.param else name)
+        raise SceneError(f"{spec.xml_path}: no element uses the parameter ${name} (its <default> or the "
+                         f"binding alone does not), but {spec.toml_path}: {key} binds it; write "
+                         f'value="${name}" where it belongs in the XML, or remove {key}')
+
+
+def _check_image(spec: SceneSpec, path: Path, what: str) -> None:
+    """A bitmap texture's file starts like an image Mitsuba reads (PNG, JPEG, OpenEXR, RGBE,
+    PFM, PPM/PGM, BMP; TGA has no signature and is taken by its suffix)."""
+    if path.suffix.lower() == ".tga":
+        return
+    try:
+        with open(path, "rb") as f:
+            head = f.read(4)
+    except OSError as e:
+        raise SceneError(f"{spec.xml_path}: {what}: texture file {path}: {e.strerror or e}") from None
+    if not head.startswith(_IMAGE_MAGIC):
+        raise SceneError(f"{spec.xml_path}: {what}: texture file {path} is not an image Mitsuba reads "
+                         "(PNG, JPEG, OpenEXR, HDR, PFM, PPM, BMP, TGA)")
 
 
 def check_xml_references(spec: SceneSpec, xml_params: dict[str, str]) -> None:
@@ -129,10 +196,14 @@ def check_xml_references(spec: SceneSpec, xml_params: dict[str, str]) -> None:
                 value = xml_params.get(param, defaults.get(param, ""))
             p = Path(value)
             cands = [p] if p.is_absolute() else [spec.xml_path.parent / p, ASSETS_DIR / p]
-            if not value or not any(c.is_file() for c in cands):
-                what = f"<{parent.tag} type={parent.get('type')!r}" + (f" id={parent.get('id')!r}" if parent.get("id") else "") + ">"
+            what = f"<{parent.tag} type={parent.get('type')!r}" + (f" id={parent.get('id')!r}" if parent.get("id") else "") + ">"
+            found = [c for c in cands if c.is_file()] if value else []
+            if not found:
                 raise SceneError(f"{spec.xml_path}: {what} filename{via}: file not found: {value!r} "
                                  f"(looked in {spec.xml_path.parent} and {ASSETS_DIR})")
+            if parent.tag == "texture" and parent.get("type") == "bitmap":
+                _check_image(spec, found[0], f"{what} filename{via}")
+    _check_parameters_used(spec, root, xml_params)
 
 
 # ---------------------------------------------------------------------------- emitters, variant

@@ -63,10 +63,24 @@ def output_folder(spec, job: str, out: str | Path | None) -> Path:
     return Path(out) if out else Path("out") / f"{spec.name}{JOBS[job].suffix}"
 
 
+def check_size(spec, job: str, plan, folder: Path | None, yes: bool):
+    """The run-size estimate (apps/run_size.py) within its limits (unless `yes`) and, when the
+    output folder is known, within the free space there (always). Returns the RunSize."""
+    from poevp_optics.apps import run_size
+    from poevp_optics.core.io import check_free_space
+
+    size = run_size.estimate(spec, job, mode=getattr(plan, "mode", None))
+    run_size.check(size, where=str(spec.origin or spec.toml_path), yes=yes, what=f"`poevp {job}`")
+    if folder is not None:
+        check_free_space(folder, size.disk_bytes, f"`poevp {job}` of {spec.name}")
+    return size
+
+
 def run_job(job: str, scene, overrides: list[str], *, out=None, threads: int | None = None,
-            progress: bool = True, check: dict | None = None, **options):
+            progress: bool = True, check: dict | None = None, yes: bool = False, **options):
     """Run the scene job `job` (module docstring); returns (spec, output folder, result).
-    check: extra keywords of preflight.check_run (e.g. the predictors compare will run)."""
+    check: extra keywords of preflight.check_run (e.g. the predictors compare will run).
+    yes: run even above the run-size limits (apps/run_size.py)."""
     from poevp_optics.apps.preflight import check_run
     from poevp_optics.core.io import check_output, staged_dir
     from poevp_optics.scene.load import load_scene
@@ -74,7 +88,8 @@ def run_job(job: str, scene, overrides: list[str], *, out=None, threads: int | N
     spec = load_scene(scene, overrides)
     folder = output_folder(spec, job, out)
     check_output(folder, job, protect=reads(spec))
-    check_run(spec, job, **(check or {}))
+    pf = check_run(spec, job, **(check or {}))
+    check_size(spec, job, pf.plan, folder, yes)
     runtime.set_threads(threads)
     with staged_dir(folder, kind=job, protect=reads(spec)) as stage:
         result = JOBS[job].run(spec, stage, progress, **options)

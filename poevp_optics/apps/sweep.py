@@ -60,7 +60,8 @@ from poevp_optics.apps.bundle import (InputMismatch, InputPlan, InputRef, check_
 from poevp_optics.apps.cluster import (ClusterError, check_workers, connect, dashboard_link, software_versions,
                                       version_mismatch)
 from poevp_optics.apps.runner import JOBS, sweep_jobs
-from poevp_optics.core.exceptions import SceneError
+from poevp_optics.apps.run_size import MAX_SEEDS, MAX_SWEEP_RUNS, RunTooLarge
+from poevp_optics.core.exceptions import SceneError, UserError
 from poevp_optics.core.io import MARKER, atomic_path, locked_dir, staged_dir, write_json
 from poevp_optics.core.runtime import Terminated, sigterm_raises
 from poevp_optics.scene.load import apply_overrides, load_scene, parse_override, resolve_scene_path
@@ -106,6 +107,10 @@ def parse_grid(text: str) -> tuple[str, list]:
     if not eq or not key or not vals:
         raise SceneError(f"--grid {text}: expected {GRID_HELP}")
     parts = vals.split(":")
+    count = parts[-1] if len(parts) in (3, 4) and all(_is_number(p) for p in parts[-3:]) else None
+    if count is not None and count.isdigit() and int(count) > MAX_SWEEP_RUNS:
+        raise RunTooLarge(f"--grid {text}: {int(count)} values; a sweep runs at most {MAX_SWEEP_RUNS} "
+                          "points x seeds: give fewer")
     if parts[0] == "log" and len(parts) == 4 and all(_is_number(p) for p in parts[1:]):
         a, b, n = float(parts[1]), float(parts[2]), parts[3]
         if not n.isdigit() or int(n) < 1 or a <= 0 or b <= 0:
@@ -363,22 +368,87 @@ def _differences(old: dict, new: dict) -> list[str]:
     return out
 
 
+RECORD_KEYS = {"scene": str, "job": str, "seeds": int, "grid": dict, "effective_scene_sha256": str,
+               "inputs_sha256": dict}
+TABLE_COLUMNS = ("point", "seed", "point_key", "status", "error")
+
+
+class SweepStateError(UserError):
+    """A sweep folder's record or table that does not read: one line naming the file."""
+
+
+def _read_record(path: Path, rebuild: bool) -> dict | None:
+    """sweep.json parsed and of the right shape (RECORD_KEYS); None when it is not and
+    `rebuild` (it is then written anew), else SweepStateError."""
+    try:
+        rec = json.loads(path.read_text())
+        bad = [k for k, t in RECORD_KEYS.items() if not isinstance(rec.get(k), t)] if isinstance(rec, dict) else ["{}"]
+        problem = f"keys missing or of the wrong type: {', '.join(bad)}" if bad else None
+    except (OSError, ValueError, RecursionError) as e:
+        problem = f"does not read as JSON ({type(e).__name__}: {' '.join(str(e).split())[:120]})"
+    if problem is None:
+        return rec
+    if rebuild:
+        return None
+    raise SweepStateError(f"{path}: the sweep record {problem}; rerun with --rebuild to rebuild it and the "
+                          "table from the points' own reports, or give another --out")
+
+
+def _read_table_checked(out: Path, rebuild: bool, keys: set[str]):
+    """results.parquet parsed, with the columns a sweep writes (TABLE_COLUMNS) and only rows of
+    this sweep's points; None when absent, or when it does not read and `rebuild`."""
+    p = out / "results.parquet"
+    if not (p.is_file() or p.is_symlink()):
+        return None
+    try:
+        df = read_table(out)
+        missing = [c for c in TABLE_COLUMNS if c not in df.columns]
+        problem = f"columns missing: {', '.join(missing)}" if missing else None
+        if problem is None and not set(df["point_key"]) <= keys:
+            problem = "holds rows of points that are not this sweep's"
+        if problem is None and not df["status"].isin(["ok", "failed"]).all():
+            problem = "holds a status other than ok/failed"
+    except Exception as e:  # noqa: BLE001 - pyarrow raises its own errors for a damaged file
+        problem = f"does not read as a table ({type(e).__name__}: {' '.join(str(e).split())[:120]})"
+    if problem is None:
+        return df
+    if rebuild:
+        return None
+    raise SweepStateError(f"{p}: the results table {problem}; rerun with --rebuild to rebuild it from "
+                          "the points' own reports (points/*/report.json), or give another --out")
+
+
+def _check_sweep_size(specs, job: str, seeds: int, where: Path, yes: bool) -> list:
+    """The whole sweep's run size (each point x seeds) within the limits; returns each point's
+    size (one seed) for the free-space check of the runs still to do (_run_sweep)."""
+    from poevp_optics.apps import run_size
+
+    sizes = [run_size.estimate(sp, job) for sp in specs]
+    total = run_size.RunSize(0.0, 0, 0)
+    for size in sizes:
+        total = total + size.times(seeds)
+    run_size.check(total, where=str(where), yes=yes, what=f"this sweep ({len(specs)} points x {seeds} seeds)")
+    return sizes
+
+
 def sweep(scene: str, grid_args: list[str], *, out: Path, seeds: int = 1, workers: int | None = None,
           scheduler: str | None = None, scheduler_file: str | None = None, shared_fs: bool = False,
           retries: int = 2, job: str = "render", base_overrides: list[str] = (),
           metric: str | None = None, progress: bool = True, retry_failed: bool = False,
-          threads: int | None = None, log=print):
+          threads: int | None = None, log=print, yes: bool = False, rebuild: bool = False):
     """Run the grid; returns the results DataFrame. See the module docstring.
 
     scheduler / scheduler_file: an existing Dask scheduler (else a LocalCluster of `workers`).
     shared_fs: workers read the client's paths (verified) instead of a scene bundle.
-    retries: runs again of a point whose worker died, >= 0 (default 2)."""
+    retries: runs again of a point whose worker died, >= 0 (default 2). yes: run above the
+    run-size limits (apps/run_size.py). rebuild: a results table or sweep.json that does not
+    read is rebuilt from the points' own report.json files instead of refused."""
     from tqdm import tqdm
 
     if job not in sweep_jobs():
         raise SceneError(f"--job {job}: must be one of {', '.join(sweep_jobs())}")
-    if seeds < 1:
-        raise SceneError(f"--seeds {seeds}: must be >= 1")
+    if seeds < 1 or seeds > MAX_SEEDS:
+        raise SceneError(f"--seeds {seeds}: must be 1 to {MAX_SEEDS}")
     if retries < 0:
         raise SceneError(f"--retries {retries}: must be >= 0")
     cl = ClusterSettings(workers, scheduler, str(scheduler_file) if scheduler_file else None, shared_fs,
@@ -395,6 +465,10 @@ def sweep(scene: str, grid_args: list[str], *, out: Path, seeds: int = 1, worker
     if not grid:
         raise SceneError("--grid: give at least one KEY=VALUES")
     base = list(base_overrides)
+    runs = math.prod(len(v) for _, v in grid) * seeds
+    if runs > MAX_SWEEP_RUNS:
+        raise RunTooLarge(f"--grid {' '.join(grid_args)} --seeds {seeds}: {runs} runs (points x seeds); a "
+                          f"sweep runs at most {MAX_SWEEP_RUNS}: give fewer values or seeds")
     combos = list(itertools.product(*[v for _, v in grid]))
     # validate every point before anything runs or is written; list and hash what each reads
     specs = [load_scene(scene, base + point_overrides(keys, values, 0), cross_checks=False)
@@ -410,6 +484,12 @@ def sweep(scene: str, grid_args: list[str], *, out: Path, seeds: int = 1, worker
         biggest = max(specs, key=lambda sp: estimate_run(sp, job).total_bytes)
         check_memory(biggest, job, workers=n_workers,
                      where=f"{toml} (largest sweep point, {n_workers} at once)")
+    sizes = _check_sweep_size(specs, job, seeds, toml, yes)
+    if not (Path(out) / "results.parquet").exists():   # a new sweep: refused before writing anything
+        from poevp_optics.core.io import check_free_space
+
+        check_free_space(out, seeds * sum(sz.disk_bytes for sz in sizes),
+                         f"this sweep ({len(specs)} points x {seeds} seeds)")
     record = _record(toml, job, seeds, dict(grid), dict(base_raw), point_refs)
     plan = make_plan("shared" if cl.local or shared_fs else "bundle", resolve_scene_path(scene),
                      [r for refs in point_refs for r in refs])
@@ -420,8 +500,9 @@ def sweep(scene: str, grid_args: list[str], *, out: Path, seeds: int = 1, worker
             dask.open()                    # other software on the workers: refused before writing
         with locked_dir(out, kind="sweep", protect=(toml, toml.parent)):
             mpath = out / "sweep.json"
-            if mpath.is_file():
-                diffs = _differences(json.loads(mpath.read_text()), record)
+            if mpath.is_file() or mpath.is_symlink():
+                old_record = _read_record(mpath, rebuild)
+                diffs = _differences(old_record, record) if old_record is not None else []
                 if diffs:
                     raise SceneError(f"{out}: holds a different sweep or one whose inputs changed since "
                                      f"it started ({'; '.join(diffs)}); give another --out, or remove "
@@ -429,7 +510,7 @@ def sweep(scene: str, grid_args: list[str], *, out: Path, seeds: int = 1, worker
             write_json(mpath, record)
             with sigterm_raises():
                 return _run_sweep(scene, out, keys, combos, point_refs, plan, seeds, base, job, dask, metric,
-                                  progress, retry_failed, log, tqdm)
+                                  progress, retry_failed, log, tqdm, rebuild, sizes)
     finally:
         dask.close()
 
@@ -475,7 +556,7 @@ class _Dask:
 
 
 def _run_sweep(scene, out, keys, combos, point_refs, plan, seeds, base, job, dask, metric, progress,
-               retry_failed, log, tqdm):
+               retry_failed, log, tqdm, rebuild=False, sizes=None):
     import shutil
     import tomllib
 
@@ -491,16 +572,30 @@ def _run_sweep(scene, out, keys, combos, point_refs, plan, seeds, base, job, das
                    **{f"grid.{key}": (json.dumps(v) if isinstance(v, (list, tuple)) else v)
                       for key, v in zip(keys, values)}}
             tasks.append((row, tuple(ov), point_refs[idx], out / "points" / f"{k}-s{s}"))
-    prev = read_table(out)
+    prev = _read_table_checked(out, rebuild, {t[0]["point_key"] for t in tasks})
     done = {}
     if prev is not None:
         for r in prev.to_dict("records"):
             if r["status"] == "ok" or (r["status"] == "failed" and not retry_failed):
                 done[r["point_key"]] = r
+    elif rebuild:
+        done = _rows_from_reports(tasks)
+        log(f"poevp sweep: rebuilt the table from {len(done)} points' own reports")
+    lost = [t[0]["point_key"] for t in tasks if done.get(t[0]["point_key"], {}).get("status") == "ok"
+            and not (t[3] / "report.json").is_file()]
+    for k in lost:                     # its row points at nothing: run it again
+        del done[k]
+    if lost:
+        log(f"poevp sweep: {len(lost)} finished points have no output folder any more; running them again")
     rows = [done[t[0]["point_key"]] for t in tasks if t[0]["point_key"] in done]
     todo = [t for t in tasks if t[0]["point_key"] not in done]
     log(f"poevp sweep: {len(tasks)} runs ({len(combos)} points x {seeds} seeds), "
         f"{len(rows)} already finished, {len(todo)} to run -> {out}")
+    if todo and sizes:                 # room for the runs still to do (io.check_free_space)
+        from poevp_optics.core.io import check_free_space
+
+        check_free_space(out, sum(sizes[t[0]["point"]].disk_bytes for t in todo),
+                         f"the {len(todo)} sweep runs still to do")
     df = write_table(rows, out) if rows else None
     if todo:
         df = _execute(todo, rows, out, job, plan, dask, progress, log, tqdm)
@@ -511,6 +606,21 @@ def _run_sweep(scene, out, keys, combos, point_refs, plan, seeds, base, job, das
         else:
             log(f"poevp sweep: no ok rows with column {metric!r}; no plot")
     return df
+
+
+def _rows_from_reports(tasks) -> dict:
+    """Rows of the points whose folder holds a report.json that reads (`--rebuild`); their
+    `point_seconds` is not recorded there (NaN). Points without one run again."""
+    out = {}
+    for row, _ov, _refs, folder in tasks:
+        try:
+            report = json.loads((folder / "report.json").read_text())
+        except (OSError, ValueError):
+            continue
+        if isinstance(report, dict):
+            out[row["point_key"]] = {**row, "status": "ok", "error": "", **flatten_report(report),
+                                     "point_seconds": math.nan}
+    return out
 
 
 def _write_point(folder: Path, archive: bytes, job: str) -> None:

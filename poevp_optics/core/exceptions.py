@@ -2,7 +2,8 @@
 
 The command line prints such an error as one line (`poevp: error: <message>`) and exits 2; the
 message names the file and the key (or the flag) and the allowed range. Anything else that
-escapes a command is a bug and keeps its traceback.
+escapes a command is also one line (core/failures.py: exit 2 for a path the OS refuses, 1 for
+the environment or a bug); `--debug` or POEVP_DEBUG=1 keeps its traceback.
 """
 
 from __future__ import annotations

@@ -63,9 +63,29 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
         os.umask(umask)
         os.chmod(tmp, 0o666 & ~umask)  # mkstemp creates 0600
         os.replace(tmp, path)
+    except OSError as e:               # name the file being written, not its temporary twin
+        if e.filename is not None and os.fsdecode(e.filename) == str(tmp):
+            e.filename = str(path)
+        raise
     finally:
         if tmp.exists():
             tmp.unlink()
+
+
+#: Below this many free bytes a failed write is taken for a full disk.
+_NEARLY_FULL = 1 << 20
+
+
+def write_error(path: str | os.PathLike, what: str) -> OSError:
+    """An OSError for a library's failed write of `path` (OpenEXR, OpenCV give no errno):
+    ENOSPC when the text says so or the file system is (nearly) full, else EIO."""
+    try:
+        full = free_bytes(Path(path).parent) < _NEARLY_FULL
+    except OSError:
+        full = False
+    if full or "no space left" in what.lower():
+        return OSError(errno.ENOSPC, "No space left on device", str(path))
+    return OSError(errno.EIO, f"could not write the file ({' '.join(what.split())[:300]})", str(path))
 
 
 def write_json(path: str | os.PathLike, obj) -> None:
@@ -97,16 +117,31 @@ def write_exr(path: str | os.PathLike, channels: Mapping[str, np.ndarray],
     for k, v in (attributes or {}).items():
         header[k] = str(v)
     with atomic_path(path) as tmp:
-        with OpenEXR.File(header, chans) as f:
-            f.write(str(tmp))
+        try:
+            with OpenEXR.File(header, chans) as f:
+                f.write(str(tmp))
+        except OSError:
+            raise
+        except Exception as e:  # noqa: BLE001 - OpenEXR raises RuntimeError for I/O failures
+            raise write_error(path, f"OpenEXR: {e}") from None
 
 
 def read_exr(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict]:
-    """Read an OpenEXR file: (channels by name as float32 arrays, header dict)."""
-    with OpenEXR.File(str(path), separate_channels=True) as f:
-        part = f.parts[0]
-        chans = {name: np.array(c.pixels, dtype=np.float32) for name, c in part.channels.items()}
-        return chans, dict(part.header)
+    """Read an OpenEXR file: (channels by name as float32 arrays, header dict). What OpenEXR
+    prints itself on a damaged file is folded into the exception's text, never printed loose."""
+    from poevp_optics.core.failures import quiet_native_stderr
+
+    try:
+        with quiet_native_stderr() as printed:
+            with OpenEXR.File(str(path), separate_channels=True) as f:
+                part = f.parts[0]
+                chans = {name: np.array(c.pixels, dtype=np.float32) for name, c in part.channels.items()}
+                return chans, dict(part.header)
+    except OSError:
+        raise
+    except Exception as e:  # noqa: BLE001 - the binding raises RuntimeError variants
+        extra = " ".join(printed).strip()
+        raise RuntimeError(" ".join(f"{e} {extra}".split())[:400]) from None
 
 
 def write_png(path: str | os.PathLike, image: np.ndarray) -> None:
@@ -118,7 +153,7 @@ def write_png(path: str | os.PathLike, image: np.ndarray) -> None:
         img = img[..., ::-1]  # OpenCV writes BGR
     with atomic_path(path) as tmp:
         if not cv2.imwrite(str(tmp), img):
-            raise OSError(f"could not write PNG {path}")
+            raise write_error(path, "OpenCV could not write the PNG")
 
 
 def read_png(path: str | os.PathLike) -> np.ndarray:
@@ -193,6 +228,77 @@ def _contains(outer: Path, inner: Path) -> bool:
     return inner == outer or outer in inner.parents
 
 
+#: Characters a staging or parked name adds to the output folder's (`.<name>.staging-<pid>-<8>`).
+_STAGING_EXTRA = 40
+
+
+def _checked_path(given: str, where: str) -> Path:
+    """`given` made absolute, symbolic links resolved; OutputError for a name too long for the
+    file system (with room for the staging name beside it) or a symbolic-link loop."""
+    out = Path(os.path.abspath(given))
+    probe = out
+    while probe.parent != probe:
+        try:
+            if probe.is_dir():
+                break
+        except OSError:                        # a name too long, a loop: look further up
+            pass
+        probe = probe.parent
+    try:
+        name_max = os.pathconf(probe, "PC_NAME_MAX")
+        path_max = os.pathconf(probe, "PC_PATH_MAX")
+    except (OSError, ValueError):
+        name_max, path_max = 255, 4096
+    for part in out.parts:
+        if len(os.fsencode(part)) + _STAGING_EXTRA > name_max:
+            raise OutputError(f"{where}: the name {part[:40]}... is {len(os.fsencode(part))} bytes; this "
+                              f"file system allows {name_max} (and poevp needs {_STAGING_EXTRA} more for "
+                              "its staging folder beside it): give a shorter name")
+    if len(os.fsencode(str(out))) + _STAGING_EXTRA > path_max:
+        raise OutputError(f"{where}: the path is {len(os.fsencode(str(out)))} bytes; this file system "
+                          f"allows {path_max}: give a shorter path")
+    try:
+        resolved = out.resolve()               # raises on a loop anywhere on the path
+        if os.path.lexists(out):
+            return resolved
+        return out
+    except (RuntimeError, OSError) as e:       # Python 3.11 raises RuntimeError for a loop
+        if isinstance(e, OSError) and e.errno not in (errno.ELOOP, errno.ENOENT):
+            raise OutputError(f"{where}: {e.strerror or e}") from None
+        raise OutputError(f"{where}: symbolic links on the path form a loop or point nowhere "
+                          "(it does not resolve); give a path that resolves") from None
+
+
+def free_bytes(path: str | os.PathLike) -> int:
+    """Free bytes for an unprivileged writer on the file system that holds `path` (or its
+    nearest existing parent): shutil.disk_usage's `free`."""
+    p = Path(os.path.abspath(path))
+    while not p.exists() and p.parent != p:
+        p = p.parent
+    return shutil.disk_usage(p).free
+
+
+def check_free_space(out_dir: str | os.PathLike, need_bytes: int, what: str) -> None:
+    """Refuse (OutputError, before any work) when the file system of `out_dir` has less free
+    space than `need_bytes` (a run-size estimate, core/run_size.py): `what` names the run."""
+    try:
+        free = free_bytes(out_dir)
+    except OSError:
+        return                         # cannot tell: the writers' own errors still apply
+    if need_bytes > free:
+        raise OutputError(f"--out {out_dir}: {what} needs about {_size(need_bytes)} on disk, "
+                          f"{_size(free)} free there; free space, give --out on another disk, or "
+                          "make the run smaller")
+
+
+def _size(n: float) -> str:
+    for unit in ("B", "KiB", "MiB", "GiB", "TiB"):
+        if abs(n) < 1024 or unit == "TiB":
+            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
+        n /= 1024
+    return f"{n:.1f} TiB"
+
+
 def check_output(out_dir: str | os.PathLike, kind: str, *, protect: tuple = ()) -> Path:
     """Apply the output policy's checks to `out_dir` (module docstring); return it absolute.
 
@@ -203,10 +309,8 @@ def check_output(out_dir: str | os.PathLike, kind: str, *, protect: tuple = ()) 
     given = str(out_dir)
     if not given.strip():
         raise OutputError("--out: empty path")
-    out = Path(os.path.abspath(given))
-    if out.exists() or out.is_symlink():
-        out = out.resolve()
     where = f"--out {given}"
+    out = _checked_path(given, where)
     if out.parent == out:
         raise OutputError(f"{where}: the file-system root cannot be an output folder")
     cwd = Path.cwd().resolve()
@@ -356,7 +460,12 @@ def staged_dir(out_dir: str | os.PathLike, *, kind: str, protect: tuple = ()) ->
         try:
             os.chmod(stage, 0o777 & ~_umask())
             _write_marker(stage, kind)
-            yield stage
+            try:
+                yield stage
+            except OSError as e:       # name the file as it would be in --out
+                if e.filename is not None and os.fsdecode(e.filename).startswith(str(stage) + os.sep):
+                    e.filename = str(out / os.path.relpath(os.fsdecode(e.filename), stage))
+                raise
             _commit(stage, out)
         finally:
             if stage.exists():

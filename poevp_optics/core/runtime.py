@@ -8,6 +8,7 @@ STYLE.md 12: nothing else calls `mi.set_variant`, `dr.set_thread_count`,
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 import signal
 import re
@@ -57,6 +58,27 @@ def sigterm_raises():
         signal.signal(signal.SIGTERM, old)
 
 
+def sigterm_exits(message: str) -> None:
+    """From now on, a SIGTERM outside `sigterm_raises` blocks (argument parsing, or the
+    interpreter's shutdown after a command wrote everything: Dask closing its cluster) prints
+    `message` and exits 143 at once instead of dying silently. Main thread only."""
+    import sys
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        return
+
+    def _exit(signum, frame):
+        for stream in (sys.stdout, sys.stderr):
+            with contextlib.suppress(Exception):
+                stream.flush()
+        with contextlib.suppress(OSError):
+            os.write(2, (message + "\n").encode())
+        os._exit(143)
+
+    signal.signal(signal.SIGTERM, _exit)
+
+
 @contextlib.contextmanager
 def signals_deferred():
     """Hold SIGTERM and SIGINT back for the block (an output folder being swapped into place)
@@ -77,6 +99,11 @@ def signals_deferred():
 _THREADS: int | None = None
 
 
+def max_threads() -> int:
+    """Most threads a run may ask for: 8 per core, at least 64 (more only oversubscribes)."""
+    return max(64, 8 * (os.cpu_count() or 1))
+
+
 def set_threads(n: int | None) -> None:
     """Thread count for DrJit's LLVM backend, torch, OpenCV and SciPy's FFTs (`fft_workers`;
     None: leave the defaults)."""
@@ -85,10 +112,15 @@ def set_threads(n: int | None) -> None:
         return
     if isinstance(n, bool) or not isinstance(n, int) or n < 1:
         raise ValueError(f"thread count must be an integer >= 1, got {n!r}")
+    if n > max_threads():
+        raise ValueError(f"thread count {n} is above the limit {max_threads()} (8 per core, at least 64)")
     _THREADS = int(n)
     import drjit as dr
 
-    dr.set_thread_count(int(n))
+    try:
+        dr.set_thread_count(int(n))
+    except RuntimeError as e:          # the OS refused the threads (EAGAIN)
+        raise OSError(errno.EAGAIN, f"cannot start {n} threads ({e})", "--threads") from None
     try:
         import torch
 

@@ -242,6 +242,30 @@ class RenderStats:
     extra: dict = field(default_factory=dict)
 
 
+def mitsuba_load_error(text: str, spec, printed=()) -> str:
+    """Mitsuba's loader error as one line: the innermost file + line, and for a parameter the
+    TOML key that binds it (`Found unused parameters: - $ink=0.0336` names no file)."""
+    import re
+
+    text = re.sub(r"\[[\w.]+:\d+\]\s*", "", text)
+    unused = re.findall(r"\$([A-Za-z_]\w*)=", text) if "unused parameter" in text else []
+    if unused:
+        keys = [f"spectra.{n}" if n in spec.spectra else "plate.text" if n == spec.plate.param else n
+                for n in unused]
+        return (f"{spec.xml_path}: no element uses the parameter(s) {', '.join('$' + n for n in unused)}, "
+                f"but {spec.toml_path}: {', '.join(keys)} binds them; write value=\"$name\" where it belongs "
+                "in the XML, or remove the key")
+    places = re.findall(r"(?:Error while loading|At) (.+?) \(line (\d+), col \d+\):\s*", text)
+    tail = re.split(r"(?:Error while loading|At) .+? \(line \d+, col \d+\):\s*", text)[-1]
+    tail = " ".join(tail.split())
+    bitmap = re.search(r'plugin of type "bitmap".*?"([^"]+)"', tail)
+    if bitmap:
+        tail = f"texture file {bitmap.group(1)} is not an image Mitsuba reads ({tail})"
+    where = f"{places[-1][0]}: line {places[-1][1]}" if places else str(spec.xml_path)
+    extra = " ".join(" ".join(printed).split())
+    return f"{where}: Mitsuba could not load the scene: {tail}" + (f" (Mitsuba printed: {extra[:200]})" if extra else "")
+
+
 class Renderer:
     """A loaded Mitsuba scene that can be posed at a time and rendered (stateful: the scene)."""
 
@@ -269,11 +293,17 @@ class Renderer:
         runtime.register_asset_dir(spectra.ASSETS_DIR)
         self.variant, self.variant_reason = variant, why
         self.mi = mi
+        from poevp_optics.core.failures import quiet_native_stderr
+
         try:
-            self.scene = mi.load_file(str(spec.xml_path), **self.plan.xml_params)
+            with quiet_native_stderr() as printed:
+                self.scene = mi.load_file(str(spec.xml_path), **self.plan.xml_params)
         except Exception as e:  # noqa: BLE001 - Mitsuba raises RuntimeError with a long trace
-            msg = str(e).strip().splitlines()[-1] if str(e).strip() else type(e).__name__
-            raise SceneError(f"{spec.xml_path}: Mitsuba could not load the scene: {msg}") from None
+            raise SceneError(mitsuba_load_error(str(e) or type(e).__name__, spec, printed)) from None
+        if "".join(printed).strip():   # Mitsuba's log of a scene that loads: a warning, not loose text
+            import warnings
+
+            warnings.warn(f"Mitsuba loading {spec.xml_path.name}: {''.join(printed)[:500]}", stacklevel=2)
         self.params = mi.traverse(self.scene)
         # Moving objects: analytic shapes and emitters expose `to_world`; meshes bake their
         # transform into `vertex_positions`, which we translate directly (motion is a translation).

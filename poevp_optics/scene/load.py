@@ -35,6 +35,8 @@ def parse_override(text: str) -> tuple[list[str], Any]:
         parsed = tomllib.loads(f"v = {value}")["v"]
     except tomllib.TOMLDecodeError:
         parsed = value.strip()
+    except RecursionError:
+        raise SceneError(f"--set {key.strip()}: the value nests brackets too deeply to read; flatten it") from None
     return path, parsed
 
 
@@ -107,6 +109,14 @@ def load_scene(scene: str | Path, overrides: list[str] | None = None, *,
     period), so a sweep can tell a bad key or value (stop) from an impossible point (record)."""
     path = resolve_scene_path(scene)
     try:
+        return _load(path, overrides, cross_checks)
+    except RecursionError:
+        raise SceneError(f"{path}: a value nests arrays or tables too deeply to read (thousands of "
+                         "brackets); flatten it") from None
+
+
+def _load(path: Path, overrides: list[str] | None, cross_checks: bool) -> SceneSpec:
+    try:
         raw = tomllib.loads(path.read_text())
     except tomllib.TOMLDecodeError as e:
         raise SceneError(f"{path}: malformed TOML: {e}") from None
@@ -157,7 +167,7 @@ def build_spec(raw: dict, path: Path, ctx: Where | None = None, *, cross_checks:
             validate.check_dmd_use(ctx, sec["dmd"], sec["timing"], sec["mask"])
         validate.check_sensor_levels(ctx, sec["sensor"])
     for ident, m in tables["motion"].items():
-        validate.check_motion(ctx, f"motion.{ident}", m)
+        validate.check_motion(ctx, f"motion.{ident}", m, sec["timing"])
     for ident, s in tables["spectra"].items():
         validate.check_spectrum(ctx, f"spectra.{ident}", s)
     validate.check_plugin_tables(ctx, path, tables["spectra"], tables["sheeting"])

@@ -131,7 +131,48 @@ def check_predictor(ctx, path: Path, pred: PredictorSpec, cross_checks: bool) ->
     return dataclasses.replace(pred, weights=str(w))
 
 
-def check_motion(ctx, key, m: MotionSpec):
+#: Speed of light in vacuum, m/s (SI definition, exact).
+SPEED_OF_LIGHT_M_PER_S = 299_792_458.0
+#: Largest displacement a trajectory may reach during a run, m: 100 km is beyond any camera
+#: scene here, and float32 vertex positions there are no finer than ~8 mm.
+MAX_OFFSET_M = 1.0e5
+
+
+def check_trajectory(ctx, key, m: MotionSpec, t: TimingSpec):
+    """Physically possible and in the scene: finite, slower than light, within MAX_OFFSET_M over
+    the run (frame starts 0 ... frames / fps, plus one frame)."""
+    with np.errstate(all="ignore"):
+        if m.kind == "linear":
+            v = np.asarray(m.velocity_m_per_s, float)
+            speed = float(np.sqrt(np.sum(v * v))) if np.all(np.isfinite(v)) else math.inf
+            if speed >= SPEED_OF_LIGHT_M_PER_S:
+                raise ctx.fail(f"{key}.velocity_m_per_s", f"{list(m.velocity_m_per_s)} m/s is not slower than "
+                               f"light ({SPEED_OF_LIGHT_M_PER_S:.6g} m/s): check the value and its unit")
+            end_s = (t.frames + 1) / t.fps
+            far = [m.offset_m(0.0), m.offset_m(end_s)]
+            what, name = f"at t = 0 and {end_s:.4g} s", f"{key}.start_offset_m"
+        elif m.kind == "keyframes" and len(m.times_s) >= 2:
+            offs = np.asarray(m.offsets_m, float)
+            steps = np.linalg.norm(np.diff(offs, axis=0), axis=1) / np.diff(np.asarray(m.times_s, float))
+            if not np.all(steps < SPEED_OF_LIGHT_M_PER_S):
+                raise ctx.fail(f"{key}.offsets_m", "keyframes move faster than light between two times "
+                               f"(up to {float(np.nanmax(steps)):.3g} m/s): check offsets_m and times_s")
+            far, what, name = list(offs), "at a keyframe", f"{key}.offsets_m"
+        else:
+            return
+        reach = max(float(np.linalg.norm(o)) if np.all(np.isfinite(o)) else math.inf for o in far)
+    if reach > MAX_OFFSET_M:
+        raise ctx.fail(name, f"the object is {reach:.3g} m from its XML pose {what}, beyond "
+                       f"{MAX_OFFSET_M:g} m: it leaves the scene; check the values and their unit")
+
+
+def check_motion(ctx, key, m: MotionSpec, t: TimingSpec | None = None):
+    _check_keyframe_keys(ctx, key, m)
+    if t is not None:
+        check_trajectory(ctx, key, m, t)
+
+
+def _check_keyframe_keys(ctx, key, m: MotionSpec):
     if m.kind == "keyframes":
         if len(m.times_s) < 1 or len(m.times_s) != len(m.offsets_m):
             raise ctx.fail(f"{key}.offsets_m",

@@ -96,13 +96,17 @@ def _header(path: Path, channel: str) -> tuple[int, int]:
     """(H, W) of an EXR file's data window; the file must hold `channel`."""
     import OpenEXR
 
+    from poevp_optics.core.failures import quiet_native_stderr
+
     try:
-        with OpenEXR.File(str(path), header_only=True) as f:   # read the header while open
-            header = f.parts[0].header
-            names = [c.name for c in header.get("channels", [])]
-            lo, hi = (np.asarray(v).copy() for v in header["dataWindow"])
+        with quiet_native_stderr() as printed:                 # OpenEXR's own lines go in ours
+            with OpenEXR.File(str(path), header_only=True) as f:   # read the header while open
+                header = f.parts[0].header
+                names = [c.name for c in header.get("channels", [])]
+                lo, hi = (np.asarray(v).copy() for v in header["dataWindow"])
     except Exception as e:  # noqa: BLE001 - the binding raises RuntimeError/OSError variants
-        raise SourceError(f"{path}: source.frames: not an OpenEXR file that can be read ({e})") from None
+        msg = " ".join(f"{e} {' '.join(printed)}".split())[:300]
+        raise SourceError(f"{path}: source.frames: not an OpenEXR file that can be read ({msg})") from None
     if channel not in names:
         raise SourceError(f"{path}: source.channel: no channel {channel!r} (channels: {', '.join(names) or 'none'})")
     return int(hi[1] - lo[1] + 1), int(hi[0] - lo[0] + 1)

@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import csv
 import glob
+import os
 import math
 import time
 from dataclasses import dataclass, field
@@ -90,7 +91,12 @@ def resolve_path(base_dir: Path, name: str) -> Path:
 def frame_files(base_dir: Path, pattern: str) -> list[Path]:
     """The files matching `pattern` (a glob relative to the scene's folder), sorted by name."""
     pat = str(resolve_path(base_dir, pattern))
-    return sorted(Path(p) for p in glob.glob(pat) if Path(p).is_file())
+    found = sorted(Path(p) for p in glob.glob(pat))
+    for p in found:                    # a frame that cannot be read is named, not skipped
+        if p.is_symlink() and not p.exists():
+            raise SourceError(f"{p}: source.frames: matches {pattern!r} but is a broken symbolic link "
+                              f"(to {os.readlink(p)}); restore the frame or remove the link")
+    return [p for p in found if p.is_file()]
 
 
 def check_file_keys(src, given: frozenset[str], base_dir: Path, file_keys: Sequence[str]) -> None:

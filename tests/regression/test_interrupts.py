@@ -102,7 +102,8 @@ def test_sigterm_then_sigkill_then_next_run(tmp_path, command, scene, args, kind
     ("render", "smoke", QUICK_RENDER, "render", "poevp_optics.apps.outputs.write_exr"),
     ("chart", "dr_chart36", CHART, "chart", "poevp_optics.apps.chart.write_exr"),
 ], ids=["render", "chart"])
-def test_exception_midway_leaves_earlier_output(tmp_path, monkeypatch, command, scene, args, kind, target):
+def test_exception_midway_leaves_earlier_output(tmp_path, monkeypatch, capsys, command, scene, args, kind,
+                                                target):
     out = tmp_path / "out"
     kept = earlier_output(out, kind)
 
@@ -110,8 +111,10 @@ def test_exception_midway_leaves_earlier_output(tmp_path, monkeypatch, command, 
         raise RuntimeError("disk on fire")
 
     monkeypatch.setattr(target, broken)
-    with pytest.raises(RuntimeError, match="disk on fire"):
-        main([command, str(SCENES / scene), "--out", str(out), *args])
+    capsys.readouterr()
+    assert main([command, str(SCENES / scene), "--out", str(out), *args]) == 1   # one line (issue 28)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "RuntimeError: disk on fire" in err[0], err
     assert tree(out) == kept and debris(out) == []
 
 

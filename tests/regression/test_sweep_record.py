@@ -9,7 +9,6 @@ import json
 import shutil
 
 import pandas as pd
-import pytest
 
 from poevp_optics.apps import sweep as sweep_mod
 from poevp_optics.cli import main
@@ -44,8 +43,9 @@ def test_sweep_resume_rules(tmp_path, capsys, monkeypatch):
         return real(rows, folder)
 
     monkeypatch.setattr(sweep_mod, "write_table", failing)
-    with pytest.raises(RuntimeError, match="disk on fire"):
-        main(["sweep", str(scene), "--out", str(out), *grid, *SMALL])
+    capsys.readouterr()
+    assert main(["sweep", str(scene), "--out", str(out), *grid, *SMALL]) == 1     # one line (issue 28)
+    assert "RuntimeError: disk on fire" in capsys.readouterr().err
     monkeypatch.setattr(sweep_mod, "write_table", real)
     recorded = pd.read_parquet(out / "results.parquet")
     assert len(recorded) == 2
