@@ -42,7 +42,6 @@ differ between runs; every other column of a point is reproducible from its seed
 
 from __future__ import annotations
 
-import hashlib
 import itertools
 import json
 import math
@@ -60,103 +59,16 @@ from poevp_optics.apps.bundle import (InputMismatch, InputPlan, InputRef, check_
 from poevp_optics.apps.cluster import (ClusterError, check_workers, connect, dashboard_link, software_versions,
                                       version_mismatch)
 from poevp_optics.apps.runner import JOBS, sweep_jobs
+from poevp_optics.apps.sweep_grid import (GRID_HELP, SEED_KEYS, canonical, parse_grid, point_key,  # noqa: F401
+                                         point_overrides, toml_literal)
+from poevp_optics.apps.sweep_state import (RECORD_KEYS, TABLE_COLUMNS, SweepStateError,  # noqa: F401
+                                          check_sweep_size, read_record, read_table, read_table_checked,
+                                          record_differences, sweep_record, write_table)
 from poevp_optics.apps.run_size import MAX_SEEDS, MAX_SWEEP_RUNS, RunTooLarge
-from poevp_optics.core.exceptions import SceneError, UserError
+from poevp_optics.core.exceptions import SceneError
 from poevp_optics.core.io import MARKER, atomic_path, locked_dir, staged_dir, write_json
 from poevp_optics.core.runtime import Terminated, sigterm_raises
-from poevp_optics.scene.load import apply_overrides, load_scene, parse_override, resolve_scene_path
-
-SEED_KEYS = ("render.seed", "sensor.seed")
-GRID_HELP = "KEY=v1,v2,... | KEY=start:stop:num | KEY=log:start:stop:num"
-
-
-# ---------------------------------------------------------------------------- grid
-def _split_values(text: str) -> list[str]:
-    """Split at commas that are not inside brackets or quotes."""
-    out, depth, quote, cur = [], 0, None, ""
-    for ch in text:
-        if quote:
-            quote = None if ch == quote else quote
-        elif ch in "'\"":
-            quote = ch
-        elif ch in "[{":
-            depth += 1
-        elif ch in "]}":
-            depth -= 1
-        elif ch == "," and depth == 0:
-            out.append(cur.strip())
-            cur = ""
-            continue
-        cur += ch
-    out.append(cur.strip())
-    return [v for v in out if v != ""]
-
-
-def _is_number(s: str) -> bool:
-    try:
-        float(s)
-        return True
-    except ValueError:
-        return False
-
-
-def parse_grid(text: str) -> tuple[str, list]:
-    """'key=values' -> (key, [python values]); see the module docstring for the syntax."""
-    key, eq, vals = text.partition("=")
-    key, vals = key.strip(), vals.strip()
-    if not eq or not key or not vals:
-        raise SceneError(f"--grid {text}: expected {GRID_HELP}")
-    parts = vals.split(":")
-    count = parts[-1] if len(parts) in (3, 4) and all(_is_number(p) for p in parts[-3:]) else None
-    if count is not None and count.isdigit() and int(count) > MAX_SWEEP_RUNS:
-        raise RunTooLarge(f"--grid {text}: {int(count)} values; a sweep runs at most {MAX_SWEEP_RUNS} "
-                          "points x seeds: give fewer")
-    if parts[0] == "log" and len(parts) == 4 and all(_is_number(p) for p in parts[1:]):
-        a, b, n = float(parts[1]), float(parts[2]), parts[3]
-        if not n.isdigit() or int(n) < 1 or a <= 0 or b <= 0:
-            raise SceneError(f"--grid {text}: a log range needs start, stop > 0 and an integer count")
-        values = [float(v) for v in np.geomspace(a, b, int(n))]
-    elif len(parts) == 3 and all(_is_number(p) for p in parts):
-        if not parts[2].isdigit() or int(parts[2]) < 1:
-            raise SceneError(f"--grid {text}: the count of start:stop:num must be a positive integer")
-        lin = np.linspace(float(parts[0]), float(parts[1]), int(parts[2]))
-        ints = all(p.lstrip("-").isdigit() for p in parts[:2]) and np.allclose(lin, np.round(lin))
-        values = [int(round(v)) for v in lin] if ints else [float(v) for v in lin]
-    else:
-        values = [parse_override(f"{key}={v}")[1] for v in _split_values(vals)]
-    if not values:
-        raise SceneError(f"--grid {text}: no values")
-    if len({json.dumps(v) for v in values}) != len(values):
-        raise SceneError(f"--grid {text}: repeated values")
-    return key, values
-
-
-def toml_literal(v) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, str):
-        return json.dumps(v)
-    if isinstance(v, float):
-        return repr(v) if math.isfinite(v) else ("nan" if math.isnan(v) else ("inf" if v > 0 else "-inf"))
-    if isinstance(v, (list, tuple)):
-        return "[" + ", ".join(toml_literal(x) for x in v) + "]"
-    return str(v)
-
-
-def point_overrides(keys, values, seed: int) -> list[str]:
-    out = [f"{k}={toml_literal(v)}" for k, v in zip(keys, values)]
-    return out + [f"{k}={seed}" for k in SEED_KEYS if k not in keys]
-
-
-def _canonical(obj) -> str:
-    return json.dumps(obj, sort_keys=True, separators=(",", ":"), default=str)
-
-
-def point_key(raw_table: dict) -> str:
-    """A point's name: hash of its effective scene table (after every override), so the same
-    point gets the same folder whatever order its overrides were given in."""
-    return hashlib.sha1(_canonical(raw_table).encode()).hexdigest()[:12]
-
+from poevp_optics.scene.load import apply_overrides, load_scene, resolve_scene_path
 
 # ---------------------------------------------------------------------------- one point
 def flatten_report(report: dict) -> dict:
@@ -259,25 +171,6 @@ def _report_paths_to_client(path: Path, path_map) -> None:
 
 
 # ---------------------------------------------------------------------------- table + plots
-def write_table(rows: list[dict], out: Path):
-    import pandas as pd
-
-    df = pd.DataFrame(rows)
-    df = df.sort_values(["point", "seed"], kind="stable").reset_index(drop=True)
-    with atomic_path(out / "results.parquet") as tmp:
-        df.to_parquet(tmp, index=False)
-    with atomic_path(out / "results.csv") as tmp:
-        df.to_csv(tmp, index=False)
-    return df
-
-
-def read_table(out: Path):
-    import pandas as pd
-
-    p = out / "results.parquet"
-    return pd.read_parquet(p) if p.is_file() else None
-
-
 def plot_metric(df, keys: list[str], metric: str, path: Path) -> Path | None:
     """Line plot (one key) or heat maps (two keys; one panel per value of any further keys)."""
     from poevp_optics.core.runtime import pyplot
@@ -346,89 +239,14 @@ class ClusterSettings:
         return not (self.scheduler or self.scheduler_file)
 
 
-def _record(toml: Path, job: str, seeds: int, grid: dict, base_raw: dict, point_refs) -> dict:
-    """What identifies a sweep, and the hashes of every file its points read."""
-    files = {r.source: r.sha256 for refs in point_refs for r in refs}
-    return {"scene": str(toml), "job": job, "seeds": seeds,
-            "grid": {k: grid[k] for k in sorted(grid)},
-            "effective_scene_sha256": hashlib.sha256(_canonical(base_raw).encode()).hexdigest(),
-            "inputs_sha256": {f: files[f] for f in sorted(files)}}
-
-
-def _differences(old: dict, new: dict) -> list[str]:
-    out = []
-    for key in ("scene", "job", "seeds", "grid", "effective_scene_sha256"):
-        if json.loads(json.dumps(old.get(key))) != json.loads(json.dumps(new[key])):
-            what = {"effective_scene_sha256": "the scene after --set overrides"}.get(key, key)
-            out.append(f"{what} differs")
-    old_in, new_in = old.get("inputs_sha256") or {}, new["inputs_sha256"]
-    for f in sorted(set(old_in) | set(new_in)):
-        if old_in.get(f) != new_in.get(f):
-            out.append(f"{f} {'changed' if f in old_in and f in new_in else 'is new' if f in new_in else 'is no longer read'}")
-    return out
-
-
-RECORD_KEYS = {"scene": str, "job": str, "seeds": int, "grid": dict, "effective_scene_sha256": str,
-               "inputs_sha256": dict}
-TABLE_COLUMNS = ("point", "seed", "point_key", "status", "error")
-
-
-class SweepStateError(UserError):
-    """A sweep folder's record or table that does not read: one line naming the file."""
-
-
-def _read_record(path: Path, rebuild: bool) -> dict | None:
-    """sweep.json parsed and of the right shape (RECORD_KEYS); None when it is not and
-    `rebuild` (it is then written anew), else SweepStateError."""
-    try:
-        rec = json.loads(path.read_text())
-        bad = [k for k, t in RECORD_KEYS.items() if not isinstance(rec.get(k), t)] if isinstance(rec, dict) else ["{}"]
-        problem = f"keys missing or of the wrong type: {', '.join(bad)}" if bad else None
-    except (OSError, ValueError, RecursionError) as e:
-        problem = f"does not read as JSON ({type(e).__name__}: {' '.join(str(e).split())[:120]})"
-    if problem is None:
-        return rec
-    if rebuild:
-        return None
-    raise SweepStateError(f"{path}: the sweep record {problem}; rerun with --rebuild to rebuild it and the "
-                          "table from the points' own reports, or give another --out")
-
-
-def _read_table_checked(out: Path, rebuild: bool, keys: set[str]):
-    """results.parquet parsed, with the columns a sweep writes (TABLE_COLUMNS) and only rows of
-    this sweep's points; None when absent, or when it does not read and `rebuild`."""
-    p = out / "results.parquet"
-    if not (p.is_file() or p.is_symlink()):
-        return None
-    try:
-        df = read_table(out)
-        missing = [c for c in TABLE_COLUMNS if c not in df.columns]
-        problem = f"columns missing: {', '.join(missing)}" if missing else None
-        if problem is None and not set(df["point_key"]) <= keys:
-            problem = "holds rows of points that are not this sweep's"
-        if problem is None and not df["status"].isin(["ok", "failed"]).all():
-            problem = "holds a status other than ok/failed"
-    except Exception as e:  # noqa: BLE001 - pyarrow raises its own errors for a damaged file
-        problem = f"does not read as a table ({type(e).__name__}: {' '.join(str(e).split())[:120]})"
-    if problem is None:
-        return df
-    if rebuild:
-        return None
-    raise SweepStateError(f"{p}: the results table {problem}; rerun with --rebuild to rebuild it from "
-                          "the points' own reports (points/*/report.json), or give another --out")
-
-
-def _check_sweep_size(specs, job: str, seeds: int, where: Path, yes: bool) -> list:
-    """The whole sweep's run size (each point x seeds) within the limits; returns each point's
-    size (one seed) for the free-space check of the runs still to do (_run_sweep)."""
-    from poevp_optics.apps import run_size
-
-    sizes = [run_size.estimate(sp, job) for sp in specs]
-    total = run_size.RunSize(0.0, 0, 0)
-    for size in sizes:
-        total = total + size.times(seeds)
-    run_size.check(total, where=str(where), yes=yes, what=f"this sweep ({len(specs)} points x {seeds} seeds)")
-    return sizes
+def _check_flags(job: str, seeds: int, retries: int) -> None:
+    """One line naming the flag for a job, seed count or retry count out of range."""
+    if job not in sweep_jobs():
+        raise SceneError(f"--job {job}: must be one of {', '.join(sweep_jobs())}")
+    if seeds < 1 or seeds > MAX_SEEDS:
+        raise SceneError(f"--seeds {seeds}: must be 1 to {MAX_SEEDS}")
+    if retries < 0:
+        raise SceneError(f"--retries {retries}: must be >= 0")
 
 
 def sweep(scene: str, grid_args: list[str], *, out: Path, seeds: int = 1, workers: int | None = None,
@@ -445,12 +263,7 @@ def sweep(scene: str, grid_args: list[str], *, out: Path, seeds: int = 1, worker
     read is rebuilt from the points' own report.json files instead of refused."""
     from tqdm import tqdm
 
-    if job not in sweep_jobs():
-        raise SceneError(f"--job {job}: must be one of {', '.join(sweep_jobs())}")
-    if seeds < 1 or seeds > MAX_SEEDS:
-        raise SceneError(f"--seeds {seeds}: must be 1 to {MAX_SEEDS}")
-    if retries < 0:
-        raise SceneError(f"--retries {retries}: must be >= 0")
+    _check_flags(job, seeds, retries)
     cl = ClusterSettings(workers, scheduler, str(scheduler_file) if scheduler_file else None, shared_fs,
                          retries, threads)
     if scheduler and scheduler_file:
@@ -484,13 +297,13 @@ def sweep(scene: str, grid_args: list[str], *, out: Path, seeds: int = 1, worker
         biggest = max(specs, key=lambda sp: estimate_run(sp, job).total_bytes)
         check_memory(biggest, job, workers=n_workers,
                      where=f"{toml} (largest sweep point, {n_workers} at once)")
-    sizes = _check_sweep_size(specs, job, seeds, toml, yes)
+    sizes = check_sweep_size(specs, job, seeds, toml, yes)
     if not (Path(out) / "results.parquet").exists():   # a new sweep: refused before writing anything
         from poevp_optics.core.io import check_free_space
 
         check_free_space(out, seeds * sum(sz.disk_bytes for sz in sizes),
                          f"this sweep ({len(specs)} points x {seeds} seeds)")
-    record = _record(toml, job, seeds, dict(grid), dict(base_raw), point_refs)
+    record = sweep_record(toml, job, seeds, dict(grid), dict(base_raw), point_refs)
     plan = make_plan("shared" if cl.local or shared_fs else "bundle", resolve_scene_path(scene),
                      [r for refs in point_refs for r in refs])
     out = Path(os.path.abspath(out))
@@ -501,8 +314,8 @@ def sweep(scene: str, grid_args: list[str], *, out: Path, seeds: int = 1, worker
         with locked_dir(out, kind="sweep", protect=(toml, toml.parent)):
             mpath = out / "sweep.json"
             if mpath.is_file() or mpath.is_symlink():
-                old_record = _read_record(mpath, rebuild)
-                diffs = _differences(old_record, record) if old_record is not None else []
+                old_record = read_record(mpath, rebuild)
+                diffs = record_differences(old_record, record) if old_record is not None else []
                 if diffs:
                     raise SceneError(f"{out}: holds a different sweep or one whose inputs changed since "
                                      f"it started ({'; '.join(diffs)}); give another --out, or remove "
@@ -572,7 +385,7 @@ def _run_sweep(scene, out, keys, combos, point_refs, plan, seeds, base, job, das
                    **{f"grid.{key}": (json.dumps(v) if isinstance(v, (list, tuple)) else v)
                       for key, v in zip(keys, values)}}
             tasks.append((row, tuple(ov), point_refs[idx], out / "points" / f"{k}-s{s}"))
-    prev = _read_table_checked(out, rebuild, {t[0]["point_key"] for t in tasks})
+    prev = read_table_checked(out, rebuild, {t[0]["point_key"] for t in tasks})
     done = {}
     if prev is not None:
         for r in prev.to_dict("records"):
