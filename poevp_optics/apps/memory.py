@@ -164,16 +164,9 @@ def _kernel_px(spec) -> int:
 
 def _objective_params(spec):
     """The [objective] keys resolved as the camera resolves them (None: the stage is skipped)."""
-    from poevp_optics.camera.layout import layout_of
-    from poevp_optics.camera.objective import ObjectiveParams
-    from poevp_optics.camera.sensor import resolve_sensor
+    from poevp_optics.camera.layout import objective_params_of
 
-    if spec.objective.is_identity:
-        return None
-    p = resolve_sensor(spec.sensor)
-    n = layout_of(spec.sensor, spec.dmd, spec.relay, spec.objective).objective_f_number
-    return ObjectiveParams.resolve(spec.objective, f_number=n, qe=p.qe,
-                                   pixel_pitch_m=spec.dmd.pitch_m if spec.dmd.enabled else p.pixel_pitch_m)
+    return objective_params_of(spec.sensor, spec.dmd, spec.relay, spec.objective)
 
 
 def _render_shape(spec) -> tuple[int, int]:

@@ -19,7 +19,7 @@ import numpy as np
 
 from poevp_optics.camera.dmd import (DMD, DMDSpec, Schedule, interval_transmission, node_time_weights_s,
                                      throughput_on, transmission_table)
-from poevp_optics.camera.layout import layout_of
+from poevp_optics.camera.layout import image_plane_pitch_m, layout_of
 from poevp_optics.camera import objective as obj
 from poevp_optics.camera.objective import ObjectiveParams, ObjectiveSpec
 from poevp_optics.camera.registration import (apply_taps, apply_taps_numpy, box_to_sensor, forward_taps,
@@ -109,7 +109,7 @@ class Camera:
         self._objective_memo: dict = {}
         if spec.is_identity:
             return
-        pitch = dmd.pitch_m if dmd.enabled else self.params.pixel_pitch_m
+        pitch = image_plane_pitch_m(dmd, self.params)
         self.objective = ObjectiveParams.resolve(spec, f_number=self.layout.objective_f_number,
                                                  pixel_pitch_m=pitch, qe=self.params.qe)
         self.objective_guard_px = min(obj.radius_px(self.objective, self.shape), spec.guard_max_px)

@@ -97,6 +97,26 @@ def optical_layout(*, objective_f_number: float, sensor_f_number: float, preset_
     return OpticalLayout(n_s / m_geom, m_geom, n_rel, n_s, limited)
 
 
+def image_plane_pitch_m(dmd, sensor_params) -> float:
+    """Pitch (m) of the grid the objective images onto: the DMD's mirrors, else (no DMD) the
+    sensor's pixels. The one place of this rule (camera, memory estimate and validation read it)."""
+    return dmd.pitch_m if dmd.enabled else sensor_params.pixel_pitch_m
+
+
+def objective_params_of(sensor, dmd, relay, objective):
+    """The [objective] resolved as the camera resolves it (camera/objective ObjectiveParams: the
+    layout's objective f-number, the image-plane pitch, the sensor's QE band); None when the
+    stage is the identity (skipped)."""
+    if objective.is_identity:
+        return None
+    from poevp_optics.camera.objective import ObjectiveParams
+    from poevp_optics.camera.sensor import resolve_sensor
+
+    p = resolve_sensor(sensor)
+    n = layout_of(sensor, dmd, relay, objective).objective_f_number
+    return ObjectiveParams.resolve(objective, f_number=n, pixel_pitch_m=image_plane_pitch_m(dmd, p), qe=p.qe)
+
+
 def layout_of(sensor, dmd, relay, objective) -> OpticalLayout:
     """The layout of the [sensor], [dmd], [relay] and [objective] sections (their Spec classes):
     the preset's f-number and pitch fill unset keys."""

@@ -9,7 +9,6 @@ any time for the temporal-error estimate (`set_time`, `render_once`).
 
 from __future__ import annotations
 
-from poevp_optics.camera.sensor import resolve_sensor
 from poevp_optics.render.exposures import render_exposures
 from poevp_optics.render.renderer import Renderer
 from poevp_optics.sources.kinds import check_source, open_frames
@@ -29,9 +28,9 @@ def open_source(spec, guard_px: int):
     guard band beyond each edge of render.resolution (camera.Camera.guard_px)."""
     if spec.source.renders:
         return MitsubaSource(spec, guard_px=guard_px)
-    return open_frames(spec, guard_px, resolve_sensor(spec.sensor).qe)
+    return open_frames(spec, guard_px, spec.sensor_qe)
 
 
 def check_frame_source(spec, guard_px: int):
     """Read every frame a frame source's run uses (sources/kinds.py check_source): its plan."""
-    return check_source(spec, guard_px, resolve_sensor(spec.sensor).qe)
+    return check_source(spec, guard_px, spec.sensor_qe)

@@ -28,7 +28,6 @@ from pathlib import Path
 
 import numpy as np
 
-from poevp_optics.camera.sensor import resolve_sensor
 from poevp_optics.core import runtime
 from poevp_optics.core.exceptions import SceneError
 from poevp_optics.core.params import param
@@ -184,8 +183,7 @@ def plan_spectra(spec, force_mode: str | None = None) -> SpectralPlan:
     """
     facts = read_xml_facts(spec.xml_path)
     check_bindings(spec, facts)
-    sensor = resolve_sensor(spec.sensor)
-    response = spectra.sensor_response_e_per_J(spectra.load_spectrum(sensor.qe, emissive=True))
+    response = spectra.sensor_response_e_per_J(spectra.load_spectrum(spec.sensor_qe, emissive=True))
     values = {n: absolute_spectrum(e) for n, e in spec.spectra.items()}
     emissive = [n for n, e in spec.spectra.items() if e.kind in _EMISSIVE_KINDS]
     reflect = [n for n, e in spec.spectra.items() if e.kind == "reflectance"]

@@ -101,6 +101,15 @@ class SceneSpec:
                         poisson_sampler=self.sensor.poisson_sampler)
 
     @property
+    def sensor_qe(self) -> str:
+        """The QE curve (core/spectra.py name) of the scene's sensor, its preset's unless
+        overridden: the response the render weights wavelengths by (render/ reads it here, so
+        it needs nothing of camera/)."""
+        from poevp_optics.camera.sensor import resolve_sensor
+
+        return resolve_sensor(self.sensor).qe
+
+    @property
     def has_road(self) -> bool:
         """True for a night-road scene (a [road] section: sources/road.py)."""
         return "road" in self.raw

@@ -233,6 +233,7 @@ def check_objective(ctx, sec: dict):
     """[objective]: the glare radii in order, and a prescription's design field covering the
     rendered image's corner (sensor footprint on the DMD; the guard band is checked by the camera)."""
     from poevp_optics.camera.objective import PRESCRIPTIONS
+    from poevp_optics.camera.layout import image_plane_pitch_m
     from poevp_optics.camera.sensor import resolve_sensor
 
     o = sec["objective"]
@@ -242,7 +243,7 @@ def check_objective(ctx, sec: dict):
     if o.psf != "prescription" and o.vignetting != "prescription":
         return
     h, w = sec["render"].resolution
-    pitch = sec["dmd"].pitch_m if sec["dmd"].enabled else resolve_sensor(sec["sensor"]).pixel_pitch_m
+    pitch = image_plane_pitch_m(sec["dmd"], resolve_sensor(sec["sensor"]))
     corner = math.degrees(math.atan(math.hypot(h / 2, w / 2) * pitch / o.focal_length_m))
     design = PRESCRIPTIONS[o.prescription].field_deg
     if corner > design:

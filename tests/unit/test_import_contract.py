@@ -38,13 +38,7 @@ MAY_IMPORT: dict[str, frozenset[str]] = {
 
 #: (importing module, imported module) -> why it stays for now. Keep minimal; docs/architecture.md
 #: prints the same list.
-ALLOWED: dict[tuple[str, str], str] = {
-    ("poevp_optics.render.radiance", "poevp_optics.camera.sensor"):
-        "resolve_sensor(spec.sensor).qe: the render is weighted by the sensor's QE; issue 30's "
-        "scene/resolve.py passes the response in (Renderer(RenderScene, response, accuracy))",
-    ("poevp_optics.render.renderer", "poevp_optics.camera.sensor"):
-        "the same QE lookup in the renderer; goes with the same resolve step",
-}
+ALLOWED: dict[tuple[str, str], str] = {}
 
 
 def _module_name(path) -> str:
