@@ -28,6 +28,8 @@ QUICK_RENDER = ["--quiet", "--frames", "1", "--resolution", "8x8"]
 # the DR chart made small (36 patches of ~20 px) but still seconds long
 CHART = ["--quiet", "--resolution", "160x160", "--set", "predictor.resolution=[160,160]",
          "--set", "chart.repeats=8", "--set", "chart.max_iterations=4"]
+# ... and long enough (more repeats) that a signal 1.5 s in still lands before the end
+SLOW_CHART = [*CHART[:-4], "--set", "chart.repeats=48", "--set", "chart.max_iterations=4"]
 
 
 def tree(root: Path) -> dict[str, str]:
@@ -68,7 +70,7 @@ def staging_has(out: Path, pattern: str):
 
 @pytest.mark.parametrize("command,scene,args,kind,pattern", [
     ("render", "smoke", SLOW_RENDER, "render", "radiance/frame_0001.exr"),
-    ("chart", "dr_chart36", CHART, "chart", ".poevp-output.json"),
+    ("chart", "dr_chart36", SLOW_CHART, "chart", ".poevp-output.json"),
 ], ids=["render", "chart"])
 def test_sigterm_then_sigkill_then_next_run(tmp_path, command, scene, args, kind, pattern):
     out = tmp_path / "out"
