@@ -96,18 +96,30 @@ def evaluate(predict, frames: np.ndarray) -> dict:
 def train(name: str = "dmvfn_lite", *, minutes: float = 10.0, sequences: int = 48, frames: int = 6,
           val_sequences: int = 8, batch: int = 4, lr: float = 2e-3, seed: int = 0,
           out: Path = Path("out/train"), weights_out: Path | None = None, max_steps: int | None = None,
-          checkpoint_every: int = 50, resolution=(368, 640), progress: bool = True) -> dict:
-    """Train and save weights; returns the training record (also written as JSON)."""
+          checkpoint_every: int = 50, resolution=(368, 640), progress: bool = True,
+          frames_data: tuple | None = None, device: str = "auto", source: str | None = None) -> dict:
+    """Train and save weights; returns the training record (also written as JSON).
+
+    frames_data: (train, val) uint8 (N, T, H, W) frames from elsewhere (`poevp train-predictor
+    SCENE`: apps/train_data.py) instead of highbeam_plate's procedural set; source names them.
+    device: cpu, cuda or auto (cuda when torch.cuda.is_available())."""
     cfg = LITE if name == "dmvfn_lite" else FULL
     rng = np.random.default_rng(seed)
     routing_rng = torch.Generator().manual_seed(seed)
     out = Path(out) / name
     out.mkdir(parents=True, exist_ok=True)
     t_data = time.perf_counter()
-    data = build_dataset(sequences, frames, seed=1000 + seed, resolution=resolution, progress=progress)
-    val = build_dataset(val_sequences, frames, seed=9000 + seed, resolution=resolution, progress=progress)
+    if frames_data is not None:
+        data, val = frames_data
+        sequences, val_sequences, frames = len(data), len(val), data.shape[1]
+        resolution = tuple(data.shape[2:])
+    else:
+        data = build_dataset(sequences, frames, seed=1000 + seed, resolution=resolution, progress=progress)
+        val = build_dataset(val_sequences, frames, seed=9000 + seed, resolution=resolution, progress=progress)
     data_s = time.perf_counter() - t_data
-    device = torch.device("cuda" if torch.cuda.is_available() else "cpu")   # a lent GPU if any
+    from poevp_optics.apps.train_track import resolve_device
+
+    device = torch.device(resolve_device(device))   # a lent GPU if any
     with torch.random.fork_rng(devices=[]):      # seeded weight init, global RNG left untouched
         torch.manual_seed(seed)
         model = DMVFN(cfg)
@@ -164,7 +176,7 @@ def train(name: str = "dmvfn_lite", *, minutes: float = 10.0, sequences: int = 4
               "loss_last_50": float(np.mean(state["losses"][-50:])) if state["losses"] else None,
               "dataset": {"train_sequences": sequences, "val_sequences": val_sequences,
                           "frames": frames, "resolution": list(resolution), "seed": seed,
-                          "source": "scenes/highbeam_plate, procedurally varied (predict/data.py)"},
+                          "source": source or "scenes/highbeam_plate, procedurally varied (apps/training_data.py)"},
               "validation": validation, "torch_threads": torch.get_num_threads(), "device": str(device)}
     record = jsonable(record)
     if weights_out is not None:

@@ -74,12 +74,12 @@ class DataConfig:
     beam: high-beam intensity range, x the scene's; distance: start range, x the scene's
     plate range; speed: image speed range, fraction of the frame width per frame; seed."""
 
-    sequences: tuple[int, int, int] = (48, 12, 12)
+    sequences: tuple[int, int, int] = (32, 8, 8)
     frames: int = 8
     resolution: tuple[int, int] = (184, 320)
     spp: int = 4
     beam: tuple[float, float] = (0.5, 2.0)
-    distance: tuple[float, float] = (0.7, 1.3)
+    distance: tuple[float, float] = (0.5, 1.2)
     speed: tuple[float, float] = (0.006, 0.075)
     seed: int = 0
 
