@@ -60,7 +60,7 @@ _LETTERS = string.ascii_uppercase.replace("I", "").replace("O", "")
 SPLIT_LETTERS = {"train": _LETTERS[:8], "val": _LETTERS[8:16], "test": _LETTERS[16:]}
 #: Closing / opening speeds (m/s) of approaching / receding sequences (module docstring).
 RANGE_SPEED_M_PER_S = (3.0, 12.0)
-DATA_VERSION = "train-data-v1"
+DATA_VERSION = "train-data-v2"
 JOB = "train_sequence"
 #: Lateral probe step of `calibrate` (m): small enough that the plate stays in view.
 PROBE_M = 0.25
@@ -232,7 +232,7 @@ def sequence_overrides(spec, d: SequenceDraw, cfg: DataConfig, geo: Geometry) ->
     offs = offsets_m(d, geo, times, cfg.frames)
     ov = [f"render.resolution={list(cfg.resolution)}", f"render.spp={cfg.spp}", "render.subframes=1",
           "render.pwm_nodes=false", f"timing.frames={cfg.frames}", f"plate.text={json.dumps(d.text)}",
-          f"render.seed={d.seed}", f"sensor.seed={d.seed}", "outputs.previews=false",
+          f"render.seed={d.seed}", "outputs.previews=false",
           "outputs.contact_sheet=false", "outputs.radiance_exr=false",
           f"motion.{ident}.kind='keyframes'", f"motion.{ident}.start_offset_m=[0.0, 0.0, 0.0]",
           f"motion.{ident}.velocity_m_per_s=[0.0, 0.0, 0.0]",
@@ -250,11 +250,13 @@ _CAMERAS: dict = {}
 
 
 def _camera(spec):
-    """The scene's camera, built once per process and setting (text, motion, beam and seeds
-    do not change it): night_road's prescription objective costs seconds to build."""
+    """The scene's camera, built once per process and setting (text, motion, beam and the
+    render seed do not change it; its sensor keeps the scene's sensor.seed, i.e. one camera's
+    fixed-pattern noise, while each capture's temporal noise takes the sequence's seed):
+    night_road's prescription objective costs seconds to build."""
     from poevp_optics.camera.camera import Camera
 
-    key = (str(spec.toml_path), tuple(spec.render.resolution), spec.timing.exposure_s)
+    key = (str(spec.toml_path), tuple(spec.render.resolution), spec.timing.exposure_s, spec.sensor.seed)
     if key not in _CAMERAS:
         _CAMERAS.clear()
         _CAMERAS[key] = Camera.from_scene(spec)
