@@ -285,12 +285,19 @@ def _data_config(args):
 
     kw = {}
     if args.sequences:
-        n = [int(v) for v in str(args.sequences).split(",")]
+        try:
+            n = [int(v) for v in str(args.sequences).split(",")]
+            if len(n) not in (1, 3):
+                raise ValueError
+        except ValueError:
+            raise UserError(f"--sequences {args.sequences}: N or TRAIN,VAL,TEST (integers)") from None
         kw["sequences"] = tuple(n) if len(n) == 3 else (n[0], max(1, n[0] // 4), max(1, n[0] // 4))
     if args.frames:
         kw["frames"] = args.frames
     if args.resolution:
         h, _, w = args.resolution.lower().partition("x")
+        if not (h.isdigit() and w.isdigit()):
+            raise UserError(f"--resolution {args.resolution}: HxW in pixels, e.g. 184x320")
         kw["resolution"] = (int(h), int(w))
     if args.spp:
         kw["spp"] = args.spp

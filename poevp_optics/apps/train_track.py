@@ -4,9 +4,16 @@ Data: highlight sequences on image-space paths of every motion kind (analysis/mo
 straight, curved, accelerating, braking, swerve, lane change, reversal; speed 4-48 px/frame, any
 heading, E 5-50 over saturation, 0-2 DN noise), each sample the tracker's measured displacement
 chain at frame t (track.py `region_tracks` on frames t-3..t, as the loop runs it) and the true
-next displacement of the plate's highlight. Optionally sequences rendered by the simulator
-(apps/training_data.py `build_split`): there the target is the tracker's own measurement from
-frame t to t+1 (no truth is needed).
+next displacement of the plate's highlight. Or (`train_track_net_scene`, `poevp train-predictor
+SCENE --name track_net`) sequences rendered from a scene (apps/train_data.py): there the target
+is the displacement of the saturated region's centroid near the plate's rendered box from frame
+t to t+1, the quantity the mask's alignment is scored on.
+
+Training (`fit`): checkpoints (model, AdamW moments, the batch generator's state, the run's state)
+in safetensors every `checkpoint_every` steps; `--resume` continues bit for bit (a killed run
+resumed ends with the uninterrupted run's weights); a tqdm bar shows the loss and the validation
+median centroid error and region IoU; `--device auto` trains on CUDA when torch sees it. The
+shipped weights (the command below) are unchanged by this: same data hash, same steps.
 
 Splits: train, val and test differ by seeds, plate texts and paths (every parameter drawn
 afresh from its own seed stream: `SPLIT_SEEDS`). Loss: L1 of the predicted displacement (px),
@@ -32,6 +39,7 @@ import numpy as np
 import torch
 
 from poevp_optics.analysis.motion_paths import KINDS, PathSpec, render_sequence
+from poevp_optics.core.exceptions import UserError
 from poevp_optics.control.predictors.track import RegionTrack, closed_form_displacement, region_tracks
 from poevp_optics.control.predictors.track_net import (TrackNet, TrackNetConfig, chain_arrays,
                                                         save_track_net)
@@ -147,9 +155,9 @@ def resolve_device(device: str = "auto") -> str:
     if device == "auto":
         return "cuda" if torch.cuda.is_available() else "cpu"
     if device not in ("cpu", "cuda"):
-        raise ValueError(f"--device {device!r}: choose cpu, cuda or auto")
+        raise UserError(f"--device {device!r}: choose cpu, cuda or auto")
     if device == "cuda" and not torch.cuda.is_available():
-        raise ValueError("--device cuda: torch sees no CUDA device here (use cpu or auto)")
+        raise UserError("--device cuda: torch sees no CUDA device here (use cpu or auto)")
     return device
 
 
@@ -240,7 +248,7 @@ def fit(train: dict[str, torch.Tensor], val: dict[str, torch.Tensor], *, steps: 
     if resume and checkpoint_dir is not None and (Path(checkpoint_dir) / _CKPT).is_file():
         state = _load_checkpoint(Path(checkpoint_dir), model, opt, gen, device)
         if state.get("run") != run_id:
-            raise ValueError(f"{Path(checkpoint_dir) / _CKPT}: a checkpoint of another run "
+            raise UserError(f"{Path(checkpoint_dir) / _CKPT}: a checkpoint of another run "
                              f"({state.get('run')} vs {run_id}); remove it or drop --resume")
         state["resumed_at"].append(state["step"])
     tr = {k: v.to(device) for k, v in train.items()}
@@ -369,7 +377,7 @@ def train_track_net_scene(scene: str, data_cfg=None, *, steps: int = 3000, batch
     data = build_data(scene, cfg, cluster=cluster or Cluster(), progress=progress, log=log)
     samples = {s: scene_samples(data.splits[s]) for s in ("train", "val", "test")}
     if not samples["train"] or not samples["val"]:
-        raise ValueError(f"{scene}: no tracked plate region in the rendered {'train' if not samples['train'] else 'val'} "
+        raise UserError(f"{scene}: no tracked plate region in the rendered {'train' if not samples['train'] else 'val'} "
                          "split (plate unsaturated or too small at this --resolution)")
     data_s, data_cpu_s = time.perf_counter() - t0, time.process_time() - c0
     tensors = {s: {**to_tensors(v), "size": region_sizes(v)} for s, v in samples.items() if v}

@@ -159,3 +159,32 @@ def test_device_auto(monkeypatch):
         tt.resolve_device("cuda")
     monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
     assert tt.resolve_device("auto") == "cuda"
+
+
+def test_sequence_renders_as_a_sweep_point(cache, monkeypatch, tmp_path):
+    """The Dask path's unit: one sequence as a sweep point (apps/sweep.py run_point, job
+    train_sequence) gives the frames the local build stored, bit for bit."""
+    import io
+    import zipfile
+
+    from poevp_optics.apps.bundle import make_plan, scene_inputs, with_hashes
+    from poevp_optics.apps.sweep import PointTask, run_point
+    from poevp_optics.scene.load import load_scene, resolve_scene_path
+
+    monkeypatch.setenv("POEVP_CACHE_DIR", str(cache))
+    scene = str(SCENES_DIR / "highbeam_plate")
+    folder = next((cache / "train_data").glob("highbeam_plate-*"))
+    m = json.loads((folder / "manifest.json").read_text())
+    geo = td.Geometry(**m["geometry"])
+    d = td.SequenceDraw(**m["sequences"]["test"][0])
+    base = load_scene(scene, ["render.resolution=[64, 112]"])
+    ov = td.sequence_overrides(base, d, TINY_CFG, geo)
+    refs = tuple(with_hashes(scene_inputs(load_scene(scene, ov, cross_checks=False))))
+    plan = make_plan("shared", resolve_scene_path(scene), list(refs))
+    res = run_point(PointTask(tuple(ov), td.JOB, 1, plan, refs), None)
+    assert res["row"]["status"] == "ok", res["row"]
+    with zipfile.ZipFile(io.BytesIO(res["archive"])) as z:
+        got = np.load(io.BytesIO(z.read("frames.npz")))
+    stored = np.load(folder / "test.npz")
+    assert np.array_equal(got["frames"], stored["frames"][0])
+    assert np.array_equal(got["boxes"], stored["boxes"][0])
