@@ -307,8 +307,9 @@ def _data_config(args):
 
 def _command_line(cmd: str, args) -> str:
     """The command as parsed (every option given or defaulted): reruns the same training."""
+    skip = {"func", "scene", "command"} | ({"minutes", "val_sequences"} if getattr(args, "name", "") == "track_net" else set())
     opts = [f"--{k.replace('_', '-')}" + ("" if v is True else f" {v}") for k, v in sorted(vars(args).items())
-            if k not in ("func", "scene") and v not in (None, False)]
+            if k not in skip and v not in (None, False)]
     return " ".join(["poevp", cmd, str(args.scene or ""), *opts]).replace("  ", " ")
 
 

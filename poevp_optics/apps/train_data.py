@@ -23,8 +23,9 @@ analysis/motion_paths.py, converted to metres at the plate's range):
 
 3-12 m/s: the closing/opening speed of two cars in traffic (apps/eval_sequences.py uses 12 m/s).
 Range, lateral offset and image speed are converted with the scene's own geometry, measured on
-the scene (`calibrate`: the plate's box at probe poses). Every path is centred on the frame and
-its speed lowered until it stays within 80 % of the frame.
+the scene (`calibrate`: the plate's box at probe poses). Every path is centred on the plate's
+own place in the scene (the beams' hot spot), slowed until it spans at most 80 % of the frame
+and moved just enough to stay inside it.
 
 Split: train / val / held-out test differ by seed streams (`SPLIT_SEEDS`), by plate texts (each
 split's texts start with a letter of its own third of the alphabet, `SPLIT_LETTERS`: disjoint by
@@ -60,10 +61,11 @@ _LETTERS = string.ascii_uppercase.replace("I", "").replace("O", "")
 SPLIT_LETTERS = {"train": _LETTERS[:8], "val": _LETTERS[8:16], "test": _LETTERS[16:]}
 #: Closing / opening speeds (m/s) of approaching / receding sequences (module docstring).
 RANGE_SPEED_M_PER_S = (3.0, 12.0)
-DATA_VERSION = "train-data-v2"
+DATA_VERSION = "train-data-v3"
 JOB = "train_sequence"
-#: Lateral probe step of `calibrate` (m): small enough that the plate stays in view.
+#: Probe steps of `calibrate` (m): near the base pose, and at the far pose.
 PROBE_M = 0.25
+FAR_PROBE_M = 1.0
 
 
 @dataclass(frozen=True)
@@ -154,40 +156,46 @@ class Geometry:
     shape: tuple[int, int]
 
 
-def calibrate(spec) -> Geometry:
-    """Probe poses (the plate's roi box): base, +0.25 m in x, +0.25 m in y, and +0.25 m in x
-    20 m (or 5 m) farther (Z0 from the ratio of the two x scales, pinhole: p ~ 1/Z)."""
+def _probe(spec, poses) -> list:
+    """The plate's roi-box centres (x, y px) at `poses` (offsets, m); None where out of view."""
     from poevp_optics.apps.eval_sequences import with_poses
     from poevp_optics.render.renderer import Renderer
 
-    def centre(b):
-        return ((b[1] + b[3]) / 2.0, (b[0] + b[2]) / 2.0)
+    r = Renderer(with_poses(spec, tuple(float(t) for t in range(len(poses))), tuple(poses)))
+    out = []
+    for t in range(len(poses)):
+        r.set_time(float(t))
+        b = r.roi_box()
+        out.append(None if b is None else ((b[1] + b[3]) / 2.0, (b[0] + b[2]) / 2.0))
+    return out
 
-    base = Renderer(with_poses(spec, (0.0, 1.0, 2.0), ((0, 0, 0), (PROBE_M, 0, 0), (0, PROBE_M, 0))))
-    boxes = []
-    for t in (0.0, 1.0, 2.0):
-        base.set_time(t)
-        boxes.append(base.roi_box())
-    if any(b is None for b in boxes):
+
+def calibrate(spec) -> Geometry:
+    """The plate's box centre at its base pose, px per metre of x and y offset from probes at
+    -+PROBE_M, and its range Z0 from the x scale at dz = 20 m (or 5 m) farther, probed at
+    -+FAR_PROBE_M (pinhole: p ~ 1/Z, Z0 = dz p1 / (p0 - p1)). Box edges are whole pixels: Z0 is
+    good to about 20 % on a plate a few pixels tall (night_road at 184x320), enough to set the
+    sequences' start ranges."""
+    a = PROBE_M
+    c = _probe(spec, ((0, 0, 0), (-a, 0, 0), (a, 0, 0), (0, -a, 0), (0, a, 0)))
+    if any(v is None for v in c):
         raise SceneError(f"{spec.toml_path}: render.roi_shape: the plate leaves the frame at the probe poses")
-    c0, cx, cy = (centre(b) for b in boxes)
-    px_x, px_y = (cx[0] - c0[0]) / PROBE_M, (cy[1] - c0[1]) / PROBE_M
+    px_x, px_y = (c[2][0] - c[1][0]) / (2 * a), (c[4][1] - c[3][1]) / (2 * a)
     z0 = None
     for dz in (20.0, 5.0):          # far probe: most precise while the plate stays in view
-        r = Renderer(with_poses(spec, (0.0, 1.0), ((0, 0, dz), (PROBE_M, 0, dz))))
-        bs = []
-        for t in (0.0, 1.0):
-            r.set_time(t)
-            bs.append(r.roi_box())
-        if all(b is not None for b in bs):
-            p1 = (centre(bs[1])[0] - centre(bs[0])[0]) / PROBE_M
-            if abs(px_x) - abs(p1) > 0.5 / PROBE_M:
-                z0 = dz * abs(p1) / (abs(px_x) - abs(p1))
-                break
-    if z0 is None or abs(px_x) * PROBE_M < 1.0:
+        for b in (FAR_PROBE_M, a):
+            f = _probe(spec, ((-b, 0, dz), (b, 0, dz)))
+            if all(v is not None for v in f):
+                p1 = (f[1][0] - f[0][0]) / (2 * b)
+                if abs(px_x) - abs(p1) > 0.5 / b:
+                    z0 = dz * abs(p1) / (abs(px_x) - abs(p1))
+                    break
+        if z0 is not None:
+            break
+    if z0 is None or abs(px_x) * a < 1.0:
         raise SceneError(f"{spec.toml_path}: render.roi_shape: the plate is too small at "
                          f"{spec.render.resolution} to measure its range; raise --resolution")
-    return Geometry(c0, (px_x, px_y if abs(px_y) * PROBE_M >= 1.0 else -px_x), float(z0), tuple(spec.render.resolution))
+    return Geometry(c[0], (px_x, px_y if abs(px_y) * a >= 1.0 else -px_x), float(z0), tuple(spec.render.resolution))
 
 
 def frame_times_s(spec, frames: int) -> np.ndarray:
@@ -206,14 +214,20 @@ def image_path(d: SequenceDraw, frames: int) -> np.ndarray:
 
 
 def offsets_m(d: SequenceDraw, geo: Geometry, times_s: np.ndarray, frames: int) -> np.ndarray:
-    """(frames, 3) plate offsets (m) of sequence `d`: the image path, centred on the frame and
-    slowed until it fits 80 % of it, at a range moving at d.range_speed_m_per_s."""
+    """(frames, 3) plate offsets (m) of sequence `d`: the image path slowed until it fits 80 %
+    of the frame, centred on the plate's own place in the scene (where the scene's beams light
+    it: a road scene's plate moved to the frame's centre leaves the beam's hot spot) and moved
+    only as far as needed to stay within 10-90 % of the frame, at a range moving at
+    d.range_speed_m_per_s."""
     h, w = geo.shape
     path = image_path(d, frames)
     ext = path.max(0) - path.min(0)
     shrink = min(1.0, 0.8 * w / max(ext[0], 1e-9), 0.8 * h / max(ext[1], 1e-9))
     path = path * shrink
-    path = path - (path.max(0) + path.min(0)) / 2 + np.array([w / 2.0, h / 2.0]) - np.asarray(geo.centre_px)
+    path = path - (path.max(0) + path.min(0)) / 2
+    c0, size = np.asarray(geo.centre_px, float), np.array([w, h], float)
+    lo, hi = c0 + path.min(0), c0 + path.max(0)
+    path = path + np.maximum(0.1 * size - lo, 0) - np.maximum(hi - 0.9 * size, 0)
     z_start = geo.range_m * d.range_scale
     z = z_start + d.range_speed_m_per_s * (times_s - times_s[0])
     z = np.maximum(z, 0.3 * geo.range_m)
