@@ -61,7 +61,7 @@ _LETTERS = string.ascii_uppercase.replace("I", "").replace("O", "")
 SPLIT_LETTERS = {"train": _LETTERS[:8], "val": _LETTERS[8:16], "test": _LETTERS[16:]}
 #: Closing / opening speeds (m/s) of approaching / receding sequences (module docstring).
 RANGE_SPEED_M_PER_S = (3.0, 12.0)
-DATA_VERSION = "train-data-v3"
+DATA_VERSION = "train-data-v4"
 JOB = "train_sequence"
 #: Probe steps of `calibrate` (m): near the base pose, and at the far pose.
 PROBE_M = 0.25
@@ -279,7 +279,8 @@ def _camera(spec):
 
 def render_frames(spec) -> tuple[np.ndarray, np.ndarray]:
     """(frames (T, H, W) uint8 LDR captures through an all-white mask, plate boxes (T, 4) as
-    (y0, x0, y1, x1), -1 where out of view) of a sequence spec."""
+    (y0, x0, y1, x1) in the frame's pixels, clipped to it, -1 where out of view) of a sequence
+    spec."""
     from poevp_optics.analysis.metrics import to_8bit
     from poevp_optics.render.renderer import Renderer
 
@@ -292,8 +293,11 @@ def render_frames(spec) -> tuple[np.ndarray, np.ndarray]:
         rad = r.render_once(spec.render.seed * 1000 + i, spec.render.spp)
         cap = cam.capture([rad], white, i, spec.render.seed * 1000 + i)
         frames.append(np.rint(to_8bit(cap.dn, cam.params.max_dn)).astype(np.uint8))
-        b = r.roi_box()
-        boxes.append(b if b is not None else (-1, -1, -1, -1))
+        b = r.roi_box()                               # in the rendered grid, guard band included
+        if b is not None:
+            g, (h, w) = cam.guard_px, frames[-1].shape
+            b = (max(b[0] - g, 0), max(b[1] - g, 0), min(b[2] - g, h), min(b[3] - g, w))
+        boxes.append(b if b is not None and b[2] > b[0] and b[3] > b[1] else (-1, -1, -1, -1))
     return np.stack(frames), np.asarray(boxes, dtype=np.int32)
 
 
