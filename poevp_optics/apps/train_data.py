@@ -76,7 +76,7 @@ class DataConfig:
     beam: high-beam intensity range, x the scene's; distance: start range, x the scene's
     plate range; speed: image speed range, fraction of the frame width per frame; seed."""
 
-    sequences: tuple[int, int, int] = (32, 8, 8)
+    sequences: tuple[int, int, int] = (96, 24, 24)
     frames: int = 8
     resolution: tuple[int, int] = (184, 320)
     spp: int = 4

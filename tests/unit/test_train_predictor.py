@@ -66,6 +66,10 @@ def test_manifest_split_is_disjoint(data):
         # the plate is in view and clipped in the LDR frames (what the tracker follows)
         assert (boxes[..., 2] > boxes[..., 0]).all()
         assert all((f >= 255).sum() >= 16 for seq in fr for f in seq)
+        # ... where the renderer says the plate is (its boxes in the frame's pixels)
+        for seq, bs in zip(fr, boxes):
+            for f, b in zip(seq, bs):
+                assert (f[b[0]:b[2], b[1]:b[3]] >= 255).sum() >= 16
     assert m["timing"]["render_seconds"] > 0 and m["timing"]["where"] == "local"
 
 
