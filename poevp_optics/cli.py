@@ -452,6 +452,35 @@ def _add_train_data_options(p) -> None:
     _add_cluster_options(p)
 
 
+def _add_train_parsers(sub) -> None:
+    """`poevp train-predictor` and `poevp train-data` (apps/train_track.py, train.py, train_data.py)."""
+    p = sub.add_parser("train-predictor", help="train track_net, dmvfn_lite or dmvfn on sequences rendered from a scene")
+    p.add_argument("scene", nargs="?", help="scene whose renders to train on (apps/train_data.py); default: "
+                   "highbeam_plate (track_net) or the procedural highbeam_plate set (dmvfn)")
+    p.add_argument("--name", default="dmvfn_lite", choices=("dmvfn_lite", "dmvfn", "track_net"))
+    p.add_argument("--minutes", type=float, default=10.0, help="dmvfn: training time budget")
+    p.add_argument("--val-sequences", type=_positive_int, default=8, help="dmvfn without SCENE")
+    p.add_argument("--batch", type=_positive_int, help="default 128 (track_net), 4 (dmvfn)")
+    p.add_argument("--lr", type=float, help="default 3e-3 (track_net), 2e-3 (dmvfn)")
+    p.add_argument("--seed", type=int, default=0, help="weights' init and batches")
+    p.add_argument("--max-steps", type=_positive_int, help="track_net: steps (default 3000)")
+    p.add_argument("--out", default="out/train", help="checkpoints (resumable); track_net's weights")
+    p.add_argument("--weights-out", help="default: out/train/track_net_<scene>.safetensors (track_net), "
+                   "assets/predictor/<name>.safetensors (dmvfn)")
+    p.add_argument("--resume", action="store_true", help="continue from the checkpoint in --out (same run only)")
+    p.add_argument("--checkpoint-every", type=_positive_int, default=500, help="track_net: steps between checkpoints")
+    p.add_argument("--device", default="auto", choices=("cpu", "cuda", "auto"),
+                   help="auto: cuda when torch.cuda.is_available()")
+    p.add_argument("--data-only", action="store_true", help="build the data (as train-data) and stop")
+    _add_train_data_options(p)
+    p.set_defaults(func=cmd_train)
+
+    p = sub.add_parser("train-data", help="render a scene's predictor training data (cached by content)")
+    p.add_argument("scene")
+    _add_train_data_options(p)
+    p.set_defaults(func=cmd_train_data)
+
+
 def _add_evaluate_parser(sub) -> None:
     """`poevp evaluate`'s flags (apps/evaluate.py EvalConfig holds the defaults)."""
     p = sub.add_parser("evaluate", help="plate recognition (full ALPR) over speed, E and motion: LDR vs fusion vs POE-VP")
@@ -528,31 +557,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     _add_evaluate_parser(sub)
 
-    p = sub.add_parser("train-predictor", help="train track_net, dmvfn_lite or dmvfn on sequences rendered from a scene")
-    p.add_argument("scene", nargs="?", help="scene whose renders to train on (apps/train_data.py); default: "
-                   "highbeam_plate (track_net) or the procedural highbeam_plate set (dmvfn)")
-    p.add_argument("--name", default="dmvfn_lite", choices=("dmvfn_lite", "dmvfn", "track_net"))
-    p.add_argument("--minutes", type=float, default=10.0, help="dmvfn: training time budget")
-    p.add_argument("--val-sequences", type=_positive_int, default=8, help="dmvfn without SCENE")
-    p.add_argument("--batch", type=_positive_int, help="default 128 (track_net), 4 (dmvfn)")
-    p.add_argument("--lr", type=float, help="default 3e-3 (track_net), 2e-3 (dmvfn)")
-    p.add_argument("--seed", type=int, default=0, help="weights' init and batches")
-    p.add_argument("--max-steps", type=_positive_int, help="track_net: steps (default 3000)")
-    p.add_argument("--out", default="out/train", help="checkpoints (resumable); track_net's weights")
-    p.add_argument("--weights-out", help="default: out/train/track_net_<scene>.safetensors (track_net), "
-                   "assets/predictor/<name>.safetensors (dmvfn)")
-    p.add_argument("--resume", action="store_true", help="continue from the checkpoint in --out (same run only)")
-    p.add_argument("--checkpoint-every", type=_positive_int, default=500, help="track_net: steps between checkpoints")
-    p.add_argument("--device", default="auto", choices=("cpu", "cuda", "auto"),
-                   help="auto: cuda when torch.cuda.is_available()")
-    p.add_argument("--data-only", action="store_true", help="build the data (as train-data) and stop")
-    _add_train_data_options(p)
-    p.set_defaults(func=cmd_train)
-
-    p = sub.add_parser("train-data", help="render a scene's predictor training data (cached by content)")
-    p.add_argument("scene")
-    _add_train_data_options(p)
-    p.set_defaults(func=cmd_train_data)
+    _add_train_parsers(sub)
 
     p = sub.add_parser("info", help="versions, Mitsuba variant, libLLVM, devices")
     p.add_argument("--json", action="store_true")

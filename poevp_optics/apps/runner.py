@@ -50,13 +50,13 @@ JOBS.register("compare", Job(_compare, "-compare"), source="apps/compare.py: pre
 
 
 def _train_sequence(spec, stage, progress, **_):
-    from poevp_optics.apps.train_data import run_sequence_job
+    from poevp_optics.apps.train_render import run_sequence_job
 
     return run_sequence_job(spec, stage, progress)
 
 
 JOBS.register("train_sequence", Job(_train_sequence, "-train-sequence"),
-              source="apps/train_data.py: one predictor training sequence (poevp train-data on Dask)")
+              source="apps/train_render.py: one predictor training sequence (poevp train-data on Dask)")
 
 
 def sweep_jobs() -> tuple[str, ...]:

@@ -6,9 +6,11 @@ kind, with its own plate text, high-beam intensity, start distance and seeds, an
 captured by the scene's camera through an all-white mask (the LDR camera: 8-bit, sensor noise on).
 Rendering per frame, not once per configuration and moved, because the motions change the range
 (approaching/receding: the plate grows, its sheeting's return and the beam's falloff change) and
-a moved 2-D image would not show that; at the default training resolution (184x320, 4 spp, one
-radiance node per frame at the exposure's midpoint: no motion blur) a frame of highbeam_plate
-costs about 40 ms, of night_road (Double Gauss objective, IES lamps) about 1 s on one core.
+a moved 2-D image would not show that; and it is affordable: at the default training
+resolution (184x320, 4 spp, one radiance node per frame at the exposure's midpoint: no motion
+blur) a sequence of 8 frames took 1.7 s for highbeam_plate (360 in 610 s) and 3.4 s for
+night_road (Double Gauss objective, IES lamps; 20 in 68 s) on this machine's 2 shared cores,
+scene load and renderer set-up per sequence included.
 
 Motion kinds (u = frames, v = image speed px/frame at the start range; image-plane paths from
 analysis/motion_paths.py, converted to metres at the plate's range):
@@ -49,6 +51,7 @@ from pathlib import Path
 import numpy as np
 
 from poevp_optics import __version__
+from poevp_optics.apps.train_render import JOB, render_frames
 from poevp_optics.core.exceptions import SceneError
 
 DATA_KINDS = ("approaching", "receding", "lateral", "vertical", "curved", "accelerating", "braking",
@@ -62,7 +65,6 @@ SPLIT_LETTERS = {"train": _LETTERS[:8], "val": _LETTERS[8:16], "test": _LETTERS[
 #: Closing / opening speeds (m/s) of approaching / receding sequences (module docstring).
 RANGE_SPEED_M_PER_S = (3.0, 12.0)
 DATA_VERSION = "train-data-v4"
-JOB = "train_sequence"
 #: Probe steps of `calibrate` (m): near the base pose, and at the far pose.
 PROBE_M = 0.25
 FAR_PROBE_M = 1.0
@@ -259,58 +261,6 @@ def sequence_overrides(spec, d: SequenceDraw, cfg: DataConfig, geo: Geometry) ->
     return ov
 
 
-# ----------------------------------------------------------------------------- rendering
-_CAMERAS: dict = {}
-
-
-def _camera(spec):
-    """The scene's camera, built once per process and setting (text, motion, beam and the
-    render seed do not change it; its sensor keeps the scene's sensor.seed, i.e. one camera's
-    fixed-pattern noise, while each capture's temporal noise takes the sequence's seed):
-    night_road's prescription objective costs seconds to build."""
-    from poevp_optics.camera.camera import Camera
-
-    key = (str(spec.toml_path), tuple(spec.render.resolution), spec.timing.exposure_s, spec.sensor.seed)
-    if key not in _CAMERAS:
-        _CAMERAS.clear()
-        _CAMERAS[key] = Camera.from_scene(spec)
-    return _CAMERAS[key]
-
-
-def render_frames(spec) -> tuple[np.ndarray, np.ndarray]:
-    """(frames (T, H, W) uint8 LDR captures through an all-white mask, plate boxes (T, 4) as
-    (y0, x0, y1, x1) in the frame's pixels, clipped to it, -1 where out of view) of a sequence
-    spec."""
-    from poevp_optics.analysis.metrics import to_8bit
-    from poevp_optics.render.renderer import Renderer
-
-    cam = _camera(spec)
-    r = Renderer(spec, guard_px=cam.guard_px)
-    white = cam.white_mask()
-    frames, boxes = [], []
-    for i in range(spec.timing.frames):
-        r.set_time(float(sum(spec.exposure_window_s(i)) / 2.0))
-        rad = r.render_once(spec.render.seed * 1000 + i, spec.render.spp)
-        cap = cam.capture([rad], white, i, spec.render.seed * 1000 + i)
-        frames.append(np.rint(to_8bit(cap.dn, cam.params.max_dn)).astype(np.uint8))
-        b = r.roi_box()                               # in the rendered grid, guard band included
-        if b is not None:
-            g, (h, w) = cam.guard_px, frames[-1].shape
-            b = (max(b[0] - g, 0), max(b[1] - g, 0), min(b[2] - g, h), min(b[3] - g, w))
-        boxes.append(b if b is not None and b[2] > b[0] and b[3] > b[1] else (-1, -1, -1, -1))
-    return np.stack(frames), np.asarray(boxes, dtype=np.int32)
-
-
-def run_sequence_job(spec, folder: Path, progress: bool = False) -> dict:
-    """The `train_sequence` job (apps/runner.py JOBS): one sequence into folder/frames.npz."""
-    t0 = time.perf_counter()
-    frames, boxes = render_frames(spec)
-    with open(Path(folder) / "frames.npz", "wb") as f:
-        np.savez_compressed(f, frames=frames, boxes=boxes)
-    return {"frames": int(frames.shape[0]), "saturated_px": [int((f >= 255).sum()) for f in frames],
-            "seconds": time.perf_counter() - t0}
-
-
 # ----------------------------------------------------------------------------- data set
 @dataclass(frozen=True)
 class Cluster:
@@ -428,11 +378,10 @@ def build_data(scene: str, cfg: DataConfig = DataConfig(), *, cluster: Cluster =
 
 
 def _render_on_dask(scene, overrides: dict, out: Path, cl: Cluster, progress: bool, log) -> dict:
-    """Each sequence a point of the sweep machinery (apps/sweep.py): job `train_sequence`."""
-    from tqdm import tqdm
-
+    """Each sequence a point of the sweep machinery (apps/sweep.py `run_points`): job
+    `train_sequence` (apps/train_render.py), scene bundle or shared paths, worker checks, retries."""
     from poevp_optics.apps.bundle import make_plan, scene_inputs, with_hashes
-    from poevp_optics.apps.sweep import ClusterSettings, _Dask, _execute
+    from poevp_optics.apps.sweep import ClusterSettings, run_points
     from poevp_optics.scene.load import load_scene, resolve_scene_path
 
     hashes: dict[str, str] = {}
@@ -444,13 +393,8 @@ def _render_on_dask(scene, overrides: dict, out: Path, cl: Cluster, progress: bo
         todo.append(({"point": n, "seed": 0, "point_key": pkey}, tuple(ov), refs, folders[s, i]))
     plan = make_plan("shared" if cl.shared_fs else "bundle", resolve_scene_path(scene),
                      [r for t in todo for r in t[2]])
-    dask = _Dask(ClusterSettings(None, cl.scheduler, cl.scheduler_file, cl.shared_fs, cl.retries, cl.threads),
-                 len(todo), log)
-    try:
-        dask.open()
-        df = _execute(todo, [], out, JOB, plan, dask, progress, log, tqdm)
-    finally:
-        dask.close()
+    settings = ClusterSettings(None, cl.scheduler, cl.scheduler_file, cl.shared_fs, cl.retries, cl.threads)
+    df = run_points(todo, out, JOB, plan, settings, progress=progress, log=log)
     failed = df[df["status"] != "ok"] if df is not None else None
     if failed is not None and len(failed):
         raise SceneError(f"{out}: {len(failed)} sequences failed on the cluster, first: {failed.iloc[0]['error']}")
