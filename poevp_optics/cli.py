@@ -16,6 +16,8 @@ import platform
 import sys
 from pathlib import Path
 
+from poevp_optics.apps.cli_args import add_cluster_options as _add_cluster_options
+from poevp_optics.apps.cli_args import positive_int as _positive_int, seeds_arg as _seeds, threads_arg as _threads
 from poevp_optics import __version__
 from poevp_optics.core import runtime
 from poevp_optics.core.exceptions import UserError
@@ -26,42 +28,6 @@ class _OneLineParser(argparse.ArgumentParser):
 
     def error(self, message):
         self.exit(2, f"poevp: error: {' '.join(message.split())}\n")
-
-
-def _int_at_least(low: int):
-    """An argparse type: an integer >= low, else a one-line argument error."""
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            value = None
-        if value is None or value < low:
-            raise argparse.ArgumentTypeError(f"expected an integer >= {low}, got {text!r}")
-        return value
-    return parse
-
-
-_positive_int = _int_at_least(1)
-_count = _int_at_least(0)
-
-
-def _seeds(text: str) -> int:
-    """--seeds: 1 to apps/run_size.MAX_SEEDS."""
-    from poevp_optics.apps.run_size import MAX_SEEDS
-
-    n = _positive_int(text)
-    if n > MAX_SEEDS:
-        raise argparse.ArgumentTypeError(f"{n} seeds is above the limit {MAX_SEEDS} per point")
-    return n
-
-
-def _threads(text: str) -> int:
-    """--threads: 1 to runtime.max_threads()."""
-    n = _positive_int(text)
-    if n > runtime.max_threads():
-        raise argparse.ArgumentTypeError(f"{n} threads is above the limit {runtime.max_threads()} "
-                                         f"(8 per core, at least 64; this machine has {os.cpu_count()} cores)")
-    return n
 
 
 def _resolution_override(text: str) -> str:
@@ -264,22 +230,6 @@ def cmd_sweep(args) -> int:
     return 0
 
 
-def cmd_train(args) -> int:
-    from poevp_optics.control.predictors.dmvfn import default_weights
-    from poevp_optics.apps.train import train
-
-    runtime.set_threads(args.threads)
-    weights = Path(args.weights_out) if args.weights_out else default_weights(args.name)
-    rec = train(args.name, minutes=args.minutes, sequences=args.sequences, frames=args.frames,
-                val_sequences=args.val_sequences, batch=args.batch, lr=args.lr, seed=args.seed,
-                out=Path(args.out), weights_out=weights, max_steps=args.max_steps)
-    v = rec["validation"]
-    print(f"poevp: trained {args.name} for {rec['steps']} steps ({rec['train_seconds']:.0f} s); "
-          f"validation highlight IoU {v['model']['highlight_iou']:.3f} (hold {v['hold']['highlight_iou']:.3f}, "
-          f"flow {v['flow']['highlight_iou']:.3f}), PSNR {v['model']['psnr_db']:.2f} dB -> {weights}")
-    return 0
-
-
 def info_dict() -> dict:
     import drjit as dr
     import mitsuba as mi
@@ -332,21 +282,6 @@ def cmd_schema(args) -> int:
     return 0
 
 
-def _add_cluster_options(p) -> None:
-    """`poevp sweep` on an existing Dask cluster (apps/cluster.py, apps/bundle.py)."""
-    where = p.add_mutually_exclusive_group()
-    where.add_argument("--scheduler", metavar="ADDRESS", help="tcp://HOST:PORT of an existing Dask scheduler")
-    where.add_argument("--scheduler-file", metavar="PATH",
-                       help="JSON file naming an existing Dask scheduler (as `dask scheduler "
-                            "--scheduler-file` and dask-jobqueue write)")
-    p.add_argument("--shared-fs", action="store_true",
-                   help="workers read this machine's paths (a shared file system; verified on each "
-                        "worker) instead of receiving the scene bundle")
-    p.add_argument("--retries", type=_count, default=2, metavar="N",
-                   help="run a point whose worker died again up to N times before it is a failed row "
-                        "(default 2)")
-
-
 def _add_sweep_parser(sub) -> None:
     from poevp_optics.apps.runner import sweep_jobs
 
@@ -373,25 +308,9 @@ def _add_sweep_parser(sub) -> None:
     p.set_defaults(func=cmd_sweep)
 
 
-def _add_train_parser(sub) -> None:
-    p = sub.add_parser("train-predictor", help="train dmvfn_lite (or dmvfn) on rendered sequences")
-    p.add_argument("--name", default="dmvfn_lite", choices=("dmvfn_lite", "dmvfn"))
-    p.add_argument("--minutes", type=float, default=10.0, help="training time budget")
-    p.add_argument("--sequences", type=_positive_int, default=48)
-    p.add_argument("--val-sequences", type=_positive_int, default=8)
-    p.add_argument("--frames", type=_positive_int, default=6)
-    p.add_argument("--batch", type=_positive_int, default=4)
-    p.add_argument("--lr", type=float, default=2e-3)
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--max-steps", type=_positive_int)
-    p.add_argument("--out", default="out/train", help="checkpoints (resumable)")
-    p.add_argument("--weights-out", help="default: assets/predictor/<name>.safetensors")
-    p.add_argument("--threads", type=_threads)
-    p.set_defaults(func=cmd_train)
-
-
 def build_parser() -> argparse.ArgumentParser:
     from poevp_optics.apps.evaluate_cli import add_evaluate_parser
+    from poevp_optics.apps.train_cli import add_train_parsers
     from poevp_optics.apps.runner import JOBS
 
     parser = _OneLineParser(prog="poevp", description="POE-VP DMD camera simulator")
@@ -431,7 +350,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_evaluate_parser(sub, _add_job_options)
 
-    _add_train_parser(sub)
+    add_train_parsers(sub)
 
     p = sub.add_parser("schema", help="JSON Schema of scene.toml (for editors: taplo, Even Better TOML)")
     p.add_argument("--out", help="write it to this file (default: stdout)")

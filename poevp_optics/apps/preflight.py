@@ -37,7 +37,7 @@ from poevp_optics.scene.spec import SceneSpec
 #: float32 ends at 3.4e38, and the film adds up spp samples and 1/d^2 factors on top.
 MAX_EMITTER_PHOTONS = 1e30
 
-JOBS = ("render", "compare", "chart")
+JOBS = ("render", "compare", "chart", "train_sequence")   # train_sequence: apps/train_data.py
 
 
 @dataclass(frozen=True)
@@ -260,7 +260,7 @@ def check_relay(spec: SceneSpec) -> None:
 
 
 def _runs_predictor(spec: SceneSpec, job: str, name: str) -> bool:
-    if not spec.dmd.enabled:
+    if not spec.dmd.enabled or job == "train_sequence":     # LDR captures: no loop, no predictor
         return False
     if job == "chart":
         return spec.chart.mask_source == "loop"

@@ -49,6 +49,16 @@ JOBS.register("chart", Job(_chart, "-chart", sweepable=True), source="apps/chart
 JOBS.register("compare", Job(_compare, "-compare"), source="apps/compare.py: predictors x loop modes on one render")
 
 
+def _train_sequence(spec, stage, progress, **_):
+    from poevp_optics.apps.train_render import run_sequence_job
+
+    return run_sequence_job(spec, stage, progress)
+
+
+JOBS.register("train_sequence", Job(_train_sequence, "-train-sequence"),
+              source="apps/train_render.py: one predictor training sequence (poevp train-data on Dask)")
+
+
 def sweep_jobs() -> tuple[str, ...]:
     """The jobs a sweep can run per grid point."""
     return tuple(n for n in JOBS if JOBS[n].sweepable)

@@ -436,6 +436,20 @@ def _rows_from_reports(tasks) -> dict:
     return out
 
 
+def run_points(todo, out: Path, job: str, plan: InputPlan, cl: ClusterSettings, *, progress: bool = True,
+               log=print):
+    """Run points that are not a grid (e.g. apps/train_data.py's sequences) on Dask as a sweep
+    runs its own: `todo` holds (row with point, seed and point_key; overrides; input refs;
+    point folder); returns the table (also written to `out`)."""
+    from tqdm import tqdm
+
+    dask = _Dask(cl, len(todo), log)
+    try:
+        return _execute(todo, [], Path(out), job, plan, dask, progress, log, tqdm)
+    finally:
+        dask.close()
+
+
 def _write_point(folder: Path, archive: bytes, job: str) -> None:
     """A point's outputs, as its worker zipped them, into `folder`: staged, swapped in whole."""
     with staged_dir(folder, kind=job) as stage:

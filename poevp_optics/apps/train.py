@@ -21,6 +21,7 @@ import torch.nn.functional as F
 
 from poevp_optics.core.io import atomic_path, write_json
 from poevp_optics.core.report import jsonable
+from poevp_optics.apps.train_track import resolve_device
 from poevp_optics.apps.training_data import build_dataset
 from poevp_optics.control.predictors.dmvfn import FULL, LITE, DMVFN, DMVFNPredictor, count_macs, count_parameters, save_weights
 from poevp_optics.control.predictors.flow import FlowExtrapolation
@@ -93,31 +94,45 @@ def evaluate(predict, frames: np.ndarray) -> dict:
             "highlight_iou": float(np.mean(ious))}
 
 
+def _optimizer_to(opt, device, keep=()) -> None:
+    """AdamW's state tensors onto `device` (those named in `keep` stay where they are)."""
+    for st in opt.state.values():
+        for k, v in st.items():
+            if torch.is_tensor(v) and k not in keep:
+                st[k] = v.to(device)
+
+
+def _procedural(sequences: int, val_sequences: int, frames: int, seed: int, resolution, progress: bool):
+    """highbeam_plate's procedural train and val frames (apps/training_data.py), cached."""
+    return (build_dataset(sequences, frames, seed=1000 + seed, resolution=resolution, progress=progress),
+            build_dataset(val_sequences, frames, seed=9000 + seed, resolution=resolution, progress=progress))
+
+
 def train(name: str = "dmvfn_lite", *, minutes: float = 10.0, sequences: int = 48, frames: int = 6,
           val_sequences: int = 8, batch: int = 4, lr: float = 2e-3, seed: int = 0,
           out: Path = Path("out/train"), weights_out: Path | None = None, max_steps: int | None = None,
-          checkpoint_every: int = 50, resolution=(368, 640), progress: bool = True) -> dict:
-    """Train and save weights; returns the training record (also written as JSON)."""
+          checkpoint_every: int = 50, resolution=(368, 640), progress: bool = True,
+          frames_data: tuple | None = None, device: str = "auto", source: str | None = None) -> dict:
+    """Train and save weights; returns the training record (also written as JSON). frames_data:
+    (train, val) uint8 (N, T, H, W) frames of `source` (apps/train_data.py) instead of the
+    procedural set; device: cpu, cuda or auto (cuda when torch.cuda.is_available())."""
     cfg = LITE if name == "dmvfn_lite" else FULL
     rng = np.random.default_rng(seed)
     routing_rng = torch.Generator().manual_seed(seed)
     out = Path(out) / name
     out.mkdir(parents=True, exist_ok=True)
     t_data = time.perf_counter()
-    data = build_dataset(sequences, frames, seed=1000 + seed, resolution=resolution, progress=progress)
-    val = build_dataset(val_sequences, frames, seed=9000 + seed, resolution=resolution, progress=progress)
+    data, val = frames_data or _procedural(sequences, val_sequences, frames, seed, resolution, progress)
+    sequences, val_sequences, frames, resolution = len(data), len(val), data.shape[1], tuple(data.shape[2:])
     data_s = time.perf_counter() - t_data
-    device = torch.device("cuda" if torch.cuda.is_available() else "cpu")   # a lent GPU if any
+    device = torch.device(resolve_device(device))   # a lent GPU if any
     with torch.random.fork_rng(devices=[]):      # seeded weight init, global RNG left untouched
         torch.manual_seed(seed)
         model = DMVFN(cfg)
     opt = torch.optim.AdamW(model.parameters(), lr=lr, weight_decay=1e-4)
     state = _load_checkpoint(out, model, opt) or {"step": 0, "seconds": 0.0, "losses": []}
     model.to(device)
-    for st in opt.state.values():
-        for k, v in st.items():
-            if torch.is_tensor(v) and k != "step":
-                st[k] = v.to(device)
+    _optimizer_to(opt, device, keep=("step",))
     idx = triplets(data)
     budget_s = minutes * 60.0
     total_steps_est = max_steps or 10**9
@@ -148,10 +163,7 @@ def train(name: str = "dmvfn_lite", *, minutes: float = 10.0, sequences: int = 4
                       f"({state['seconds']:.0f} s)", flush=True)
     state["seconds"] = time.perf_counter() - t0
     model.cpu()
-    for st in opt.state.values():
-        for k, v in st.items():
-            if torch.is_tensor(v):
-                st[k] = v.cpu()
+    _optimizer_to(opt, torch.device("cpu"))
     _save_checkpoint(out, model, opt, state)
     model.eval()
     pred_model = DMVFNPredictor(model, name, None)
@@ -164,7 +176,7 @@ def train(name: str = "dmvfn_lite", *, minutes: float = 10.0, sequences: int = 4
               "loss_last_50": float(np.mean(state["losses"][-50:])) if state["losses"] else None,
               "dataset": {"train_sequences": sequences, "val_sequences": val_sequences,
                           "frames": frames, "resolution": list(resolution), "seed": seed,
-                          "source": "scenes/highbeam_plate, procedurally varied (predict/data.py)"},
+                          "source": source or "scenes/highbeam_plate, procedurally varied (apps/training_data.py)"},
               "validation": validation, "torch_threads": torch.get_num_threads(), "device": str(device)}
     record = jsonable(record)
     if weights_out is not None:

@@ -4,9 +4,16 @@ Data: highlight sequences on image-space paths of every motion kind (analysis/mo
 straight, curved, accelerating, braking, swerve, lane change, reversal; speed 4-48 px/frame, any
 heading, E 5-50 over saturation, 0-2 DN noise), each sample the tracker's measured displacement
 chain at frame t (track.py `region_tracks` on frames t-3..t, as the loop runs it) and the true
-next displacement of the plate's highlight. Optionally sequences rendered by the simulator
-(apps/training_data.py `build_split`): there the target is the tracker's own measurement from
-frame t to t+1 (no truth is needed).
+next displacement of the plate's highlight. Or (`train_track_net_scene`, `poevp train-predictor
+SCENE --name track_net`) sequences rendered from a scene (apps/train_data.py): there the target
+is the displacement of the saturated region's centroid near the plate's rendered box from frame
+t to t+1, the quantity the mask's alignment is scored on.
+
+Training (`fit`): checkpoints (model, AdamW moments, the batch generator's state, the run's state)
+in safetensors every `checkpoint_every` steps; `--resume` continues bit for bit (a killed run
+resumed ends with the uninterrupted run's weights); a tqdm bar shows the loss and the validation
+median centroid error and region IoU; `--device auto` trains on CUDA when torch sees it. The
+shipped weights (the command below) are unchanged by this: same data hash, same steps.
 
 Splits: train, val and test differ by seeds, plate texts and paths (every parameter drawn
 afresh from its own seed stream: `SPLIT_SEEDS`). Loss: L1 of the predicted displacement (px),
@@ -32,6 +39,7 @@ import numpy as np
 import torch
 
 from poevp_optics.analysis.motion_paths import KINDS, PathSpec, render_sequence
+from poevp_optics.core.exceptions import UserError
 from poevp_optics.control.predictors.track import RegionTrack, closed_form_displacement, region_tracks
 from poevp_optics.control.predictors.track_net import (TrackNet, TrackNetConfig, chain_arrays,
                                                         save_track_net)
@@ -107,8 +115,11 @@ def to_tensors(samples) -> dict[str, torch.Tensor]:
 
 
 def data_hash(t: dict[str, torch.Tensor]) -> str:
+    """SHA-256 of a split's tensors (the region sizes, an evaluation aid, left out)."""
     h = hashlib.sha256()
     for k in sorted(t):
+        if k == "size":
+            continue
         h.update(k.encode())
         h.update(np.ascontiguousarray(t[k].numpy()).tobytes())
     return h.hexdigest()
@@ -118,7 +129,7 @@ def errors_px(samples, predict) -> np.ndarray:
     return np.array([np.hypot(*(predict(s[0]) - s[1])) for s in samples])
 
 
-def metrics(samples, model: TrackNet | None) -> dict:
+def metrics(samples, model: TrackNet | None, kinds=KINDS) -> dict:
     """Median displacement error (px) per kind and pooled: constant velocity (`flow`'s model on
     the same measured chain), `track`'s closed form, and the model."""
     def net(tr):
@@ -131,12 +142,152 @@ def metrics(samples, model: TrackNet | None) -> dict:
     if model is not None:
         preds["track_net"] = net
     out = {}
-    for kind in (*KINDS, "all"):
+    for kind in (*kinds, "all"):
         sub = [s for s in samples if kind == "all" or s[2] == kind]
         if sub:
             out[kind] = {n: float(np.median(errors_px(sub, p))) for n, p in preds.items()}
             out[kind]["n"] = len(sub)
     return out
+
+
+def resolve_device(device: str = "auto") -> str:
+    """'cpu', 'cuda', or 'auto': cuda when torch.cuda.is_available(), else cpu."""
+    if device == "auto":
+        return "cuda" if torch.cuda.is_available() else "cpu"
+    if device not in ("cpu", "cuda"):
+        raise UserError(f"--device {device!r}: choose cpu, cuda or auto")
+    if device == "cuda" and not torch.cuda.is_available():
+        raise UserError("--device cuda: torch sees no CUDA device here (use cpu or auto)")
+    return device
+
+
+def box_iou_after_error(sizes: torch.Tensor, err: torch.Tensor) -> torch.Tensor:
+    """IoU of a region's box (sizes (N, 2): w, h px) with itself moved by err (N, 2) px: the
+    saturated-region IoU a translation error of the mask leaves (closed form for two equal
+    boxes: overlap (w - |dx|)+ (h - |dy|)+ over 2 w h - overlap)."""
+    w, h = sizes[:, 0].clamp_min(1.0), sizes[:, 1].clamp_min(1.0)
+    ov = (w - err[:, 0].abs()).clamp_min(0.0) * (h - err[:, 1].abs()).clamp_min(0.0)
+    return ov / (2 * w * h - ov)
+
+
+def validation_metric(model: TrackNet, v: dict[str, torch.Tensor]) -> dict[str, float]:
+    """Median centroid error (px) of the predicted next displacement, and the mean IoU of the
+    region moved by that error (`box_iou_after_error`), over a split's tensors."""
+    with torch.inference_mode():
+        err = model(v["disp"], v["valid"], v["resp"]) - v["target"]
+    out = {"median_centroid_error_px": float(err.norm(dim=-1).median())}
+    if "size" in v:
+        out["mean_region_iou"] = float(box_iou_after_error(v["size"], err).mean())
+    return out
+
+
+_CKPT = "checkpoint.safetensors"
+
+
+def _save_checkpoint(folder: Path, model: TrackNet, opt, gen: torch.Generator, state: dict) -> None:
+    """Model, AdamW moments and steps, the batch generator's state, and the run's state (JSON
+    in the safetensors metadata): everything a resumed run needs to continue bit for bit."""
+    from safetensors.torch import save_file
+
+    from poevp_optics.core.io import atomic_path
+
+    t = {f"model.{k}": v.detach().cpu().contiguous() for k, v in model.state_dict().items()}
+    for i, p in enumerate(model.parameters()):
+        for k, v in opt.state.get(p, {}).items():
+            t[f"adam.{i}.{k}"] = torch.as_tensor(v).detach().cpu().reshape(-1).contiguous()
+    t["generator"] = gen.get_state().contiguous()
+    folder.mkdir(parents=True, exist_ok=True)
+    with atomic_path(folder / _CKPT) as tmp:
+        save_file(t, str(tmp), metadata={"state": json.dumps(state)})
+
+
+def _load_checkpoint(folder: Path, model: TrackNet, opt, gen: torch.Generator, device: str) -> dict:
+    from safetensors import safe_open
+    from safetensors.torch import load_file
+
+    path = folder / _CKPT
+    with safe_open(str(path), framework="pt") as f:
+        state = json.loads(f.metadata()["state"])
+    t = load_file(str(path))
+    model.load_state_dict({k[6:]: v for k, v in t.items() if k.startswith("model.")})
+    for i, p in enumerate(model.parameters()):
+        st = {}
+        for k in ("exp_avg", "exp_avg_sq"):
+            if f"adam.{i}.{k}" in t:
+                st[k] = t[f"adam.{i}.{k}"].reshape(p.shape).to(device)
+        if f"adam.{i}.step" in t:
+            st["step"] = t[f"adam.{i}.step"].reshape(())
+        if st:
+            opt.state[p] = st
+    gen.set_state(t["generator"])
+    return state
+
+
+def fit(train: dict[str, torch.Tensor], val: dict[str, torch.Tensor], *, steps: int, batch: int = 256,
+        lr: float = 3e-3, seed: int = 0, device: str = "cpu", checkpoint_dir: Path | None = None,
+        resume: bool = False, checkpoint_every: int = 500, run_id: dict | None = None,
+        progress: bool = True, stop_after: int | None = None) -> tuple[TrackNet, dict]:
+    """Train a TrackNet: AdamW, cosine learning rate over `steps`, batches drawn by a seeded CPU
+    generator (the same batches on any device), loss the mean centroid error (px) of the
+    predicted displacement. Every `checkpoint_every` steps (and at the end) the whole state goes
+    to checkpoint_dir/checkpoint.safetensors; `resume` continues from it (refused when its
+    `run_id`, the data hash and budget, differs), so a killed run resumed ends with the weights
+    an uninterrupted one would. stop_after: stop (as a kill would) after that many steps,
+    without a final checkpoint (tests). Returns (model on the CPU, in eval mode; state)."""
+    from tqdm import tqdm
+
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(seed)
+        model = TrackNet(TrackNetConfig())
+    model.to(device)
+    opt = torch.optim.AdamW(model.parameters(), lr=lr, weight_decay=1e-4)
+    gen = torch.Generator().manual_seed(seed)
+    run_id = run_id or {}
+    state = {"step": 0, "losses": [], "train_seconds": 0.0, "train_cpu_seconds": 0.0, "run": run_id,
+             "resumed_at": []}
+    if resume and checkpoint_dir is not None and (Path(checkpoint_dir) / _CKPT).is_file():
+        state = _load_checkpoint(Path(checkpoint_dir), model, opt, gen, device)
+        if state.get("run") != run_id:
+            raise UserError(f"{Path(checkpoint_dir) / _CKPT}: a checkpoint of another run "
+                             f"({state.get('run')} vs {run_id}); remove it or drop --resume")
+        state["resumed_at"].append(state["step"])
+    tr = {k: v.to(device) for k, v in train.items()}
+    vd = {k: v.to(device) for k, v in val.items()}
+    n = tr["target"].shape[0]
+    t0, c0 = time.perf_counter() - state["train_seconds"], time.process_time() - state["train_cpu_seconds"]
+    losses = state["losses"]
+    bar = tqdm(range(state["step"], steps), desc="train track_net", initial=state["step"], total=steps,
+               disable=not progress or None)
+    for step in bar:
+        if stop_after is not None and step >= stop_after:
+            return model, state                            # killed: the last checkpoint stands
+        for g in opt.param_groups:
+            g["lr"] = lr * (0.02 + 0.98 * 0.5 * (1 + np.cos(np.pi * step / steps)))
+        idx = torch.randint(0, n, (batch,), generator=gen).to(device)
+        pred = model(tr["disp"][idx], tr["valid"][idx], tr["resp"][idx])
+        loss = (pred - tr["target"][idx]).norm(dim=-1).mean()
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        losses.append(loss.item())
+        state["step"] = step + 1
+        if step % 200 == 199:
+            vm = validation_metric(model, vd)
+            state["val"] = vm
+            post = {"loss": f"{np.mean(losses[-200:]):.3f} px",
+                    "val_median": f"{vm['median_centroid_error_px']:.3f} px"}
+            if "mean_region_iou" in vm:
+                post["val_iou"] = f"{vm['mean_region_iou']:.3f}"
+            bar.set_postfix(**post)
+        if checkpoint_dir is not None and state["step"] % checkpoint_every == 0 and state["step"] < steps:
+            state["train_seconds"], state["train_cpu_seconds"] = time.perf_counter() - t0, time.process_time() - c0
+            _save_checkpoint(Path(checkpoint_dir), model, opt, gen, state)
+    state["train_seconds"], state["train_cpu_seconds"] = time.perf_counter() - t0, time.process_time() - c0
+    state["val"] = validation_metric(model, vd)
+    if checkpoint_dir is not None:
+        _save_checkpoint(Path(checkpoint_dir), model, opt, gen, state)
+    model.cpu().eval()
+    return model, state
 
 
 def train_track_net(*, train_sequences: int = 1200, val_sequences: int = 200, test_sequences: int = 300,
@@ -152,32 +303,9 @@ def train_track_net(*, train_sequences: int = 1200, val_sequences: int = 200, te
               for name, n in (("train", train_sequences), ("val", val_sequences), ("test", test_sequences))}
     data_s, data_cpu_s = time.perf_counter() - t0, time.process_time() - cpu0
     tensors = {name: to_tensors(s) for name, (s, _) in splits.items()}
-    with torch.random.fork_rng(devices=[]):
-        torch.manual_seed(seed)
-        model = TrackNet(TrackNetConfig())
-    opt = torch.optim.AdamW(model.parameters(), lr=lr, weight_decay=1e-4)
-    gen = torch.Generator().manual_seed(seed)
-    tr = tensors["train"]
-    n = tr["target"].shape[0]
-    t1 = time.perf_counter()
-    bar = tqdm(range(steps), desc="train track_net", disable=not progress or None)
-    losses = []
-    for step in bar:
-        for g in opt.param_groups:
-            g["lr"] = lr * (0.02 + 0.98 * 0.5 * (1 + np.cos(np.pi * step / steps)))
-        idx = torch.randint(0, n, (batch,), generator=gen)
-        pred = model(tr["disp"][idx], tr["valid"][idx], tr["resp"][idx])
-        loss = (pred - tr["target"][idx]).norm(dim=-1).mean()
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-        losses.append(loss.item())
-        if step % 200 == 199:
-            with torch.inference_mode():
-                v = tensors["val"]
-                val = float((model(v["disp"], v["valid"], v["resp"]) - v["target"]).norm(dim=-1).median())
-            bar.set_postfix(loss=f"{np.mean(losses[-200:]):.3f} px", val_median=f"{val:.3f} px")
-    train_s = time.perf_counter() - t1
+    model, state = fit(tensors["train"], tensors["val"], steps=steps, batch=batch, lr=lr, seed=seed,
+                       progress=progress)
+    train_s, losses = state["train_seconds"], state["losses"]
     model.eval()
     record = {"model": "track_net", "command": command, "config": {"hidden": model.cfg.hidden, "chain": model.cfg.chain},
               "parameters": sum(p.numel() for p in model.parameters()),
@@ -195,6 +323,96 @@ def train_track_net(*, train_sequences: int = 1200, val_sequences: int = 200, te
         save_track_net(model, Path(weights_out), record)
         from poevp_optics.core.io import write_json
 
+        write_json(Path(weights_out).with_suffix(".json"), record)
+    return record
+
+
+def region_sizes(samples) -> torch.Tensor:
+    """(N, 2) width and height (px) of each sample's region box."""
+    return torch.tensor([[s[0].box[3] - s[0].box[1], s[0].box[2] - s[0].box[0]] for s in samples],
+                        dtype=torch.float32).reshape(-1, 2)
+
+
+def scene_samples(split: dict, context: int = 4) -> list[tuple]:
+    """(track, target, kind) samples of a rendered split (apps/train_data.py): per frame t the
+    plate's region's measured chain on frames t-3..t, and its target, the displacement of the
+    saturated region's centroid near the plate (the roi box the renderer reports) from t to t+1:
+    the quantity the mask's alignment is scored on."""
+    from poevp_optics.analysis.motion_paths import saturated_centroid
+
+    out = []
+    for frames, boxes, d in zip(split["frames"], split["boxes"], split["draws"]):
+        f = frames.astype(np.float32)
+        cs = []
+        for img, b in zip(f, boxes):
+            if b[2] <= b[0]:
+                cs.append(np.array([np.nan, np.nan]))
+                continue
+            near = np.array([(b[1] + b[3]) / 2.0, (b[0] + b[2]) / 2.0])
+            cs.append(saturated_centroid(img, near, radius=0.5 * float(np.hypot(b[2] - b[0], b[3] - b[1])) + 8.0))
+        cs = np.asarray(cs)
+        for t in range(1, len(f) - 1):
+            if not (np.all(np.isfinite(cs[t])) and np.all(np.isfinite(cs[t + 1]))):
+                continue
+            tracks, labels = region_tracks([f[j] for j in range(max(0, t - context + 1), t + 1)])
+            tr = _match(tracks, labels, cs[t])
+            if tr is not None and tr.displacements:
+                out.append((tr, cs[t + 1] - cs[t], d.kind))
+    return out
+
+
+def train_track_net_scene(scene: str, data_cfg=None, *, steps: int = 3000, batch: int = 128, lr: float = 3e-3,
+                          seed: int = 0, device: str = "auto", checkpoint_dir: Path | None = None,
+                          resume: bool = False, checkpoint_every: int = 500, weights_out: Path | None = None,
+                          cluster=None, progress: bool = True, command: str = "", log=print,
+                          stop_after: int | None = None) -> dict:
+    """`poevp train-predictor SCENE --name track_net`: build (or reuse) the scene's data
+    (apps/train_data.py), train with checkpoints, evaluate on the held-out test split beside
+    constant velocity (`flow`'s model) and `track`'s closed form; save weights + record."""
+    from poevp_optics.apps.train_data import DATA_KINDS, Cluster, DataConfig, build_data
+
+    dev = resolve_device(device)
+    cfg = data_cfg or DataConfig()
+    t0, c0 = time.perf_counter(), time.process_time()
+    data = build_data(scene, cfg, cluster=cluster or Cluster(), progress=progress, log=log)
+    samples = {s: scene_samples(data.splits[s]) for s in ("train", "val", "test")}
+    if not samples["train"] or not samples["val"]:
+        raise UserError(f"{scene}: no tracked plate region in the rendered {'train' if not samples['train'] else 'val'} "
+                         "split (plate unsaturated or too small at this --resolution)")
+    data_s, data_cpu_s = time.perf_counter() - t0, time.process_time() - c0
+    tensors = {s: {**to_tensors(v), "size": region_sizes(v)} for s, v in samples.items() if v}
+    hashes = {s: data_hash(t) for s, t in tensors.items()}
+    run_id = {"data_sha256": data.sha256, "train_sha256": hashes["train"], "steps": steps, "batch": batch,
+              "lr": lr, "seed": seed}
+    model, state = fit(tensors["train"], tensors["val"], steps=steps, batch=batch, lr=lr, seed=seed, device=dev,
+                       checkpoint_dir=checkpoint_dir, resume=resume, checkpoint_every=checkpoint_every,
+                       run_id=run_id, progress=progress, stop_after=stop_after)
+    n_train = int(tensors["train"]["target"].shape[0])
+    test = tensors.get("test")
+    record = {"model": "track_net", "command": command, "scene": data.manifest["scene"],
+              "config": {"hidden": model.cfg.hidden, "chain": model.cfg.chain},
+              "parameters": sum(p.numel() for p in model.parameters()),
+              "data": {"content_sha256": data.sha256, "folder": str(data.folder),
+                       "config": data.manifest["config"],
+                       **{s: {"sequences": len(data.splits[s]["draws"]), "samples": len(samples[s]),
+                              "sha256": hashes.get(s)} for s in ("train", "val", "test")}},
+              "split": data.manifest["split"],
+              "budget": {"steps": state["step"], "epochs": state["step"] * batch / max(n_train, 1), "batch": batch,
+                         "lr": lr, "seed": seed, "device": dev, "train_seconds": state["train_seconds"],
+                         "train_cpu_seconds": state["train_cpu_seconds"], "resumed_at_steps": state["resumed_at"],
+                         "data_seconds": data_s, "data_cpu_seconds": data_cpu_s,
+                         "render_seconds": data.manifest["timing"]["render_seconds"],
+                         "data_from_cache": not data.rendered, "torch_threads": torch.get_num_threads()},
+              "loss_first_200": float(np.mean(state["losses"][:200])) if state["losses"] else None,
+              "loss_last_200": float(np.mean(state["losses"][-200:])) if state["losses"] else None,
+              "val_metric": state.get("val"),
+              "val": metrics(samples["val"], model, DATA_KINDS),
+              "test": metrics(samples["test"], model, DATA_KINDS) if samples["test"] else {},
+              "test_metric": validation_metric(model, test) if test is not None else {}}
+    if weights_out is not None and stop_after is None:
+        from poevp_optics.core.io import write_json
+
+        save_track_net(model, Path(weights_out), record)
         write_json(Path(weights_out).with_suffix(".json"), record)
     return record
 
