@@ -28,7 +28,8 @@ from typing import Any
 
 #: section -> (choosing key, {key: default}); the values of scenes/night_road/scene.toml.
 BEST_LOOP: dict[str, tuple[str, dict[str, Any]]] = {
-    "mask": ("law", {"law": "exposure_controller", "target": 0.6, "band_low": 0.4, "band_high": 0.9,
+    "mask": ("law", {"law": "exposure_controller", "target": 0.6, "band_low": 0.4, "band_high": 0.9,  # smooth_px:
+                     # night_road's 24 mirrors at 1920 columns is 4 at 320
                      "smooth_px": 4.0, "min_level": 1, "first_guess": 22.0, "clip_step": 5.0,
                      "carry": "extrapolate"}),
     "loop": ("mode", {"mode": "demodulated", "init_frames": 2}),

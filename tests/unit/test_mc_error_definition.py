@@ -79,23 +79,32 @@ def test_headline_leads_with_the_roi_error_and_states_the_clipped_share():
 
 
 def test_demo_states_the_dmd_it_simulates_and_the_keys_for_its_own_mirrors():
-    """night_road at 184x320 is the DLP6500 (1920 x 1080 mirrors, TI DLPS053) at 1/6 scale: the
-    keys scale the objective's focal length and the mask's sizes in mirrors by 6 (areas by 36)."""
+    """night_road renders the DLP6500's own 1920 x 1080 mirrors (TI DLPS053); at 1/6 scale the
+    line names the scale and the keys back: the objective's focal length and the mask's sizes in
+    mirrors x 6 (areas x 36), which `--dmd-mirrors` applies in one flag."""
     from poevp_optics.apps.headline import dmd_scale_line
     from poevp_optics.scene.load import load_scene
     from tests.conftest import SCENES
 
-    spec = load_scene(SCENES / "night_road")
+    full = load_scene(SCENES / "night_road")
+    assert full.render.resolution == (1080, 1920)
+    assert "at its own 1920x1080 mirrors" in dmd_scale_line(full)
+    sixth = ["render.resolution=[180,320]", f"objective.focal_length_m={full.objective.focal_length_m / 6:.6g}",
+             f"mask.smooth_px={full.mask.smooth_px / 6:g}",
+             f"attenuator.serve_min_mirrors={full.attenuator.serve_min_mirrors // 36}"]
+    spec = load_scene(SCENES / "night_road", sixth)
     line = dmd_scale_line(spec)
-    k = 1920 / spec.render.resolution[1]
-    assert "DLP6500" in line and f"1/{k:.3g} scale" in line
+    assert "DLP6500" in line and "1/6 scale" in line
     assert "--set render.resolution=[1080,1920]" in line
     assert f"objective.focal_length_m={spec.objective.focal_length_m * 6:.6g}" in line
     assert f"mask.smooth_px={spec.mask.smooth_px * 6:.4g}" in line
     assert f"attenuator.serve_min_mirrors={spec.attenuator.serve_min_mirrors * 36}" in line
-    full = load_scene(SCENES / "night_road", line.split("i.e. ")[1].replace("--set ", "").split())
-    assert "at its own 1920x1080 mirrors" in dmd_scale_line(full)
+    back = load_scene(SCENES / "night_road", [*sixth, *line.split("i.e. ")[1].replace("--set ", "").split()])
+    assert (back.render.resolution, back.objective.focal_length_m, back.mask.smooth_px,
+            back.attenuator.serve_min_mirrors) == (full.render.resolution, full.objective.focal_length_m,
+                                                   full.mask.smooth_px, full.attenuator.serve_min_mirrors)
     from poevp_optics.cli import _overrides, build_parser
 
-    args = build_parser().parse_args(["render", str(SCENES / "night_road"), "--dmd-mirrors"])
-    assert _overrides(args) == line.split("i.e. ")[1].replace("--set ", "").split()
+    args = build_parser().parse_args(["render", str(SCENES / "night_road"), "--dmd-mirrors",
+                                      *[x for o in sixth for x in ("--set", o)]])
+    assert _overrides(args)[len(sixth):] == line.split("i.e. ")[1].replace("--set ", "").split()
