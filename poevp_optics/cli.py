@@ -68,7 +68,7 @@ def _add_run_options(p: argparse.ArgumentParser) -> None:
                    help="render at the DMD's own mirror count (night_road: the DLP6500's 1920x1080, 6x the "
                         "default scale), the sizes in mirrors and the objective's focal length scaled with it; "
                         "applied after every --set")
-    p.add_argument("--yes", action="store_true",
+    p.add_argument("--yes", "--force", dest="yes", action="store_true",
                    help="run even when the run-size estimate (CPU time, disk) is above the limits "
                         "(POEVP_MAX_CPU_HOURS, default 4; POEVP_MAX_DISK, default 20G); free space is "
                         "still checked")

@@ -169,6 +169,7 @@ def test_validate_prints_the_run_size_and_limits_refuse_before_work(scene, tmp_p
     one_line(*poevp("validate", scene, env=small)[::2], 2, "--yes")
     rc, out, _ = poevp("validate", scene, "--yes", "--no-load", env=small)
     assert rc == 0
+    assert poevp("validate", scene, "--force", "--no-load", env=small)[0] == 0    # the alias
 
 
 def test_run_size_scales_as_its_formula():
