@@ -5,7 +5,7 @@ straight, curved, accelerating, braking, swerve, lane change, reversal; speed 4-
 heading, E 5-50 over saturation, 0-2 DN noise), each sample the tracker's measured displacement
 chain at frame t (track.py `region_tracks` on frames t-3..t, as the loop runs it) and the true
 next displacement of the plate's highlight. Or (`train_track_net_scene`, `poevp train-predictor
-SCENE --name track_net`) sequences rendered from a scene (apps/train_data.py): there the target
+SCENE --name track_net`) sequences rendered from a scene (apps/train/train_data.py): there the target
 is the displacement of the saturated region's centroid near the plate's rendered box from frame
 t to t+1, the quantity the mask's alignment is scored on.
 
@@ -22,7 +22,7 @@ deterministic (seeded init and batches). The record (command, data hash, split, 
 test metrics beside `flow`'s constant velocity and `track`'s closed form) goes into the weights'
 metadata and a JSON beside them.
 
-    python -m poevp_optics.apps.train_track --out assets/predictor/track_net.safetensors
+    python -m poevp_optics.apps.train.train_track --out assets/predictor/track_net.safetensors
 """
 
 from __future__ import annotations
@@ -334,7 +334,7 @@ def region_sizes(samples) -> torch.Tensor:
 
 
 def scene_samples(split: dict, context: int = 4) -> list[tuple]:
-    """(track, target, kind) samples of a rendered split (apps/train_data.py): per frame t the
+    """(track, target, kind) samples of a rendered split (apps/train/train_data.py): per frame t the
     plate's region's measured chain on frames t-3..t, and its target, the displacement of the
     saturated region's centroid near the plate (the roi box the renderer reports) from t to t+1:
     the quantity the mask's alignment is scored on."""
@@ -367,9 +367,9 @@ def train_track_net_scene(scene: str, data_cfg=None, *, steps: int = 3000, batch
                           cluster=None, progress: bool = True, command: str = "", log=print,
                           stop_after: int | None = None) -> dict:
     """`poevp train-predictor SCENE --name track_net`: build (or reuse) the scene's data
-    (apps/train_data.py), train with checkpoints, evaluate on the held-out test split beside
+    (apps/train/train_data.py), train with checkpoints, evaluate on the held-out test split beside
     constant velocity (`flow`'s model) and `track`'s closed form; save weights + record."""
-    from poevp_optics.apps.train_data import DATA_KINDS, Cluster, DataConfig, build_data
+    from poevp_optics.apps.train.train_data import DATA_KINDS, Cluster, DataConfig, build_data
 
     dev = resolve_device(device)
     cfg = data_cfg or DataConfig()
@@ -428,7 +428,7 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     rec = train_track_net(train_sequences=a.train_sequences, val_sequences=a.val_sequences,
                           test_sequences=a.test_sequences, steps=a.steps, seed=a.seed, weights_out=a.out,
-                          command="python -m poevp_optics.apps.train_track " + " ".join(argv or sys.argv[1:]))
+                          command="python -m poevp_optics.apps.train.train_track " + " ".join(argv or sys.argv[1:]))
     print(json.dumps({k: rec[k] for k in ("test", "budget")}, indent=1))
     return 0
 
