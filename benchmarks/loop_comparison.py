@@ -19,7 +19,7 @@ SCENES = ["highbeam_plate", "heldout_swerve", "heldout_receding", "reversal"]
 
 def main(argv=None):
     from poevp_optics.core import runtime
-    from poevp_optics.apps.compare import COLUMNS, compare
+    from poevp_optics.apps.run.compare import COLUMNS, compare
     from poevp_optics.core.io import staged_dir
 
     ap = argparse.ArgumentParser()

@@ -28,7 +28,7 @@ def _cpu_s() -> float:
 
 def run(scene: str, sets: list[str]):
     """(spec, report, kept frames, wall s, CPU s) of one run of `scene` with every frame kept."""
-    from poevp_optics.apps.render_run import run_frames
+    from poevp_optics.apps.run.render_run import run_frames
     from poevp_optics.scene.load import load_scene
 
     spec = load_scene(scene, sets)
@@ -66,7 +66,7 @@ def summary(rows: list[list], lo: float, hi: float) -> dict:
 
 
 def main(argv=None):
-    from poevp_optics.apps import night_road
+    from poevp_optics.apps.run import night_road
     from poevp_optics.core import runtime
 
     ap = argparse.ArgumentParser()

@@ -68,7 +68,7 @@ def run_loop(spec, renderer, exposures) -> tuple[dict, dict]:
     kept (captures, masks, plate box), nothing written."""
     import tempfile
 
-    from poevp_optics.apps.render_run import run_frames
+    from poevp_optics.apps.run.render_run import run_frames
 
     with tempfile.TemporaryDirectory() as tmp:
         return run_frames(spec, tmp, False, renderer=renderer, exposures=exposures, write_images=False,

@@ -110,14 +110,14 @@ def run_cell(runner, ex, name: str, mode: str = "open") -> list[dict]:
 def cell_rows(a, modes, speeds, es, preds, log=print):
     """Every per-frame row: (mode, speed, E, text, direction, predictor, row dict, read)."""
     from poevp_optics.analysis.recognition import correct
-    from poevp_optics.apps.eval_sequences import SequenceSpec, calibrate, peak_gain, render_sequences
-    from poevp_optics.apps.evaluate import EvalConfig, Runner, load_eval_scene, overexposure, scaled
+    from poevp_optics.apps.evaluate.eval_sequences import SequenceSpec, calibrate, peak_gain, render_sequences
+    from poevp_optics.apps.evaluate.evaluate import EvalConfig, Runner, load_eval_scene, overexposure, scaled
     from poevp_optics.camera.camera import Camera
 
     cfg = EvalConfig(frames=a.frames)
     out = []
     for ti, text in enumerate(a.texts.split(",")):
-        d = 1 if ti % 2 == 0 else -1                  # as apps/evaluate.py plan()
+        d = 1 if ti % 2 == 0 else -1                  # as apps/evaluate/evaluate.py plan()
         seqs = [SequenceSpec(text, "lateral", v, cfg.frames, d) for v in speeds]
         spec = load_eval_scene(cfg, text, cfg.frames)
         runner = Runner(cfg, spec, Camera.from_scene(spec))

@@ -4,7 +4,7 @@ speed and direction (issue 26).
 Sequences: analysis/motion_paths.py (a textured car, a plate E = 9 over saturation in the paper's
 Eq. 3 highlight, 368x640, 8-bit, 1 DN noise) on every kind at 4-48 px/frame and four headings
 (right, left, down, up), seeds from their own stream (`BENCH_SEED`, apart from the training
-splits of apps/train_track.py), so neither the paths nor the texts were seen in training. Each
+splits of apps/train/train_track.py), so neither the paths nor the texts were seen in training. Each
 predictor gets the four frames before frame t (the loop keeps four; two-frame predictors use the
 last two) and predicts frame t; t = 4..7 are scored.
 

@@ -17,7 +17,7 @@ plate closing at 6 m/s; `fast_pass` frame 1, a plate sweeping the frame within o
 184x320, 256 radiance samples rendered with ONE seed (common random numbers: differences between
 rules are nearly free of Monte Carlo noise), L(t) at any time by linear interpolation between
 them; the reference is the uniform rule on those 256 samples (one bit-plane LSB step apart).
-Errors: relative RMS over the plate box. Part C: the run's own estimate (apps.temporal_check.temporal_error:
+Errors: relative RMS over the plate box. Part C: the run's own estimate (apps.run.temporal_check.temporal_error:
 independent seeds at the scene's spp, the frame's oracle mask) against the true error.
 
     python -m benchmarks.subframes_error
@@ -186,7 +186,7 @@ def part_c(spec, frame, dense, spps=(128, 512)):
 
     from poevp_optics.camera.camera import Camera
     from poevp_optics.camera.dmd import node_times_s, on_time_table
-    from poevp_optics.apps.temporal_check import temporal_error
+    from poevp_optics.apps.run.temporal_check import temporal_error
     from poevp_optics.render.exposures import render_exposures
     from poevp_optics.render.renderer import Renderer
 
@@ -261,7 +261,7 @@ def main():
              + markdown_table(["scene", "K uniform", "nodes with PWM", "plate mask levels", "uniform",
                                "uniform + PWM"], encs)
              + "\n\n## C. The run's temporal-error estimate vs the true error (oracle mask, scene K, PWM nodes)\n\n"
-             + "Estimate: apps.temporal_check.temporal_error at render.temporal_spp = 64. True: the same nodes against "
+             + "Estimate: apps.run.temporal_check.temporal_error at render.temporal_spp = 64. True: the same nodes against "
                "samples one LSB bit-plane apart over the window in which the plate's levels are lit, "
                "common random numbers at two spp, the CRN noise (~1/spp) extrapolated out.\n\n"
              + markdown_table(["scene", "nodes", "spp", "estimate", "resolved", "true",

@@ -27,9 +27,9 @@ GRID = ["timing.exposure_s=0.005,0.01,0.02,0.03", "mask.target=0.3,0.4,0.5,0.6"]
 
 def bare(points):
     from poevp_optics.core import runtime
-    from poevp_optics.apps.render_run import run_render
+    from poevp_optics.apps.run.render_run import run_render
     from poevp_optics.scene.load import load_scene
-    from poevp_optics.apps.sweep import point_overrides
+    from poevp_optics.apps.sweep.sweep import point_overrides
 
     runtime.set_threads(2)
     keys = [g.split("=")[0] for g in GRID]
@@ -45,7 +45,7 @@ def bare(points):
 
 
 def swept(workers, threads):
-    from poevp_optics.apps.sweep import sweep
+    from poevp_optics.apps.sweep.sweep import sweep
 
     tmp = Path(tempfile.mkdtemp())
     t0 = time.perf_counter()
@@ -61,7 +61,7 @@ def swept(workers, threads):
 def main():
     import itertools
 
-    from poevp_optics.apps.sweep import parse_grid
+    from poevp_optics.apps.sweep.sweep import parse_grid
 
     points = list(itertools.product(*[parse_grid(g)[1] for g in GRID]))
     n = len(points)

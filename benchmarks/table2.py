@@ -1,4 +1,4 @@
-"""Paper Table 2 like for like: the paper's own simulation (apps/paper_camera.py) on our LDR
+"""Paper Table 2 like for like: the paper's own simulation (apps/evaluate/paper_camera.py) on our LDR
 demo sequence, beside the physical camera, and where the difference comes from.
 
 Protocol (paper Sec. 6): scenes/ldr_highlight_demo (8 frames, 288x512, the plate's text in its
@@ -72,7 +72,7 @@ def cell(ok: list[bool]) -> str:
 
 
 def run(predictors, laws, log=print) -> dict:
-    from poevp_optics.apps import paper_camera as pc
+    from poevp_optics.apps.evaluate import paper_camera as pc
     from poevp_optics.camera.sensor import resolve_sensor
     from poevp_optics.control.predictors import make_predictor
     from poevp_optics.scene.load import load_scene
@@ -110,9 +110,9 @@ def run(predictors, laws, log=print) -> dict:
 
 
 def physical(predictors, law, baselines=(), log=print) -> dict:
-    """The physical camera on the same protocol (`poevp evaluate` machinery, apps/eval_paper.py)."""
-    from poevp_optics.apps.eval_paper import run_paper
-    from poevp_optics.apps.evaluate import EvalConfig, Runner, _shift_px, score_rows
+    """The physical camera on the same protocol (`poevp evaluate` machinery, apps/evaluate/eval_paper.py)."""
+    from poevp_optics.apps.evaluate.eval_paper import run_paper
+    from poevp_optics.apps.evaluate.evaluate import EvalConfig, Runner, _shift_px, score_rows
 
     cfg = EvalConfig(scene=SCENE, predictors=tuple(p for p in predictors), baselines=tuple(baselines),
                      paper_law=law, loop_mode="open")

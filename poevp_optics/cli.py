@@ -89,7 +89,7 @@ def _overrides(args) -> list[str]:
     from poevp_optics.scene.load import accuracy_overrides, parse_override
     out = list(args.overrides)
     if getattr(args, "dmd_mirrors", False):
-        from poevp_optics.apps.headline import dmd_scale_overrides
+        from poevp_optics.apps.run.headline import dmd_scale_overrides
         from poevp_optics.scene.load import load_scene
 
         name, _, sets = dmd_scale_overrides(load_scene(args.scene, out))
@@ -111,9 +111,9 @@ def _overrides(args) -> list[str]:
 
 
 def cmd_render(args) -> int:
-    from poevp_optics.apps.headline import dmd_scale_line, mc_error_line, target_line
+    from poevp_optics.apps.run.headline import dmd_scale_line, mc_error_line, target_line
 
-    from poevp_optics.apps.runner import run_job
+    from poevp_optics.apps.run.runner import run_job
 
     spec, out, report = run_job("render", args.scene, _overrides(args), out=args.out, threads=args.threads,
                                 yes=args.yes,
@@ -129,9 +129,9 @@ def cmd_render(args) -> int:
 
 
 def cmd_validate(args) -> int:
-    from poevp_optics.apps.memory import fits_note
-    from poevp_optics.apps.preflight import check_run
-    from poevp_optics.apps.runner import check_size
+    from poevp_optics.apps.run.memory import fits_note
+    from poevp_optics.apps.run.preflight import check_run
+    from poevp_optics.apps.run.runner import check_size
     from poevp_optics.scene.load import load_scene
     spec = load_scene(args.scene, _overrides(args))
     job = args.job or ("chart" if spec.chart.patches else "render")
@@ -151,7 +151,7 @@ def cmd_validate(args) -> int:
 
 
 def cmd_compare(args) -> int:
-    from poevp_optics.apps.runner import run_job
+    from poevp_optics.apps.run.runner import run_job
     from poevp_optics.control.loop_step import LOOP_MODES
     from poevp_optics.control.predictors import PREDICTORS
     from poevp_optics.core.exceptions import SceneError
@@ -182,7 +182,7 @@ def _f(v):
 
 
 def cmd_chart(args) -> int:
-    from poevp_optics.apps.runner import run_job
+    from poevp_optics.apps.run.runner import run_job
 
     spec, out, r = run_job("chart", args.scene, _overrides(args), out=args.out, threads=args.threads,
                                 yes=args.yes,
@@ -203,10 +203,10 @@ def cmd_chart(args) -> int:
 
 
 def cmd_sweep(args) -> int:
-    from poevp_optics.apps.runner import reads
+    from poevp_optics.apps.run.runner import reads
     from poevp_optics.core.io import check_output
     from poevp_optics.scene.load import load_scene
-    from poevp_optics.apps.sweep import sweep
+    from poevp_optics.apps.sweep.sweep import sweep
 
     spec = load_scene(args.scene, _overrides(args), cross_checks=False)
     out = Path(args.out) if args.out else Path("out") / f"{spec.name}-sweep"
@@ -283,7 +283,7 @@ def cmd_schema(args) -> int:
 
 
 def _add_sweep_parser(sub) -> None:
-    from poevp_optics.apps.runner import sweep_jobs
+    from poevp_optics.apps.run.runner import sweep_jobs
 
     p = sub.add_parser("sweep", help="grid of scene variations on Dask: table, plots; resumable")
     _add_run_options(p)
@@ -309,9 +309,9 @@ def _add_sweep_parser(sub) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from poevp_optics.apps.evaluate_cli import add_evaluate_parser
-    from poevp_optics.apps.train_cli import add_train_parsers
-    from poevp_optics.apps.runner import JOBS
+    from poevp_optics.apps.evaluate.evaluate_cli import add_evaluate_parser
+    from poevp_optics.apps.train.train_cli import add_train_parsers
+    from poevp_optics.apps.run.runner import JOBS
 
     parser = _OneLineParser(prog="poevp", description="POE-VP DMD camera simulator")
     parser.add_argument("--version", action="version", version=f"poevp_optics {__version__}")

@@ -252,7 +252,7 @@ LIMIT_WORDS = {"white_fill": "the DMD's white fill outside its display window",
 def attribute(ldr: dict, enc: dict, parts: dict, table_enc: PatchTable, noise_floor_e: float,
               flare: tuple[str, str] = ("relay_flare", "")) -> dict:
     """Which limit binds each end of the encoded DR, with the numbers behind it. `flare`: the
-    LIMIT_WORDS key of the optics that spread the light (apps/chart.py flare_source) and the
+    LIMIT_WORDS key of the optics that spread the light (apps/run/chart.py flare_source) and the
     words naming them ("" : LIMIT_WORDS')."""
     upper = parts["binding"]
     if enc.get("limited_by_chart", {}).get("top"):

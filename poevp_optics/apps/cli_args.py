@@ -1,5 +1,5 @@
 """argparse types and option groups shared by `poevp`'s commands (cli.py and the commands' own
-flag modules, apps/evaluate_cli.py and apps/train_cli.py): integers with bounds that fail in one
+flag modules, apps/evaluate/evaluate_cli.py and apps/train/train_cli.py): integers with bounds that fail in one
 line, the thread and seed limits, the Dask cluster options."""
 
 from __future__ import annotations
@@ -28,8 +28,8 @@ count_arg = int_at_least(0)
 
 
 def seeds_arg(text: str) -> int:
-    """--seeds: 1 to apps/run_size.MAX_SEEDS."""
-    from poevp_optics.apps.run_size import MAX_SEEDS
+    """--seeds: 1 to apps/run/run_size.MAX_SEEDS."""
+    from poevp_optics.apps.run.run_size import MAX_SEEDS
 
     n = positive_int(text)
     if n > MAX_SEEDS:
@@ -47,7 +47,7 @@ def threads_arg(text: str) -> int:
 
 
 def add_cluster_options(p) -> None:
-    """`poevp sweep` on an existing Dask cluster (apps/cluster.py, apps/bundle.py)."""
+    """`poevp sweep` on an existing Dask cluster (apps/sweep/cluster.py, apps/sweep/bundle.py)."""
     where = p.add_mutually_exclusive_group()
     where.add_argument("--scheduler", metavar="ADDRESS", help="tcp://HOST:PORT of an existing Dask scheduler")
     where.add_argument("--scheduler-file", metavar="PATH",

@@ -6,8 +6,8 @@ load-or-build path for the package's caches:
 | objective/psf-*.npz, objective/ri-*.npz | SHA-256 of sorted JSON (params, shape, versions, QE table) | camera/objective/cache.py |
 | meshes/car_rear_*.ply                   | SHA-1 of the mesh's bytes and MESH_VERSION    | sources/road.py |
 | plates/plate_*.png                      | SHA-1 of "text|width|height|v1"               | sources/plates.py |
-| predictor_data/seq_*.npz                | SHA-1 of JSON (sequences, frames, seed, size)  | apps/training_data.py |
-| eval/*.npz                              | SHA-1 of JSON (scene files' hashes, sequence, poses, settings) | apps/eval_sequences.py |
+| predictor_data/seq_*.npz                | SHA-1 of JSON (sequences, frames, seed, size)  | apps/train/training_data.py |
+| eval/*.npz                              | SHA-1 of JSON (scene files' hashes, sequence, poses, settings) | apps/evaluate/eval_sequences.py |
 
 The cache root is $POEVP_CACHE_DIR, else ~/.cache/poevp_optics (core.runtime.cache_dir). Each
 user keeps its own recipe (the bytes hashed are what they were, so cache files written before

@@ -17,7 +17,7 @@ from poevp_optics.sources.kinds import check_source, open_frames
 class MitsubaSource(Renderer):
     """A `Renderer` that yields the run's exposures (K sub-frames with Monte Carlo error)."""
 
-    temporal_skip = None       # apps/temporal_check.py estimates it by step halving
+    temporal_skip = None       # apps/run/temporal_check.py estimates it by step halving
 
     def exposures(self, progress: bool = True):
         return render_exposures(self.spec, self, progress)

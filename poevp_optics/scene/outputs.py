@@ -1,4 +1,4 @@
-"""[outputs]: which files a run writes (the writer is apps/outputs.py). Here in scene/ because the
+"""[outputs]: which files a run writes (the writer is apps/run/outputs.py). Here in scene/ because the
 scene spec is composed of it and scene/ may not import apps/ (DESIGN's package table, issue 30)."""
 
 from __future__ import annotations

@@ -21,7 +21,7 @@
 | [loop]               | LoopSpec         | control/loop_step.py |
 | [budget]             | BudgetSpec       | control/timing_budget.py |
 | [chart]              | ChartSpec        | analysis/charts.py |
-| [outputs]            | OutputsSpec      | scene/outputs.py (the writer: apps/outputs.py) |
+| [outputs]            | OutputsSpec      | scene/outputs.py (the writer: apps/run/outputs.py) |
 
 Accuracy settings (spp, nodes, MC splits, PSF support, ...) are gathered into one
 core.accuracy.Accuracy by `SceneSpec.accuracy`.

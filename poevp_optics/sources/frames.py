@@ -419,7 +419,7 @@ class FrameSequenceSource:
 
     It offers what the run loop reads from the Mitsuba source (render/radiance.py: `guard_px`,
     `plan`, `stats`, `variant`, `variant_reason`, `exposures()`, `temporal_skip`) and, for the
-    step-halving estimate of apps/temporal_check.py, the radiance at any time (`set_time`,
+    step-halving estimate of apps/run/temporal_check.py, the radiance at any time (`set_time`,
     `render_once`; no Monte Carlo: seeds and spp are unused). Subclasses read frame j as
     absolute photon radiance on the input grid (`load`).
     """
@@ -543,7 +543,7 @@ class FrameSequenceSource:
 
     @property
     def temporal_skip(self) -> str | None:
-        """Why the time-quadrature error (apps/temporal_check.py, step halving on the source's
+        """Why the time-quadrature error (apps/run/temporal_check.py, step halving on the source's
         L(t)) is not estimated, or None when it is: `integrate` samples are interval means."""
         if self.mode == "integrate":
             return ("not estimated: subframes = 'integrate' samples are the input's means over each "

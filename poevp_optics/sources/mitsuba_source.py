@@ -20,5 +20,5 @@ def check_keys(src, given: frozenset[str], base_dir: Path) -> None:
 
 
 def input_files(spec) -> list[Path]:
-    """No files besides the XML and what it names (apps/preflight.py lists those)."""
+    """No files besides the XML and what it names (apps/run/preflight.py lists those)."""
     return []

@@ -13,7 +13,7 @@ import math
 import numpy as np
 import pytest
 
-from poevp_optics.apps.chart import PAPER_DB, run_chart
+from poevp_optics.apps.run.chart import PAPER_DB, run_chart
 from poevp_optics.core.exceptions import SceneError
 from poevp_optics.scene.load import load_scene
 from ..conftest import SCENES

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from poevp_optics.scene.load import load_scene
-from poevp_optics.apps.night_road import scene_laws
+from poevp_optics.apps.run.night_road import scene_laws
 from poevp_optics.sources.road import plate_centre_m, plate_geometry
 from tests.conftest import SCENES
 
@@ -93,7 +93,7 @@ def test_night_road_run_reports_the_plate_over_saturation_and_the_floors(tmp_pat
     at spp 8: per-pixel MC error ~30 % over >= 50 plate pixels, plus the plate's edge pixels);
     the LDR twin is saturated on the plate's sheeting, the oracle-encoded capture is not (after the
     all-white init frames); the DMD floor is level 1's exposure: 1/255 + (254/255)/CR."""
-    from poevp_optics.apps.render_run import run_render
+    from poevp_optics.apps.run.render_run import run_render
 
     # the scene's issue-17 report-only set-up (2 fps, 20 m/s, oracle target law, delta relay):
     # `make demo` runs the causal loop at 10 fps, tested in tests/regression/test_default_scene.py

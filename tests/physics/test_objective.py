@@ -467,9 +467,9 @@ def test_glare_before_the_dmd_is_not_removed_by_a_mask():
 
 
 def test_memory_estimate_counts_the_objective_and_its_guard():
-    """apps/memory.py: the rendered grid it sizes is the camera's (the objective's guard band),
+    """apps/run/memory.py: the rendered grid it sizes is the camera's (the objective's guard band),
     and the objective's part holds at least its glare FFT (relay.fft_bytes of that grid)."""
-    from poevp_optics.apps.memory import estimate_run
+    from poevp_optics.apps.run.memory import estimate_run
     from poevp_optics.camera.relay import fft_bytes
     from poevp_optics.scene.load import load_scene
     from tests.conftest import SCENES

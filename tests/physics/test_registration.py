@@ -98,7 +98,7 @@ def test_reconstruction_is_compared_on_the_sensor_grid(tmp_path):
     registered onto the sensor grid, not the mirror-grid truth: with the noise off (12-bit, so
     ADC rounding stays ~1 %) it equals the identity map's error; comparing with the mirror-grid
     truth would add the 3 px shift of a textured plate (tens of %)."""
-    from poevp_optics.apps.render_run import run_render
+    from poevp_optics.apps.run.render_run import run_render
 
     errs = []
     for reg in (["dmd.registration.offset_px=[3.0, 2.0]"], []):

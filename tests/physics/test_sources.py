@@ -14,7 +14,7 @@ import cv2
 import numpy as np
 import pytest
 
-from poevp_optics.apps.render_run import run_render
+from poevp_optics.apps.run.render_run import run_render
 from poevp_optics.camera.camera import Camera
 from poevp_optics.core.io import read_dn, read_exr, read_png, write_exr
 from poevp_optics.render.radiance import open_source
@@ -195,7 +195,7 @@ def test_ldr_highlight_is_eq3_per_pixel(tmp_path, rule, sigma_of_r):
 def test_example_scenes_validate_and_the_ldr_demo_saturates_without_the_mask(tmp_path):
     """The shipped examples read their committed data; the LDR demo's plate saturates the LDR twin
     (E = 29) and the oracle mask clears it after the initialisation frames."""
-    from poevp_optics.apps.preflight import check_run
+    from poevp_optics.apps.run.preflight import check_run
 
     for name in ("exr_highbeam", "ldr_highlight_demo"):
         spec = load_scene(SCENES / name)

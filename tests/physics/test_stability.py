@@ -19,7 +19,7 @@ from poevp_optics.camera.camera import Camera
 from poevp_optics.camera.dmd import _interval_moments, node_times_s, throughput_on
 from poevp_optics.sources.flicker import on_intervals
 from poevp_optics.core.io import read_exr
-from poevp_optics.apps.render_run import run_render
+from poevp_optics.apps.run.render_run import run_render
 from poevp_optics.render.exposures import flicker_bases, render_exposures
 from poevp_optics.control.masks import mask_levels
 from poevp_optics.camera.reconstruct import SATURATED, reconstruct

@@ -82,13 +82,13 @@ def test_pwm_nodes_resolve_the_low_bit_planes():
 
 @pytest.mark.slow
 def test_temporal_error_estimate_tracks_the_true_error_of_the_encoded_plate():
-    """apps.temporal_check.temporal_error (the frame's nodes vs nodes + midpoints, independent seeds at the
+    """apps.run.temporal_check.temporal_error (the frame's nodes vs nodes + midpoints, independent seeds at the
     scene's spp, the frame's oracle mask) within a factor 1.5 of the true error of the encoded
     plate: the rule on the same nodes against 161 samples rendered with one seed (common random
     numbers, so the difference is the quadrature's, not noise) on fast_pass, where the plate
     sweeps ~50 px across this small frame within the exposure."""
     from poevp_optics.camera.camera import Camera
-    from poevp_optics.apps.temporal_check import temporal_error
+    from poevp_optics.apps.run.temporal_check import temporal_error
     from poevp_optics.control.loop_step import oracle_mask
     from poevp_optics.render.exposures import render_exposures
     from poevp_optics.render.renderer import Renderer

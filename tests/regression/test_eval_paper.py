@@ -11,8 +11,8 @@ import pytest
 
 pytest.importorskip("rapidocr_onnxruntime")
 
-from poevp_optics.apps.eval_paper import PAPER_E, paper_overrides  # noqa: E402
-from poevp_optics.apps.evaluate import check_config, evaluate, quick_config  # noqa: E402
+from poevp_optics.apps.evaluate.eval_paper import PAPER_E, paper_overrides  # noqa: E402
+from poevp_optics.apps.evaluate.evaluate import check_config, evaluate, quick_config  # noqa: E402
 from poevp_optics.core.exceptions import UserError  # noqa: E402
 from poevp_optics.core.paths import SCENES_DIR  # noqa: E402
 from poevp_optics.scene.load import load_scene  # noqa: E402

@@ -10,7 +10,7 @@ import pytest
 pytest.importorskip("rapidocr_onnxruntime")
 
 from poevp_optics.analysis.recognition import correct, normalise  # noqa: E402
-from poevp_optics.apps.evaluate import evaluate, quick_config  # noqa: E402
+from poevp_optics.apps.evaluate.evaluate import evaluate, quick_config  # noqa: E402
 
 
 def test_normalisation_and_exact_match():

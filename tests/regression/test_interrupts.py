@@ -101,8 +101,8 @@ def test_sigterm_then_sigkill_then_next_run(tmp_path, command, scene, args, kind
 
 
 @pytest.mark.parametrize("command,scene,args,kind,target", [
-    ("render", "smoke", QUICK_RENDER, "render", "poevp_optics.apps.outputs.write_exr"),
-    ("chart", "dr_chart36", CHART, "chart", "poevp_optics.apps.chart.write_exr"),
+    ("render", "smoke", QUICK_RENDER, "render", "poevp_optics.apps.run.outputs.write_exr"),
+    ("chart", "dr_chart36", CHART, "chart", "poevp_optics.apps.run.chart.write_exr"),
 ], ids=["render", "chart"])
 def test_exception_midway_leaves_earlier_output(tmp_path, monkeypatch, capsys, command, scene, args, kind,
                                                 target):

@@ -16,7 +16,7 @@ import pytest
 
 from poevp_optics.core.exceptions import SceneError
 from poevp_optics.scene.load import load_scene
-from poevp_optics.apps.sweep import SEED_KEYS, flatten_report, parse_grid, point_overrides, sweep
+from poevp_optics.apps.sweep.sweep import SEED_KEYS, flatten_report, parse_grid, point_overrides, sweep
 
 from ..conftest import ROOT, SCENES
 
@@ -72,7 +72,7 @@ def test_2x3x2_sweep_equals_single_renders_and_records_failures(tmp_path):
     assert (out / "plot_metrics_saturated_fraction_roi_encoded.png").is_file()
     pd.testing.assert_frame_equal(pd.read_parquet(out / "results.parquet"), df)
     # one point run on its own, as `poevp render` runs it, gives the same numbers
-    from poevp_optics.apps.render_run import run_render
+    from poevp_optics.apps.run.render_run import run_render
 
     row = ok.iloc[3]
     values = [row["grid.timing.exposure_s"], row["grid.mask.a"], row["grid.mask.b"]]

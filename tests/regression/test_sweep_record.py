@@ -10,7 +10,7 @@ import shutil
 
 import pandas as pd
 
-from poevp_optics.apps import sweep as sweep_mod
+from poevp_optics.apps.sweep import sweep as sweep_mod
 from poevp_optics.cli import main
 from tests.conftest import SCENES
 

@@ -225,7 +225,7 @@ def test_a_stage_is_built_from_a_small_dict_without_a_scene_file():
 
 def test_a_new_psf_is_one_registry_entry(tmp_path):
     """Register a box PSF in a few lines, render `smoke` with it, and find the blur in the run."""
-    from poevp_optics.apps.render_run import run_render
+    from poevp_optics.apps.run.render_run import run_render
     from poevp_optics.camera.relay import PSF, PSFS, PSFModel
     from poevp_optics.scene.load import load_scene
 

@@ -16,10 +16,10 @@ import numpy as np
 import pytest
 
 from poevp_optics import __version__
-from poevp_optics.apps.bundle import (InputMismatch, check_same_inputs, make_bundle, make_plan, map_paths,
+from poevp_optics.apps.sweep.bundle import (InputMismatch, check_same_inputs, make_bundle, make_plan, map_paths,
                                       materialize, pack_folder, scene_inputs, unpack_archive, with_hashes)
-from poevp_optics.apps.cluster import software_versions, version_mismatch
-from poevp_optics.apps.sweep import PointTask, run_point
+from poevp_optics.apps.sweep.cluster import software_versions, version_mismatch
+from poevp_optics.apps.sweep.sweep import PointTask, run_point
 from poevp_optics.core.paths import ASSETS_DIR
 from poevp_optics.scene.load import load_scene
 from tests.conftest import SCENES
@@ -56,7 +56,7 @@ def client_scene(tmp_path):
 def _assert_worker_renders_like_the_client(tmp_path, client_spec, worker_spec, path_map):
     """The client's and the worker's specs render the same outputs once the worker's report has
     its paths mapped back to the client's (as run_point does)."""
-    from poevp_optics.apps.render_run import run_render
+    from poevp_optics.apps.run.render_run import run_render
     from tests.regression.bit_identical import hash_outputs
 
     outs = {}
@@ -272,7 +272,7 @@ _AUDIT = {"installed": False, "sink": None}
 
 
 def test_lamp_files_sheeting_tables_psf_and_weights_are_listed_and_travel(lamp_sheet_scene, tmp_path):
-    from poevp_optics.apps.preflight import check_run
+    from poevp_optics.apps.run.preflight import check_run
     from poevp_optics.control.predictors import make_predictor
     from poevp_optics.render.renderer import Renderer
     from poevp_optics.render.materials.photometric_lamp import load_distribution

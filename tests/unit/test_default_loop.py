@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from poevp_optics.apps.render_run import run_frames
+from poevp_optics.apps.run.render_run import run_frames
 from poevp_optics.camera.camera import Camera
 from poevp_optics.core.io import write_exr
 from poevp_optics.scene.defaults import BEST_LOOP

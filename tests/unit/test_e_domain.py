@@ -8,8 +8,8 @@ import math
 import numpy as np
 import pytest
 
-from poevp_optics.apps.eval_paper import paper_overrides
-from poevp_optics.apps.evaluate import peak_gain
+from poevp_optics.apps.evaluate.eval_paper import paper_overrides
+from poevp_optics.apps.evaluate.evaluate import peak_gain
 from poevp_optics.core.paths import SCENES_DIR
 from poevp_optics.scene.load import load_scene
 from poevp_optics.sources.frames import Box

@@ -7,10 +7,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from poevp_optics.apps.eval_sequences import (SequenceSpec, calibrate, eval_overrides, node_times, nodes_for_speed,
+from poevp_optics.apps.evaluate.eval_sequences import (SequenceSpec, calibrate, eval_overrides, node_times, nodes_for_speed,
                                              poses, with_poses)
-from poevp_optics.apps.evaluate import TEXTS, EvalConfig, check_config
-from poevp_optics.apps.training_data import random_plate_text
+from poevp_optics.apps.evaluate.evaluate import TEXTS, EvalConfig, check_config
+from poevp_optics.apps.train.training_data import random_plate_text
 from poevp_optics.analysis.recognition import normalise
 from poevp_optics.camera.camera import Camera
 from poevp_optics.core.exceptions import UserError
@@ -72,7 +72,7 @@ def test_reversal_turns_and_approach_grows(setup):
 
 
 def test_test_texts_are_not_training_texts():
-    """Training texts (apps/training_data.random_plate_text) are 2 letters, a digit and 4 more:
+    """Training texts (apps/train/training_data.random_plate_text) are 2 letters, a digit and 4 more:
     7 characters; every test text has 6, so none can be a training text."""
     rng = np.random.default_rng(0)
     train = {normalise(random_plate_text(rng)) for _ in range(2000)}

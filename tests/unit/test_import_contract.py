@@ -154,12 +154,12 @@ def test_no_import_cycle_between_packages():
 def test_the_checker_sees_function_level_and_relative_imports():
     """The parser is what the contract rests on: a core module importing apps/ inside a function,
     relatively, or through `from poevp_optics import apps`, is each found and refused."""
-    src = ("def f():\n    from poevp_optics.apps import runner\n"
-           "def g():\n    from ..apps.runner import run_job\n"
+    src = ("def f():\n    from poevp_optics.apps.run import runner\n"
+           "def g():\n    from ..apps.run.runner import run_job\n"
            "import poevp_optics.render.renderer\n"
            "from poevp_optics import apps, __version__\n")
     found = imports_of("poevp_optics.core.io", src)
-    assert ("poevp_optics.apps.runner", 2) in found and ("poevp_optics.apps.runner", 4) in found
+    assert ("poevp_optics.apps.run.runner", 2) in found and ("poevp_optics.apps.run.runner", 4) in found
     assert ("poevp_optics.render.renderer", 5) in found
     assert ("poevp_optics.apps", 6) in found and (ROOT_PKG, 6) in found
     refused = {_package_of(m) for m, _ in found} - MAY_IMPORT["core"] - {"core"}

@@ -8,7 +8,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from poevp_optics.apps.render_run import unclipped_mc_error
+from poevp_optics.apps.run.render_run import unclipped_mc_error
 from poevp_optics.render.progressive import pixel_rel_errors, rel_error, rel_error_unclipped
 
 MAX_DN = 4095
@@ -65,7 +65,7 @@ def test_unclipped_error_without_clipping_is_the_plain_error_and_all_clipped_is_
 
 
 def test_headline_leads_with_the_roi_error_and_states_the_clipped_share():
-    from poevp_optics.apps.headline import mc_error_line
+    from poevp_optics.apps.run.headline import mc_error_line
 
     spec = SimpleNamespace(render=SimpleNamespace(roi_shape="plate"), source=SimpleNamespace(renders=True))
     r = {"rel_error": 3.064, "rel_error_roi": 0.0727, "rel_error_unclipped": 0.021, "clipped_fraction": 0.00017,
@@ -82,7 +82,7 @@ def test_demo_states_the_dmd_it_simulates_and_the_keys_for_its_own_mirrors():
     """night_road renders the DLP6500's own 1920 x 1080 mirrors (TI DLPS053); at 1/6 scale the
     line names the scale and the keys back: the objective's focal length and the mask's sizes in
     mirrors x 6 (areas x 36), which `--dmd-mirrors` applies in one flag."""
-    from poevp_optics.apps.headline import dmd_scale_line
+    from poevp_optics.apps.run.headline import dmd_scale_line
     from poevp_optics.scene.load import load_scene
     from tests.conftest import SCENES
 

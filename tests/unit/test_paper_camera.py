@@ -1,11 +1,11 @@
-"""The paper's own camera simulation (apps/paper_camera.py) and Eq. 2's third reading, against
+"""The paper's own camera simulation (apps/evaluate/paper_camera.py) and Eq. 2's third reading, against
 closed forms written out here: Hadamard product then clip at 255, the DMD floor, the noise
 statistics, and the loop's frames (He et al. 2024, Sec. 4.A and 6)."""
 
 import numpy as np
 import pytest
 
-from poevp_optics.apps import paper_camera as pc
+from poevp_optics.apps.evaluate import paper_camera as pc
 from poevp_optics.control.masks import MaskSpec, threshold_linear
 
 PHYS = dict(contrast_ratio=1000.0, saturation_e=10_000.0, read_noise_e=2.0)
@@ -133,7 +133,7 @@ def test_linear_light_is_the_srgb_decoding_extended_above_one():
 def test_evaluate_camera_flags_refuse_in_one_line():
     from pathlib import Path
 
-    from poevp_optics.apps.evaluate import EvalConfig, check_config
+    from poevp_optics.apps.evaluate.evaluate import EvalConfig, check_config
     from poevp_optics.core.exceptions import UserError
 
     root = Path(__file__).resolve().parents[2] / "scenes"

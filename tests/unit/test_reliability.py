@@ -79,7 +79,7 @@ def test_sigma_1000_psf_is_capped_at_the_image_and_runs_by_fft(tmp_path):
 # ---------------------------------------------------------------------------- memory
 def test_memory_estimate_bounds_the_measured_peak(tmp_path):
     """The estimate is an upper bound of peak RSS, and not a wild one (under 2x)."""
-    from poevp_optics.apps.memory import estimate_run
+    from poevp_optics.apps.run.memory import estimate_run
     from poevp_optics.scene.load import load_scene
     args = ["--frames", "1", "--resolution", "512x512", "--spp", "2"]
     spec = load_scene(SCENES / "smoke", ["timing.frames=1", "render.resolution=[512,512]", "render.spp=2"])
@@ -101,7 +101,7 @@ def test_memory_estimate_bounds_the_measured_peak(tmp_path):
 
 
 def test_available_memory_honours_the_limit(monkeypatch):
-    from poevp_optics.apps.memory import available_bytes, parse_bytes
+    from poevp_optics.apps.run.memory import available_bytes, parse_bytes
 
     assert parse_bytes("512M") == 512 << 20 and parse_bytes("1.5G") == int(1.5 * (1 << 30))
     monkeypatch.setenv("POEVP_MEMORY_LIMIT", "1G")

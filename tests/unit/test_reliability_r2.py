@@ -127,7 +127,7 @@ def test_disk_full_while_writing_keeps_the_old_output(scene, tmp_path, monkeypat
     out = tmp_path / "out"
     assert main(["render", str(scene), "--out", str(out), "--quiet", "--frames", "1"]) == 0
     capsys.readouterr()
-    from poevp_optics.apps.run_size import estimate
+    from poevp_optics.apps.run.run_size import estimate
     from poevp_optics.scene.load import load_scene
 
     written = sum(p.stat().st_size for p in out.rglob("*") if p.is_file())
@@ -173,7 +173,7 @@ def test_validate_prints_the_run_size_and_limits_refuse_before_work(scene, tmp_p
 
 
 def test_run_size_scales_as_its_formula():
-    from poevp_optics.apps.run_size import CPU_S_PER_SAMPLE, estimate
+    from poevp_optics.apps.run.run_size import CPU_S_PER_SAMPLE, estimate
     from poevp_optics.scene.load import load_scene
 
     a = estimate(load_scene(SMOKE, ["timing.frames=2"]))
@@ -184,7 +184,7 @@ def test_run_size_scales_as_its_formula():
     assert b2.disk_bytes - b.disk_bytes == pytest.approx(b.disk_bytes - a.disk_bytes, abs=2)
     assert b2.cpu_seconds - b.cpu_seconds == pytest.approx(b.cpu_seconds - a.cpu_seconds)
     spec = load_scene(SMOKE, ["timing.frames=2"])
-    from poevp_optics.apps.memory import radiance_samples, rendered_grid
+    from poevp_optics.apps.run.memory import radiance_samples, rendered_grid
 
     h, w = rendered_grid(spec)
     assert c.cpu_seconds - a.cpu_seconds == pytest.approx(2 * radiance_samples(spec) * h * w * 4 * CPU_S_PER_SAMPLE)
@@ -219,7 +219,7 @@ def test_sweep_free_space_is_checked_before_writing(scene, tmp_path, monkeypatch
 def test_sweep_state_is_verified_on_resume(scene, tmp_path, monkeypatch, capsys):
     import pandas as pd
 
-    import poevp_optics.apps.sweep as sw
+    import poevp_optics.apps.sweep.sweep as sw
 
     out = tmp_path / "sw"
     argv = ["sweep", str(scene), "--grid", "timing.frames=1,2", "--workers", "1", "--out", str(out),

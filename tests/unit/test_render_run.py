@@ -22,7 +22,7 @@ def test_render_writes_complete_report_and_float32_exr(tmp_path):
     st = r["stages"]["render"]
     assert st["seconds"] > 0 and 0 < st["rel_error"] < 1 and st["rel_error_roi"] is not None
     # frames x radiance nodes x mc_splits, plus the temporal check's renders of one frame's nodes
-    # and midpoints (apps.temporal_check.temporal_error); nodes: 4 uniform + the DMD's 7 inner plane boundaries
+    # and midpoints (apps.run.temporal_check.temporal_error); nodes: 4 uniform + the DMD's 7 inner plane boundaries
     from poevp_optics.scene.load import load_scene
     spec = load_scene(SCENES / "smoke", ["render.subframes=4", "timing.frames=2"])
     n = len(spec.subframe_times_s(1))

@@ -1,4 +1,4 @@
-"""Report extensions (apps/report_extensions.py): the generic run imports no scene-specific
+"""Report extensions (apps/run/report_extensions.py): the generic run imports no scene-specific
 report; a registered extension is called once per frame, before or after the loop observes the
 frame, and once at the end, and its entries land in report.json."""
 
@@ -8,11 +8,11 @@ import ast
 import json
 from pathlib import Path
 
-from poevp_optics.apps.report_extensions import REPORT_EXTENSIONS, ReportExtension
+from poevp_optics.apps.run.report_extensions import REPORT_EXTENSIONS, ReportExtension
 from poevp_optics.cli import main
 from tests.conftest import SCENES
 
-RUN = Path(__file__).resolve().parents[2] / "poevp_optics" / "apps" / "render_run.py"
+RUN = Path(__file__).resolve().parents[2] / "poevp_optics" / "apps" / "run" / "render_run.py"
 
 
 def test_generic_run_imports_no_scene_report():

@@ -1,4 +1,4 @@
-"""report.html (apps/report_html.py, issue 29): written by every render run, self-contained,
+"""report.html (apps/run/report_html.py, issue 29): written by every render run, self-contained,
 frames and plate zoom as the run's own pixels, and it opens in headless Chromium with its
 player running and no console message."""
 
@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 import pytest
 
-from poevp_optics.apps.report_html import MARKER, MAX_FRAMES, MAX_PANEL_W, render_html, shown_frames
+from poevp_optics.apps.run.report_html import MARKER, MAX_FRAMES, MAX_PANEL_W, render_html, shown_frames
 from poevp_optics.cli import main
 from tests.conftest import SCENES
 

@@ -309,7 +309,7 @@ def test_ldr_video_matches_its_frames(tmp_path):
 
 
 def test_frame_source_scene_needs_no_xml_and_lists_its_files(tmp_path):
-    from poevp_optics.apps.bundle import scene_inputs
+    from poevp_optics.apps.sweep.bundle import scene_inputs
 
     d = _exr_scene(tmp_path / "s", EXR + 'boxes = "boxes.csv"\n')
     (d / "boxes.csv").write_text("frame,x0,y0,x1,y1\n0,1,1,3,3\n")
@@ -339,8 +339,8 @@ def test_compare_runs_every_predictor_on_one_read_of_a_frame_source(tmp_path):
     the plain render run's oracle, and every run's frames carry the source's ground truth."""
     import json
 
-    from poevp_optics.apps.compare import compare
-    from poevp_optics.apps.render_run import run_render
+    from poevp_optics.apps.run.compare import compare
+    from poevp_optics.apps.run.render_run import run_render
 
     spec = load_scene(Path(__file__).parents[2] / "scenes" / "ldr_highlight_demo", ["timing.frames=4"])
     rows = {r["predictor"]: r for r in compare(spec, ["oracle", "hold"], ["open"], tmp_path / "c", progress=False)}

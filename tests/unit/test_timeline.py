@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from poevp_optics.apps.timeline import timeline_frames, write_timeline
+from poevp_optics.apps.run.timeline import timeline_frames, write_timeline
 from poevp_optics.camera.dmd import DMDSpec, Schedule
 from poevp_optics.control.timing_budget import BudgetSpec, MaskClock
 from poevp_optics.core.io import read_png

@@ -143,7 +143,7 @@ def test_resize_keeping_clip_marks_half_clipped_footprints():
 def test_track_net_training_is_reproducible():
     """Same command, same data hash and the same weights (seeded data, init and batches; the
     shipped weights' record names the command and the hashes)."""
-    from poevp_optics.apps.train_track import train_track_net
+    from poevp_optics.apps.train.train_track import train_track_net
 
     kw = dict(train_sequences=6, val_sequences=2, test_sequences=2, frames=6, steps=30, progress=False)
     a, b = train_track_net(**kw), train_track_net(**kw)

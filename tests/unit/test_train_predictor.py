@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 import torch
 
-from poevp_optics.apps import train_data as td
-from poevp_optics.apps import train_track as tt
+from poevp_optics.apps.train import train_data as td
+from poevp_optics.apps.train import train_track as tt
 from poevp_optics.cli import main
 from poevp_optics.core.paths import SCENES_DIR
 
@@ -166,13 +166,13 @@ def test_device_auto(monkeypatch):
 
 
 def test_sequence_renders_as_a_sweep_point(cache, monkeypatch, tmp_path):
-    """The Dask path's unit: one sequence as a sweep point (apps/sweep.py run_point, job
+    """The Dask path's unit: one sequence as a sweep point (apps/sweep/sweep.py run_point, job
     train_sequence) gives the frames the local build stored, bit for bit."""
     import io
     import zipfile
 
-    from poevp_optics.apps.bundle import make_plan, scene_inputs, with_hashes
-    from poevp_optics.apps.sweep import PointTask, run_point
+    from poevp_optics.apps.sweep.bundle import make_plan, scene_inputs, with_hashes
+    from poevp_optics.apps.sweep.sweep import PointTask, run_point
     from poevp_optics.scene.load import load_scene, resolve_scene_path
 
     monkeypatch.setenv("POEVP_CACHE_DIR", str(cache))

@@ -6,7 +6,7 @@ import json
 
 import numpy as np
 
-from poevp_optics.apps import train as train_mod
+from poevp_optics.apps.train import train as train_mod
 
 
 def test_tiny_training_lowers_loss_and_resumes(tmp_path, monkeypatch):

@@ -81,7 +81,7 @@ One job per module (`from poevp_optics.camera.objective import X` serves every n
 | glare.py         | `GLARE_MODELS` entries, `glare_kernel`, `glare_floor` (VGI) |
 | convolution.py   | `convolve_reflect`, `field_convolve` (bilinear PSF interpolation) |
 | stage.py         | `apply`, `radius_px` (guard band), `is_identity`, `summary` |
-| memory.py        | `radius_bound_px`, `memory_bytes` (apps/memory.py's estimate) |
+| memory.py        | `radius_bound_px`, `memory_bytes` (apps/run/memory.py's estimate) |
 """
 
 from poevp_optics.camera.objective.params import (ACCURACY_KEYS, DEFAULT_F_NUMBER, GLARE_MODELS, OBJECTIVE_PSFS,

@@ -1,4 +1,4 @@
-"""Memory estimate of the objective stage (apps/memory.py): an upper bound of its kernel radius
+"""Memory estimate of the objective stage (apps/run/memory.py): an upper bound of its kernel radius
 without building a kernel, and its peak bytes."""
 
 from __future__ import annotations

@@ -81,7 +81,7 @@ PREDICTORS.register("dmvfn", PredictorEntry(_dmvfn("dmvfn"), takes_weights=True)
 PREDICTORS.register("track", PredictorEntry(_track), source="ours: flow + per-region displacement chains over "
                     "four frames, least-squares constant acceleration (after SORT, Bewley et al. ICIP 2016)")
 PREDICTORS.register("track_net", PredictorEntry(_track_net, takes_weights=True),
-                    source="ours: track with a trained rotation-invariant torch motion model (apps/train_track.py)")
+                    source="ours: track with a trained rotation-invariant torch motion model (apps/train/train_track.py)")
 PREDICTORS.register("dmvfn_lite", PredictorEntry(_dmvfn("dmvfn_lite"), takes_weights=True),
                     source="ours, after Hu et al.: grey, quarter resolution, 3 blocks")
 

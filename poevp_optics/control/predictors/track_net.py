@@ -12,7 +12,7 @@ prediction turns with the motion: no preferred direction, by construction. Missi
 
 Architecture (ours): MLP 15 -> 64 -> 64 -> 3 with GELU, outputs added to the constant-velocity
 coefficients (1, 0, 0), so an untrained network is `flow`'s motion model. 5.4 k parameters,
-well under a millisecond per region on a CPU. Trained by apps/train_track.py on measured chains
+well under a millisecond per region on a CPU. Trained by apps/train/train_track.py on measured chains
 (the tracker's own measurement noise) against the true next displacement, loss L1 in px: the
 centroid error of the mask's highlight, the quantity the mask needs (not pixel PSNR).
 Weights: safetensors with the config and the training record in the metadata (never pickle).

@@ -21,8 +21,8 @@ import torch.nn.functional as F
 
 from poevp_optics.core.io import atomic_path, write_json
 from poevp_optics.core.report import jsonable
-from poevp_optics.apps.train_track import resolve_device
-from poevp_optics.apps.training_data import build_dataset
+from poevp_optics.apps.train.train_track import resolve_device
+from poevp_optics.apps.train.training_data import build_dataset
 from poevp_optics.control.predictors.dmvfn import FULL, LITE, DMVFN, DMVFNPredictor, count_macs, count_parameters, save_weights
 from poevp_optics.control.predictors.flow import FlowExtrapolation
 from poevp_optics.control.predictors.base import Hold
@@ -103,7 +103,7 @@ def _optimizer_to(opt, device, keep=()) -> None:
 
 
 def _procedural(sequences: int, val_sequences: int, frames: int, seed: int, resolution, progress: bool):
-    """highbeam_plate's procedural train and val frames (apps/training_data.py), cached."""
+    """highbeam_plate's procedural train and val frames (apps/train/training_data.py), cached."""
     return (build_dataset(sequences, frames, seed=1000 + seed, resolution=resolution, progress=progress),
             build_dataset(val_sequences, frames, seed=9000 + seed, resolution=resolution, progress=progress))
 
@@ -114,7 +114,7 @@ def train(name: str = "dmvfn_lite", *, minutes: float = 10.0, sequences: int = 4
           checkpoint_every: int = 50, resolution=(368, 640), progress: bool = True,
           frames_data: tuple | None = None, device: str = "auto", source: str | None = None) -> dict:
     """Train and save weights; returns the training record (also written as JSON). frames_data:
-    (train, val) uint8 (N, T, H, W) frames of `source` (apps/train_data.py) instead of the
+    (train, val) uint8 (N, T, H, W) frames of `source` (apps/train/train_data.py) instead of the
     procedural set; device: cpu, cuda or auto (cuda when torch.cuda.is_available())."""
     cfg = LITE if name == "dmvfn_lite" else FULL
     rng = np.random.default_rng(seed)
@@ -176,7 +176,7 @@ def train(name: str = "dmvfn_lite", *, minutes: float = 10.0, sequences: int = 4
               "loss_last_50": float(np.mean(state["losses"][-50:])) if state["losses"] else None,
               "dataset": {"train_sequences": sequences, "val_sequences": val_sequences,
                           "frames": frames, "resolution": list(resolution), "seed": seed,
-                          "source": source or "scenes/highbeam_plate, procedurally varied (apps/training_data.py)"},
+                          "source": source or "scenes/highbeam_plate, procedurally varied (apps/train/training_data.py)"},
               "validation": validation, "torch_threads": torch.get_num_threads(), "device": str(device)}
     record = jsonable(record)
     if weights_out is not None:

@@ -1,4 +1,4 @@
-"""`poevp sweep`'s grid: the `--grid KEY=VALUES` syntax (apps/sweep.py's docstring), each point's
+"""`poevp sweep`'s grid: the `--grid KEY=VALUES` syntax (apps/sweep/sweep.py's docstring), each point's
 scene overrides and the key that names a point's folder (a hash of its effective scene table)."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import math
 
 import numpy as np
 
-from poevp_optics.apps.run_size import MAX_SWEEP_RUNS, RunTooLarge
+from poevp_optics.apps.run.run_size import MAX_SWEEP_RUNS, RunTooLarge
 from poevp_optics.core.exceptions import SceneError
 from poevp_optics.scene.load import parse_override
 

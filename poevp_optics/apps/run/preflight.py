@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from poevp_optics.apps.memory import MemoryEstimate, check_memory
+from poevp_optics.apps.run.memory import MemoryEstimate, check_memory
 from poevp_optics.core.exceptions import SceneError
 from poevp_optics.scene.spec import SceneSpec
 #: Largest sensor-weighted photon quantity an emitter may have (e- s-1 sr-1, e- s-1 m-2 sr-1 or
@@ -37,7 +37,7 @@ from poevp_optics.scene.spec import SceneSpec
 #: float32 ends at 3.4e38, and the film adds up spp samples and 1/d^2 factors on top.
 MAX_EMITTER_PHOTONS = 1e30
 
-JOBS = ("render", "compare", "chart", "train_sequence")   # train_sequence: apps/train_data.py
+JOBS = ("render", "compare", "chart", "train_sequence")   # train_sequence: apps/train/train_data.py
 
 
 @dataclass(frozen=True)

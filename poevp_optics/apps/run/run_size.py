@@ -124,7 +124,7 @@ def _capture_bytes(spec) -> int:
 def estimate(spec, job: str = "render", *, mode: str | None = None) -> RunSize:
     """The run's CPU time and output bytes (module docstring). mode: the render path
     ("mono"/"spectral", renderer.plan_spectra; None: mono)."""
-    from poevp_optics.apps.memory import radiance_samples, rendered_grid
+    from poevp_optics.apps.run.memory import radiance_samples, rendered_grid
 
     h, w = spec.render.resolution
     px = h * w

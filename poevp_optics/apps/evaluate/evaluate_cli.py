@@ -1,4 +1,4 @@
-"""`poevp evaluate`'s flags and the evaluation's configuration built from them (apps/evaluate.py
+"""`poevp evaluate`'s flags and the evaluation's configuration built from them (apps/evaluate/evaluate.py
 EvalConfig holds the defaults); cli.py adds the parser."""
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ def _eval_config(args):
     """The evaluation's configuration from the command line (defaults: EvalConfig, --quick: CI set)."""
     import dataclasses
 
-    from poevp_optics.apps.evaluate import BASE, EvalConfig, quick_config
+    from poevp_optics.apps.evaluate.evaluate import BASE, EvalConfig, quick_config
     from poevp_optics.scene.load import resolve_scene_path
 
     scene = resolve_scene_path(args.scene) if args.scene else BASE
@@ -45,8 +45,8 @@ def _eval_config(args):
 
 
 def cmd_evaluate(args) -> int:
-    from poevp_optics.apps.evaluate import check_config, evaluate
-    from poevp_optics.apps.runner import run_in_folder
+    from poevp_optics.apps.evaluate.evaluate import check_config, evaluate
+    from poevp_optics.apps.run.runner import run_in_folder
 
     cfg = _eval_config(args)
     check_config(cfg)
@@ -61,7 +61,7 @@ def cmd_evaluate(args) -> int:
 
 
 def add_evaluate_parser(sub, add_job_options) -> None:
-    """`poevp evaluate`'s flags (apps/evaluate.py EvalConfig holds the defaults)."""
+    """`poevp evaluate`'s flags (apps/evaluate/evaluate.py EvalConfig holds the defaults)."""
     p = sub.add_parser("evaluate", help="plate recognition (full ALPR) over speed, E and motion: LDR vs fusion vs POE-VP")
     p.add_argument("scene", nargs="?", help="a scene with a plate (render.roi_shape); default highbeam_plate")
     p.add_argument("--quick", action="store_true", help="CI size: 1 text, 2 speeds, E = 49 (about a minute)")

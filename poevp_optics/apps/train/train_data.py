@@ -23,7 +23,7 @@ analysis/motion_paths.py, converted to metres at the plate's range):
 | vertical     | straight, heading 90 or 270 deg              | held                        |
 | curved, accelerating, braking, swerve, lane_change, reversal | motion_paths kind, heading 0/180 +- 30 deg | held |
 
-3-12 m/s: the closing/opening speed of two cars in traffic (apps/eval_sequences.py uses 12 m/s).
+3-12 m/s: the closing/opening speed of two cars in traffic (apps/evaluate/eval_sequences.py uses 12 m/s).
 Range, lateral offset and image speed are converted with the scene's own geometry, measured on
 the scene (`calibrate`: the plate's box at probe poses). Every path is centred on the plate's
 own place in the scene (the beams' hot spot), slowed until it spans at most 80 % of the frame
@@ -33,10 +33,10 @@ Split: train / val / held-out test differ by seed streams (`SPLIT_SEEDS`), by pl
 split's texts start with a letter of its own third of the alphabet, `SPLIT_LETTERS`: disjoint by
 construction) and by trajectories (every parameter drawn from the split's seeds; the manifest
 lists each sequence's draws). The data are cached by content: SHA-256 of every file the scene
-reads (apps/bundle.py `scene_inputs`) and of the generation parameters names a folder under
+reads (apps/sweep/bundle.py `scene_inputs`) and of the generation parameters names a folder under
 the cache (`poevp_optics/train_data/<scene>-<hash>`); a second call with the same inputs reads
 it without rendering. With a Dask scheduler the sequences render as points of the sweep
-machinery (apps/sweep.py `_execute`: scene bundle, worker checks, retries), else in this process.
+machinery (apps/sweep/sweep.py `_execute`: scene bundle, worker checks, retries), else in this process.
 """
 
 from __future__ import annotations
@@ -51,13 +51,13 @@ from pathlib import Path
 import numpy as np
 
 from poevp_optics import __version__
-from poevp_optics.apps.train_render import JOB, render_frames
+from poevp_optics.apps.train.train_render import JOB, render_frames
 from poevp_optics.core.exceptions import SceneError
 
 DATA_KINDS = ("approaching", "receding", "lateral", "vertical", "curved", "accelerating", "braking",
               "lane_change", "swerve", "reversal")
 SPLITS = ("train", "val", "test")
-#: Seed offsets of the splits (disjoint streams; apart from apps/train_track.py's synthetic ones).
+#: Seed offsets of the splits (disjoint streams; apart from apps/train/train_track.py's synthetic ones).
 SPLIT_SEEDS = {"train": 10_000_000, "val": 11_000_000, "test": 12_000_000}
 _LETTERS = string.ascii_uppercase.replace("I", "").replace("O", "")
 #: First letters of each split's plate texts: disjoint thirds of the alphabet (no I, O).
@@ -160,7 +160,7 @@ class Geometry:
 
 def _probe(spec, poses) -> list:
     """The plate's roi-box centres (x, y px) at `poses` (offsets, m); None where out of view."""
-    from poevp_optics.apps.eval_sequences import with_poses
+    from poevp_optics.apps.evaluate.eval_sequences import with_poses
     from poevp_optics.render.renderer import Renderer
 
     r = Renderer(with_poses(spec, tuple(float(t) for t in range(len(poses))), tuple(poses)))
@@ -241,7 +241,7 @@ def offsets_m(d: SequenceDraw, geo: Geometry, times_s: np.ndarray, frames: int) 
 
 def sequence_overrides(spec, d: SequenceDraw, cfg: DataConfig, geo: Geometry) -> list[str]:
     """The scene overrides that make sequence `d` (motion as keyframes of the plate)."""
-    from poevp_optics.apps.eval_sequences import plate_motion
+    from poevp_optics.apps.evaluate.eval_sequences import plate_motion
 
     ident, attached = plate_motion(spec)
     times = frame_times_s(spec, cfg.frames)
@@ -264,7 +264,7 @@ def sequence_overrides(spec, d: SequenceDraw, cfg: DataConfig, geo: Geometry) ->
 # ----------------------------------------------------------------------------- data set
 @dataclass(frozen=True)
 class Cluster:
-    """Where sequences render: None scheduler = this process; else apps/sweep.py's Dask."""
+    """Where sequences render: None scheduler = this process; else apps/sweep/sweep.py's Dask."""
 
     scheduler: str | None = None
     scheduler_file: str | None = None
@@ -294,7 +294,7 @@ class TrainData:
 
 def content_key(scene: str, cfg: DataConfig) -> tuple[str, dict]:
     """SHA-256 of every file the scene reads and of the generation parameters; and the parts."""
-    from poevp_optics.apps.bundle import scene_inputs, with_hashes
+    from poevp_optics.apps.sweep.bundle import scene_inputs, with_hashes
     from poevp_optics.scene.load import load_scene
 
     spec = load_scene(scene, cross_checks=False)
@@ -378,10 +378,10 @@ def build_data(scene: str, cfg: DataConfig = DataConfig(), *, cluster: Cluster =
 
 
 def _render_on_dask(scene, overrides: dict, out: Path, cl: Cluster, progress: bool, log) -> dict:
-    """Each sequence a point of the sweep machinery (apps/sweep.py `run_points`): job
-    `train_sequence` (apps/train_render.py), scene bundle or shared paths, worker checks, retries."""
-    from poevp_optics.apps.bundle import make_plan, scene_inputs, with_hashes
-    from poevp_optics.apps.sweep import ClusterSettings, run_points
+    """Each sequence a point of the sweep machinery (apps/sweep/sweep.py `run_points`): job
+    `train_sequence` (apps/train/train_render.py), scene bundle or shared paths, worker checks, retries."""
+    from poevp_optics.apps.sweep.bundle import make_plan, scene_inputs, with_hashes
+    from poevp_optics.apps.sweep.sweep import ClusterSettings, run_points
     from poevp_optics.scene.load import load_scene, resolve_scene_path
 
     hashes: dict[str, str] = {}

@@ -11,7 +11,7 @@ highlight, not an added Gaussian). The paper forms Eq. 3 on stored 8-bit (displa
 reading `display` (default, E_READINGS) takes that peak through the sRGB decoding extended above 1
 (IEC 61966-2-1, the LDR source's transfer): gain ((E + 1.055) / 1.055)^2.4 = 224x linear radiance at
 E = 9, 1.05e4x at E = 49; reading `linear` (this benchmark's earlier one) is E + 1. With `display`,
-E means the same in both protocols (apps/eval_paper.py sets the source's e_domain = "display").
+E means the same in both protocols (apps/evaluate/eval_paper.py sets the source's e_domain = "display").
 
 Methods, one 8-bit image per frame t (frames < loop.init_frames are the loop's white start, not
 scored):
@@ -45,8 +45,8 @@ import numpy as np
 
 from poevp_optics.analysis.metrics import crop, entropy_8bit, to_8bit
 from poevp_optics.analysis.recognition import alpr_read, correct, read_plate, search_window
-from poevp_optics.apps.eval_paper import PAPER_LAW, PROTOCOL_LAWS, is_paper_scene, run_paper
-from poevp_optics.apps.eval_sequences import (E_READINGS, KINDS, SequenceSpec, calibrate, eval_overrides,
+from poevp_optics.apps.evaluate.eval_paper import PAPER_LAW, PROTOCOL_LAWS, is_paper_scene, run_paper
+from poevp_optics.apps.evaluate.eval_sequences import (E_READINGS, KINDS, SequenceSpec, calibrate, eval_overrides,
                                               peak_gain, render_sequences)
 from poevp_optics.camera.camera import Camera
 from poevp_optics.control.loop_step import LoopSpec, LoopStep
@@ -58,7 +58,7 @@ from poevp_optics.render.exposures import RenderedExposure
 from poevp_optics.scene.load import load_scene
 
 BASE = SCENES_DIR / "highbeam_plate"
-#: Test texts: 6 characters, "LL DDDD"; the predictor's training texts (apps/training_data.py
+#: Test texts: 6 characters, "LL DDDD"; the predictor's training texts (apps/train/training_data.py
 #: random_plate_text) are all 7 characters ("LL D" + 4), so no test text was ever trained on.
 TEXTS = ("KA 7391", "MH 2046", "TN 0952", "DL 3817")
 FUSION_EXPOSURES = (1 / 8, 1 / 5, 1.0)
@@ -87,7 +87,7 @@ class EvalConfig:
     e_reading: str = "display"         # E -> plate peak (peak_gain): paper's display-value reading
     paper_law: str = PAPER_LAW         # ldr_highlight scenes (the paper's protocol): Eq. 2's reading
     camera: str = "physical"           # ldr_highlight scenes: physical, or the paper's code-value simulation
-    paper_effects: tuple[str, ...] = ()  # --camera paper: physical effects added (apps/paper_camera.py)
+    paper_effects: tuple[str, ...] = ()  # --camera paper: physical effects added (apps/evaluate/paper_camera.py)
     quick: bool = False
 
     @property
@@ -125,7 +125,7 @@ def check_config(cfg: EvalConfig) -> None:
         raise UserError(f"evaluate: --e-reading: {cfg.e_reading!r}; choose from {', '.join(E_READINGS)}")
     if cfg.paper_law not in PROTOCOL_LAWS:
         raise UserError(f"evaluate: --paper-law: {cfg.paper_law!r}; choose from {', '.join(PROTOCOL_LAWS)}")
-    from poevp_optics.apps.paper_camera import CAMERAS, EFFECTS
+    from poevp_optics.apps.evaluate.paper_camera import CAMERAS, EFFECTS
 
     if cfg.camera not in CAMERAS:
         raise UserError(f"evaluate: --camera: {cfg.camera!r}; choose from {', '.join(CAMERAS)}")
@@ -378,8 +378,8 @@ def strip_cell(report: dict, cfg: EvalConfig) -> tuple[float, float]:
 
 
 def evaluate_paper(out: Path, cfg: EvalConfig, log=print) -> dict:
-    """The paper's simulation protocol (apps/eval_paper.py) on an ldr_highlight scene, into `out`."""
-    from poevp_optics.apps.eval_report import write_paper_tables
+    """The paper's simulation protocol (apps/evaluate/eval_paper.py) on an ldr_highlight scene, into `out`."""
+    from poevp_optics.apps.evaluate.eval_report import write_paper_tables
 
     check_config(cfg)
     t0 = time.perf_counter()
@@ -392,8 +392,8 @@ def evaluate_paper(out: Path, cfg: EvalConfig, log=print) -> dict:
 def evaluate(out: Path, cfg: EvalConfig | None = None, quick: bool = False, log=print) -> dict:
     """Run the evaluation into `out` (tables, frames.csv, report.json, figures); the report. A scene
     whose source is an LDR sequence with Eq. 3's highlight runs the paper's protocol instead."""
-    from poevp_optics.apps.eval_plots import accuracy_plots, entropy_examples, strip_plot
-    from poevp_optics.apps.eval_report import write_tables
+    from poevp_optics.apps.evaluate.eval_plots import accuracy_plots, entropy_examples, strip_plot
+    from poevp_optics.apps.evaluate.eval_report import write_tables
 
     cfg = cfg or (quick_config() if quick else EvalConfig())
     out = Path(out)

@@ -1,8 +1,8 @@
 """`poevp render`: the run over frames. Per frame: the ground truth (the scene's [source]:
 render/radiance.py, a Mitsuba render or frames read by sources/), the
 LDR twin and the encoded capture (camera/), the reconstruction, the closed loop's next step
-(control/loop_step.py), the per-frame metrics; then the outputs (apps/outputs.py) and the report
-(apps/run_report.py). A run leaves out what its scene does not need; the report lists it.
+(control/loop_step.py), the per-frame metrics; then the outputs (apps/run/outputs.py) and the report
+(apps/run/run_report.py). A run leaves out what its scene does not need; the report lists it.
 """
 
 from __future__ import annotations
@@ -15,10 +15,10 @@ import numpy as np
 
 from poevp_optics.analysis.metrics import (crop, entropy_8bit, mask_iou, plate_white_fraction, relative_error,
                                           saturated_fraction, to_8bit)
-from poevp_optics.apps.outputs import OutputWriter, mask_png
-from poevp_optics.apps.report_extensions import active as report_extensions
-from poevp_optics.apps.run_report import build_report
-from poevp_optics.apps.temporal_check import temporal_error
+from poevp_optics.apps.run.outputs import OutputWriter, mask_png
+from poevp_optics.apps.run.report_extensions import active as report_extensions
+from poevp_optics.apps.run.run_report import build_report
+from poevp_optics.apps.run.temporal_check import temporal_error
 from poevp_optics.camera.camera import Camera
 from poevp_optics.control.loop_step import LoopStep, oracle_decision, oracle_mask
 from poevp_optics.control.masks import MaskSpec
@@ -70,7 +70,7 @@ class RunResult:
         name: {"saturated": [], "entropy": []} for name in ["scene_law", *PAPER_LAWS]})
     mid_frame: tuple | None = None
     write_seconds: float = 0.0
-    timeline: str | None = None          # the timeline figure's file name (apps/timeline.py)
+    timeline: str | None = None          # the timeline figure's file name (apps/run/timeline.py)
     extensions: list = field(default_factory=list)   # the scene's report extensions and their state
 
 
@@ -286,7 +286,7 @@ def run_frames(spec, out_dir: Path, progress: bool = True, *, renderer=None,
     if writer is not None:
         writer.finish()
         if step is not None and step.clock is not None and step.clock.records:
-            from poevp_optics.apps.timeline import write_timeline
+            from poevp_optics.apps.run.timeline import write_timeline
 
             res.timeline = write_timeline(out_dir, spec.timing, step.clock, camera.schedule,
                                           spec.loop.init_frames, spec.timing.frames,
@@ -307,7 +307,7 @@ def run_frames(spec, out_dir: Path, progress: bool = True, *, renderer=None,
             ext.finish(spec, camera, report, out_dir, write_images)
     write_report(out_dir, report)
     if write_images:
-        from poevp_optics.apps.report_html import write_report_html
+        from poevp_optics.apps.run.report_html import write_report_html
 
         write_report_html(out_dir, report, spec.plate.text)
     return report, res.kept

@@ -19,7 +19,7 @@ smoothed mask's edge pass) (README, recognition section: both measured). EvalCon
 or one of this project's laws (`PROTOCOL_LAWS`, reported as ours).
 The scene's mask.smooth_px (the band-limited mask, DESIGN.md) is kept. Loop mode `open` (the
 predictor sees unmasked LDR frames, Fig. 3), first two frames white (not scored).
-Methods and readings are those of apps/evaluate.py (LDR, both fusions, every predictor; full ALPR
+Methods and readings are those of apps/evaluate/evaluate.py (LDR, both fusions, every predictor; full ALPR
 and recognition only).
 
 Where ours differs from the paper's pipeline: the highlight map drives this project's camera
@@ -74,9 +74,9 @@ def paper_exposures(spec, cam: Camera) -> list:
 
 
 def paper_camera_images(runner, spec, cfg):
-    """The paper's own simulation (apps/paper_camera.py) of one E: images, seconds and frame boxes,
+    """The paper's own simulation (apps/evaluate/paper_camera.py) of one E: images, seconds and frame boxes,
     with the predictors built once in runner.models."""
-    from poevp_optics.apps import paper_camera as pc
+    from poevp_optics.apps.evaluate import paper_camera as pc
     from poevp_optics.camera.sensor import resolve_sensor
     from poevp_optics.control.predictors import PREDICTORS, make_predictor
 
@@ -99,7 +99,7 @@ def paper_camera_images(runner, spec, cfg):
 
 def run_paper(cfg, runner_cls, score, shift_px, log=print) -> list[dict]:
     """Every row of the paper protocol on cfg.scene: one cell per (E, method), frames from
-    loop.init_frames on. `runner_cls(cfg, spec, cam)` builds apps/evaluate.py's Runner; `score`
+    loop.init_frames on. `runner_cls(cfg, spec, cam)` builds apps/evaluate/evaluate.py's Runner; `score`
     turns one E's images into rows (evaluate.score_rows); `shift_px` measures the plate's speed;
     cfg.paper_law: Eq. 2's reading."""
     rows, runner, t0 = [], None, time.perf_counter()

@@ -213,8 +213,8 @@ def _scene_law(cfg) -> str:
 
 
 def _e_text(cfg) -> str:
-    """How E sets the plate's peak (apps/evaluate.py peak_gain)."""
-    from poevp_optics.apps.eval_sequences import peak_gain
+    """How E sets the plate's peak (apps/evaluate/evaluate.py peak_gain)."""
+    from poevp_optics.apps.evaluate.eval_sequences import peak_gain
 
     reading = getattr(cfg, "e_reading", "display")
     if reading == "linear":
@@ -317,7 +317,7 @@ def scene_name(scene) -> str:
 
 def law_text(law: str) -> str:
     """The paper protocol's mask law, labelled paper or ours, with Eq. 2's floor for the paper's."""
-    from poevp_optics.apps.eval_paper import PAPER_A, PAPER_LAWS, PAPER_VS
+    from poevp_optics.apps.evaluate.eval_paper import PAPER_A, PAPER_LAWS, PAPER_VS
 
     if law not in PAPER_LAWS:
         return (f"mask law `{law}` (ours, not the paper's Eq. 2: the same frames, highlight and loop, the "
@@ -340,13 +340,13 @@ def camera_text(cfg) -> str:
     """Which camera formed the paper protocol's images (evaluate --camera)."""
     if getattr(cfg, "camera", "physical") == "paper":
         extra = f", plus {', '.join(cfg.paper_effects)}" if cfg.paper_effects else ""
-        return ("the paper's own simulation (apps/paper_camera.py: code values, noiseless per-pixel Hadamard "
+        return ("the paper's own simulation (apps/evaluate/paper_camera.py: code values, noiseless per-pixel Hadamard "
                 f"product, cut off at 255, no smoothing, no DMD floor{extra})")
     return "this project's DMD and sensor (noise, ADC) in place of the paper's noiseless cut-off at 255"
 
 
 def write_paper_tables(out: Path, rows: list[dict], cfg, seconds: float) -> dict:
-    """evaluation.md/.csv, frames.csv and report.json of the paper protocol (apps/eval_paper.py)."""
+    """evaluation.md/.csv, frames.csv and report.json of the paper protocol (apps/evaluate/eval_paper.py)."""
     e_levels = sorted({float(r["E"]) for r in rows})
     cells = summarise(rows)
     rendered = {}

@@ -18,7 +18,7 @@ import numpy as np
 import dataclasses
 
 from poevp_optics.analysis.metrics import crop, local_entropy
-from poevp_optics.apps.render_run import run_frames
+from poevp_optics.apps.run.render_run import run_frames
 from poevp_optics.camera.camera import Camera
 from poevp_optics.core.io import atomic_path, write_png
 from poevp_optics.render.radiance import open_source

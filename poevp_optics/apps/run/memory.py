@@ -187,12 +187,12 @@ def _render_shape(spec) -> tuple[int, int]:
 
 
 def rendered_grid(spec) -> tuple[int, int]:
-    """The rendered (mirror) grid's (H, W), guard bands included (apps/run_size.py)."""
+    """The rendered (mirror) grid's (H, W), guard bands included (apps/run/run_size.py)."""
     return _render_shape(spec)
 
 
 def radiance_samples(spec) -> int:
-    """Radiance images rendered per exposure (apps/run_size.py)."""
+    """Radiance images rendered per exposure (apps/run/run_size.py)."""
     return _subframes(spec)
 
 

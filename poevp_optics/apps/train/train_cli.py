@@ -1,5 +1,5 @@
-"""`poevp train-predictor` and `poevp train-data`: their flags and commands (apps/train_data.py
-renders a scene's sequences, apps/train_track.py and apps/train.py train on them); cli.py adds
+"""`poevp train-predictor` and `poevp train-data`: their flags and commands (apps/train/train_data.py
+renders a scene's sequences, apps/train/train_track.py and apps/train/train.py train on them); cli.py adds
 the parsers."""
 
 from __future__ import annotations
@@ -12,8 +12,8 @@ from poevp_optics.core.exceptions import UserError
 
 
 def data_config(args):
-    """apps/train_data.py DataConfig from the train-data / train-predictor flags."""
-    from poevp_optics.apps.train_data import DataConfig
+    """apps/train/train_data.py DataConfig from the train-data / train-predictor flags."""
+    from poevp_optics.apps.train.train_data import DataConfig
 
     kw = {}
     if args.sequences:
@@ -46,7 +46,7 @@ def command_line(cmd: str, args) -> str:
 
 
 def data_cluster(args):
-    from poevp_optics.apps.train_data import Cluster
+    from poevp_optics.apps.train.train_data import Cluster
 
     return Cluster(args.scheduler, args.scheduler_file, args.shared_fs, args.retries, args.threads)
 
@@ -54,7 +54,7 @@ def data_cluster(args):
 def cmd_train_data(args) -> int:
     import time
 
-    from poevp_optics.apps.train_data import build_data
+    from poevp_optics.apps.train.train_data import build_data
 
     runtime.set_threads(args.threads)
     t0 = time.perf_counter()
@@ -77,13 +77,14 @@ def cmd_train(args) -> int:
     if args.name == "track_net":
         import time
 
-        from poevp_optics.apps.train_track import train_track_net_scene
+        from poevp_optics.apps.train.train_track import train_track_net_scene
+        from poevp_optics.core.paths import ASSETS_DIR
 
         scene = args.scene or "highbeam_plate"
         weights = Path(args.weights_out) if args.weights_out else Path(args.out) / f"track_net_{Path(scene).name}.safetensors"
-        if weights.resolve() == (Path(__file__).resolve().parents[2] / "assets/predictor/track_net.safetensors"):
+        if weights.resolve() == (ASSETS_DIR / "predictor/track_net.safetensors").resolve():
             raise UserError(f"--weights-out {weights}: the shipped track_net weights come from "
-                            "apps/train_track.py; write a scene-trained model elsewhere")
+                            "apps/train/train_track.py; write a scene-trained model elsewhere")
         t0 = time.perf_counter()
         rec = train_track_net_scene(scene, data_config(args), steps=args.max_steps or 3000,
                                     batch=args.batch or 128, lr=args.lr or 3e-3, seed=args.seed,
@@ -99,16 +100,16 @@ def cmd_train(args) -> int:
               f"{t.get('track', float('nan')):.2f}; n = {t.get('n', 0)}) -> {weights} "
               f"({time.perf_counter() - t0:.0f} s in all)")
         return 0
-    from poevp_optics.apps.train import train
+    from poevp_optics.apps.train.train import train
 
     weights = Path(args.weights_out) if args.weights_out else default_weights(args.name)
     frames_data, source = None, None
     if args.scene:
-        from poevp_optics.apps.train_data import build_data
+        from poevp_optics.apps.train.train_data import build_data
 
         data = build_data(args.scene, data_config(args), cluster=data_cluster(args), progress=not args.quiet)
         frames_data = (data.splits["train"]["frames"], data.splits["val"]["frames"])
-        source = f"{data.manifest['scene']} (apps/train_data.py, sha256 {data.sha256})"
+        source = f"{data.manifest['scene']} (apps/train/train_data.py, sha256 {data.sha256})"
     rec = train(args.name, minutes=args.minutes, sequences=int(str(args.sequences or 48).split(",")[0]),
                 frames=args.frames or 6, val_sequences=args.val_sequences, batch=args.batch or 4,
                 lr=args.lr or 2e-3, seed=args.seed, out=Path(args.out), weights_out=weights,
@@ -121,7 +122,7 @@ def cmd_train(args) -> int:
 
 
 def add_train_data_options(p) -> None:
-    """train-data / train-predictor: what to render (apps/train_data.py DataConfig) and where."""
+    """train-data / train-predictor: what to render (apps/train/train_data.py DataConfig) and where."""
     p.add_argument("--sequences", help="N train sequences (val, test N/4 each) or TRAIN,VAL,TEST "
                    "(default 96,24,24 for a scene: about 4 min of rendering for highbeam_plate, 8 for night_road on 2 cores; dmvfn without SCENE: 48)")
     p.add_argument("--frames", type=positive_int, help="frames per sequence (default 8; dmvfn without SCENE 6)")
@@ -134,9 +135,9 @@ def add_train_data_options(p) -> None:
 
 
 def add_train_parsers(sub) -> None:
-    """`poevp train-predictor` and `poevp train-data` (apps/train_track.py, train.py, train_data.py)."""
+    """`poevp train-predictor` and `poevp train-data` (apps/train/train_track.py, train.py, train_data.py)."""
     p = sub.add_parser("train-predictor", help="train track_net, dmvfn_lite or dmvfn on sequences rendered from a scene")
-    p.add_argument("scene", nargs="?", help="scene whose renders to train on (apps/train_data.py); default: "
+    p.add_argument("scene", nargs="?", help="scene whose renders to train on (apps/train/train_data.py); default: "
                    "highbeam_plate (track_net) or the procedural highbeam_plate set (dmvfn)")
     p.add_argument("--name", default="dmvfn_lite", choices=("dmvfn_lite", "dmvfn", "track_net"))
     p.add_argument("--minutes", type=float, default=10.0, help="dmvfn: training time budget")

@@ -15,7 +15,7 @@ the others go on, and `poevp sweep` exits 1 when any point failed.
 A sweep is its scene file (however named: `scenes/x` and `scenes/x/scene.toml` are one), job,
 seeds, grid (keys in any order: the grid is sorted by key) and the effective scene after the
 base overrides. Its record `sweep.json` also holds the SHA-256 of every file the points read
-(apps/bundle.py: TOML, XML and the files it names, spectrum tables, lamp and sheeting files,
+(apps/sweep/bundle.py: TOML, XML and the files it names, spectrum tables, lamp and sheeting files,
 PSF image, predictor weights, a chart's reference camera, a frame source's files). A rerun of
 the same sweep resumes; a rerun whose record differs, or whose files changed since, is refused
 with what differs, so old and new points never mix in one table. Point folders are named by a
@@ -53,18 +53,18 @@ from pathlib import Path
 
 import numpy as np
 
-from poevp_optics.apps.bundle import (InputMismatch, InputPlan, InputRef, check_same_inputs, make_bundle,
+from poevp_optics.apps.sweep.bundle import (InputMismatch, InputPlan, InputRef, check_same_inputs, make_bundle,
                                      make_plan, map_paths, materialize, pack_folder, point_workdir,
                                      scene_inputs, unpack_archive, with_hashes)
-from poevp_optics.apps.cluster import (ClusterError, check_workers, connect, dashboard_link, software_versions,
+from poevp_optics.apps.sweep.cluster import (ClusterError, check_workers, connect, dashboard_link, software_versions,
                                       version_mismatch)
-from poevp_optics.apps.runner import JOBS, sweep_jobs
-from poevp_optics.apps.sweep_grid import (GRID_HELP, SEED_KEYS, canonical, parse_grid, point_key,  # noqa: F401
+from poevp_optics.apps.run.runner import JOBS, sweep_jobs
+from poevp_optics.apps.sweep.sweep_grid import (GRID_HELP, SEED_KEYS, canonical, parse_grid, point_key,  # noqa: F401
                                          point_overrides, toml_literal)
-from poevp_optics.apps.sweep_state import (RECORD_KEYS, TABLE_COLUMNS, SweepStateError,  # noqa: F401
+from poevp_optics.apps.sweep.sweep_state import (RECORD_KEYS, TABLE_COLUMNS, SweepStateError,  # noqa: F401
                                           check_sweep_size, read_record, read_table, read_table_checked,
                                           record_differences, sweep_record, write_table)
-from poevp_optics.apps.run_size import MAX_SEEDS, MAX_SWEEP_RUNS, RunTooLarge
+from poevp_optics.apps.run.run_size import MAX_SEEDS, MAX_SWEEP_RUNS, RunTooLarge
 from poevp_optics.core.exceptions import SceneError
 from poevp_optics.core.io import MARKER, atomic_path, locked_dir, staged_dir, write_json
 from poevp_optics.core.runtime import Terminated, sigterm_raises
@@ -97,7 +97,7 @@ class PointTask:
     """What a worker needs for one point (pickled with the task; small).
 
     overrides: the point's `KEY=VALUE` overrides (base, grid values, seeds). job: a sweepable
-    job of apps/runner.py's JOBS. threads: DrJit/torch/OpenCV threads. plan, refs: where its inputs are and their
+    job of apps/run/runner.py's JOBS. threads: DrJit/torch/OpenCV threads. plan, refs: where its inputs are and their
     hashes (bundle.py). versions: the client's software (cluster.PACKAGES); empty on a
     LocalCluster, whose workers run this interpreter's."""
 
@@ -130,7 +130,7 @@ def run_point(task: PointTask, bundle: bytes | None = None) -> dict:
     (other software, other files): the client then stops the sweep."""
     from poevp_optics.core import runtime
 
-    from poevp_optics.apps.preflight import check_run
+    from poevp_optics.apps.run.preflight import check_run
 
     t0 = time.perf_counter()
     path_map = ()
@@ -259,7 +259,7 @@ def sweep(scene: str, grid_args: list[str], *, out: Path, seeds: int = 1, worker
     scheduler / scheduler_file: an existing Dask scheduler (else a LocalCluster of `workers`).
     shared_fs: workers read the client's paths (verified) instead of a scene bundle.
     retries: runs again of a point whose worker died, >= 0 (default 2). yes: run above the
-    run-size limits (apps/run_size.py). rebuild: a results table or sweep.json that does not
+    run-size limits (apps/run/run_size.py). rebuild: a results table or sweep.json that does not
     read is rebuilt from the points' own report.json files instead of refused."""
     from tqdm import tqdm
 
@@ -291,7 +291,7 @@ def sweep(scene: str, grid_args: list[str], *, out: Path, seeds: int = 1, worker
     toml = resolve_scene_path(scene).resolve()
     base_raw = load_scene(scene, base, cross_checks=False).raw
     if cl.local:                       # a remote cluster's memory is not this machine's
-        from poevp_optics.apps.memory import check_memory, estimate_run
+        from poevp_optics.apps.run.memory import check_memory, estimate_run
 
         n_workers = max(1, min(workers or os.cpu_count() or 1, len(combos) * seeds))
         biggest = max(specs, key=lambda sp: estimate_run(sp, job).total_bytes)
@@ -438,7 +438,7 @@ def _rows_from_reports(tasks) -> dict:
 
 def run_points(todo, out: Path, job: str, plan: InputPlan, cl: ClusterSettings, *, progress: bool = True,
                log=print):
-    """Run points that are not a grid (e.g. apps/train_data.py's sequences) on Dask as a sweep
+    """Run points that are not a grid (e.g. apps/train/train_data.py's sequences) on Dask as a sweep
     runs its own: `todo` holds (row with point, seed and point_key; overrides; input refs;
     point folder); returns the table (also written to `out`)."""
     from tqdm import tqdm

@@ -13,7 +13,7 @@ transmission M / 255 (no DMD floor, no smoothing, no relay, no sensor), rounding
 Fusion baselines as the paper applies them (Sec. 6): three consecutive frames multiplied by the
 global exposure coefficients 1/8, 1/5 and 1 in code values, each cut off at 255, merged by
 Mertens fusion (OpenCV; the artifact-reduced variant aligns them with MTB first, as
-apps/evaluate.py does for the physical camera).
+apps/evaluate/evaluate.py does for the physical camera).
 
 `PaperEffects` adds one physical effect at a time, to attribute the loss from the paper's camera
 to ours: the DMD's floor (transmission M/255 (1 - 1/CR) + 1/CR, the off-state leakage of the

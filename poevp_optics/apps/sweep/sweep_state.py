@@ -1,7 +1,7 @@
 """`poevp sweep`'s state on disk: the record `sweep.json` (what identifies a sweep, the hashes of
 the files its points read) and the table `results.parquet` / `.csv`, both checked when a sweep
 resumes (a damaged one: one line naming it, or rebuilt from the points' reports with
---rebuild), and the whole sweep's run size within the limits (apps/run_size.py)."""
+--rebuild), and the whole sweep's run size within the limits (apps/run/run_size.py)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import hashlib
 import json
 from pathlib import Path
 
-from poevp_optics.apps.sweep_grid import canonical
+from poevp_optics.apps.sweep.sweep_grid import canonical
 from poevp_optics.core.exceptions import UserError
 from poevp_optics.core.io import atomic_path
 
@@ -108,7 +108,7 @@ def read_table_checked(out: Path, rebuild: bool, keys: set[str]):
 def check_sweep_size(specs, job: str, seeds: int, where: Path, yes: bool) -> list:
     """The whole sweep's run size (each point x seeds) within the limits; returns each point's
     size (one seed) for the free-space check of the runs still to do (_run_sweep)."""
-    from poevp_optics.apps import run_size
+    from poevp_optics.apps.run import run_size
 
     sizes = [run_size.estimate(sp, job) for sp in specs]
     total = run_size.RunSize(0.0, 0, 0)

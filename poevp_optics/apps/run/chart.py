@@ -21,7 +21,7 @@ from poevp_optics.sources import spectra
 from poevp_optics.camera.camera import Camera
 from poevp_optics.camera.dmd import attenuation_parts
 from poevp_optics.core.io import write_exr, write_png
-from poevp_optics.apps.outputs import contact_sheet, mask_png
+from poevp_optics.apps.run.outputs import contact_sheet, mask_png
 from poevp_optics.control.loop_step import LoopStep, oracle_mask
 from poevp_optics.core.seeds import CHART_LOOP_STREAM, capture_seed, render_seeds
 from poevp_optics.analysis.metrics import to_8bit
@@ -450,7 +450,7 @@ def run_chart(spec: SceneSpec, out_dir: Path, progress: bool = True) -> dict:
                         "write": {"seconds": write_s}}
     report["total_seconds"] = time.perf_counter() - t_run
     write_report(out_dir, report)
-    from poevp_optics.apps.report_html import write_report_html
+    from poevp_optics.apps.run.report_html import write_report_html
 
     write_report_html(out_dir, report)                  # the images, DR curves and notes to look at
     return report

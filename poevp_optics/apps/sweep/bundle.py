@@ -100,7 +100,7 @@ def _lexical(path: Path) -> Path:
 # ---------------------------------------------------------------------------- inputs of a scene
 class _Finder:
     """Resolves the names in one scene the way the loaders do (scene/validate.py,
-    apps/preflight.py, core/spectra.py, camera/relay.py, render/materials/) and records each
+    apps/run/preflight.py, core/spectra.py, camera/relay.py, render/materials/) and records each
     file as an InputRef."""
 
     def __init__(self, prefix: str = "", may_override: bool = True):

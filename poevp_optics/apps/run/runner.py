@@ -1,5 +1,5 @@
 """One job runner for every scene command: load the scene (with its overrides), decide the output
-folder, run every check short of rendering (apps/preflight.py, with the memory estimate), set
+folder, run every check short of rendering (apps/run/preflight.py, with the memory estimate), set
 the thread counts, then run the job into a staging folder that replaces the output folder only
 when it succeeds (core/io.py). The jobs are a registry (`JOBS`): `render`, `chart` and `compare`
 here; `poevp sweep` runs the scene jobs (`SWEEP_JOBS`) per grid point.
@@ -26,37 +26,37 @@ class Job:
 
 
 def _render(spec, stage, progress, **_):
-    from poevp_optics.apps.render_run import run_render
+    from poevp_optics.apps.run.render_run import run_render
 
     return run_render(spec, stage, progress=progress)
 
 
 def _chart(spec, stage, progress, **_):
-    from poevp_optics.apps.chart import run_chart
+    from poevp_optics.apps.run.chart import run_chart
 
     return run_chart(spec, stage, progress=progress)
 
 
 def _compare(spec, stage, progress, *, predictors, modes, **_):
-    from poevp_optics.apps.compare import compare
+    from poevp_optics.apps.run.compare import compare
 
     return compare(spec, predictors, modes, stage, progress=progress)
 
 
 JOBS = Registry("job")
-JOBS.register("render", Job(_render, "", sweepable=True), source="apps/render_run.py: frames, masks, HDR, report")
-JOBS.register("chart", Job(_chart, "-chart", sweepable=True), source="apps/chart.py: dynamic range on a test chart")
-JOBS.register("compare", Job(_compare, "-compare"), source="apps/compare.py: predictors x loop modes on one render")
+JOBS.register("render", Job(_render, "", sweepable=True), source="apps/run/render_run.py: frames, masks, HDR, report")
+JOBS.register("chart", Job(_chart, "-chart", sweepable=True), source="apps/run/chart.py: dynamic range on a test chart")
+JOBS.register("compare", Job(_compare, "-compare"), source="apps/run/compare.py: predictors x loop modes on one render")
 
 
 def _train_sequence(spec, stage, progress, **_):
-    from poevp_optics.apps.train_render import run_sequence_job
+    from poevp_optics.apps.train.train_render import run_sequence_job
 
     return run_sequence_job(spec, stage, progress)
 
 
 JOBS.register("train_sequence", Job(_train_sequence, "-train-sequence"),
-              source="apps/train_render.py: one predictor training sequence (poevp train-data on Dask)")
+              source="apps/train/train_render.py: one predictor training sequence (poevp train-data on Dask)")
 
 
 def sweep_jobs() -> tuple[str, ...]:
@@ -74,9 +74,9 @@ def output_folder(spec, job: str, out: str | Path | None) -> Path:
 
 
 def check_size(spec, job: str, plan, folder: Path | None, yes: bool):
-    """The run-size estimate (apps/run_size.py) within its limits (unless `yes`) and, when the
+    """The run-size estimate (apps/run/run_size.py) within its limits (unless `yes`) and, when the
     output folder is known, within the free space there (always). Returns the RunSize."""
-    from poevp_optics.apps import run_size
+    from poevp_optics.apps.run import run_size
     from poevp_optics.core.io import check_free_space
 
     size = run_size.estimate(spec, job, mode=getattr(plan, "mode", None))
@@ -90,8 +90,8 @@ def run_job(job: str, scene, overrides: list[str], *, out=None, threads: int | N
             progress: bool = True, check: dict | None = None, yes: bool = False, **options):
     """Run the scene job `job` (module docstring); returns (spec, output folder, result).
     check: extra keywords of preflight.check_run (e.g. the predictors compare will run).
-    yes: run even above the run-size limits (apps/run_size.py)."""
-    from poevp_optics.apps.preflight import check_run
+    yes: run even above the run-size limits (apps/run/run_size.py)."""
+    from poevp_optics.apps.run.preflight import check_run
     from poevp_optics.core.io import check_output, staged_dir
     from poevp_optics.scene.load import load_scene
 

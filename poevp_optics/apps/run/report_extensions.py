@@ -1,6 +1,6 @@
 """Report extensions: what a scene's own section adds to a run's report (a per-frame record, a
 summary, a figure), registered by name and chosen by the scene, so the generic frame loop
-(apps/render_run.py) imports none of them. Modelled on GalSim's extra outputs
+(apps/run/render_run.py) imports none of them. Modelled on GalSim's extra outputs
 (galsim.config.RegisterExtraOutput: a builder per output, called per object and at the end).
 
 | name                | applies when                          | per frame key         | summary                         |
@@ -37,19 +37,19 @@ REPORT_EXTENSIONS = Registry("report extension")
 
 
 def _road_frame(spec, camera, fc, step, laws):
-    from poevp_optics.apps import night_road
+    from poevp_optics.apps.run import night_road
 
     return night_road.frame_record(spec, camera, fc, laws)
 
 
 def _road_start(spec):
-    from poevp_optics.apps import night_road
+    from poevp_optics.apps.run import night_road
 
     return night_road.scene_laws(spec)
 
 
 def _road_finish(spec, camera, report: dict, out_dir: Path, write_images: bool) -> None:
-    from poevp_optics.apps import night_road
+    from poevp_optics.apps.run import night_road
 
     report["night_road"] = night_road.summary(spec, camera, report["per_frame"])
     report["notes"].append(f"night road: {report['night_road']['statement']}")
@@ -60,7 +60,7 @@ def _road_finish(spec, camera, report: dict, out_dir: Path, write_images: bool) 
 
 REPORT_EXTENSIONS.register(
     "night_road", ReportExtension("plate", lambda spec, causal: spec.has_road, _road_start, _road_frame, _road_finish),
-    source="apps/night_road.py: plate distance, angles, R_A, luminance and DR demand per frame")
+    source="apps/run/night_road.py: plate distance, angles, R_A, luminance and DR demand per frame")
 REPORT_EXTENSIONS.register(
     "exposure_controller",
     ReportExtension("exposure_controller", lambda spec, causal: causal and spec.mask.law == "exposure_controller",

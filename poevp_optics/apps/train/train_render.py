@@ -1,5 +1,5 @@
-"""Rendering one predictor training sequence (apps/train_data.py): the scene's renderer and
-camera, frame by frame; also the `train_sequence` job a sweep point runs (apps/runner.py JOBS)
+"""Rendering one predictor training sequence (apps/train/train_data.py): the scene's renderer and
+camera, frame by frame; also the `train_sequence` job a sweep point runs (apps/run/runner.py JOBS)
 when the data render on Dask. Kept apart from train_data.py, which drives the sweep machinery,
 so that the job registry does not import the sweep."""
 
@@ -55,7 +55,7 @@ def render_frames(spec) -> tuple[np.ndarray, np.ndarray]:
 
 
 def run_sequence_job(spec, folder: Path, progress: bool = False) -> dict:
-    """The `train_sequence` job (apps/runner.py JOBS): one sequence into folder/frames.npz."""
+    """The `train_sequence` job (apps/run/runner.py JOBS): one sequence into folder/frames.npz."""
     t0 = time.perf_counter()
     frames, boxes = render_frames(spec)
     with open(Path(folder) / "frames.npz", "wb") as f:
