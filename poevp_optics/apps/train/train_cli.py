@@ -46,9 +46,9 @@ def command_line(cmd: str, args) -> str:
 
 
 def data_cluster(args):
-    from poevp_optics.apps.train.train_data import Cluster
+    from poevp_optics.apps.sweep.sweep import ClusterSettings
 
-    return Cluster(args.scheduler, args.scheduler_file, args.shared_fs, args.retries, args.threads)
+    return ClusterSettings(None, args.scheduler, args.scheduler_file, args.shared_fs, args.retries, args.threads)
 
 
 def cmd_train_data(args) -> int:

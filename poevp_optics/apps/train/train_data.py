@@ -47,12 +47,16 @@ import string
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from poevp_optics import __version__
 from poevp_optics.apps.train.train_render import JOB, render_frames
 from poevp_optics.core.exceptions import SceneError
+
+if TYPE_CHECKING:
+    from poevp_optics.apps.sweep.sweep import ClusterSettings
 
 DATA_KINDS = ("approaching", "receding", "lateral", "vertical", "curved", "accelerating", "braking",
               "lane_change", "swerve", "reversal")
@@ -262,21 +266,6 @@ def sequence_overrides(spec, d: SequenceDraw, cfg: DataConfig, geo: Geometry) ->
 
 
 # ----------------------------------------------------------------------------- data set
-@dataclass(frozen=True)
-class Cluster:
-    """Where sequences render: None scheduler = this process; else apps/sweep/sweep.py's Dask."""
-
-    scheduler: str | None = None
-    scheduler_file: str | None = None
-    shared_fs: bool = False
-    retries: int = 2
-    threads: int | None = None
-
-    @property
-    def remote(self) -> bool:
-        return bool(self.scheduler or self.scheduler_file)
-
-
 @dataclass
 class TrainData:
     """A built data set: its folder, manifest, and per split frames (N, T, H, W) uint8, plate
@@ -321,9 +310,10 @@ def load_data(folder: Path) -> TrainData:
     return out
 
 
-def build_data(scene: str, cfg: DataConfig = DataConfig(), *, cluster: Cluster = Cluster(),
+def build_data(scene: str, cfg: DataConfig = DataConfig(), *, cluster: ClusterSettings | None = None,
                progress: bool = True, log=print) -> TrainData:
-    """Render (or find in the cache) the three splits of `scene` under `cfg`."""
+    """Render (or find in the cache) the three splits of `scene` under `cfg`: in this process, or
+    on the Dask cluster `cluster` names (apps/sweep/sweep.py ClusterSettings with a scheduler)."""
     from poevp_optics.core.io import atomic_path, write_json
     from poevp_optics.scene.load import load_scene, resolve_scene_path
 
@@ -342,7 +332,8 @@ def build_data(scene: str, cfg: DataConfig = DataConfig(), *, cluster: Cluster =
     todo = draws(cfg)
     overrides = {(s, d.index): sequence_overrides(base, d, cfg, geo) for s in SPLITS for d in todo[s]}
     folder.mkdir(parents=True, exist_ok=True)
-    if cluster.remote:
+    remote = cluster is not None and not cluster.local
+    if remote:
         results = _render_on_dask(scene, overrides, folder / "render", cluster, progress, log)
     else:
         from tqdm import tqdm
@@ -367,7 +358,7 @@ def build_data(scene: str, cfg: DataConfig = DataConfig(), *, cluster: Cluster =
                           "sequences": dict(zip(SPLITS, cfg.sequences)), "texts": texts},
                 "sequences": {s: [asdict(d) for d in todo[s]] for s in SPLITS},
                 "timing": {"render_seconds": render_s, "render_cpu_seconds_client": render_cpu_s,
-                           "where": "dask" if cluster.remote else "local",
+                           "where": "dask" if remote else "local",
                            "frames_rendered": sum(cfg.sequences) * cfg.frames}}
     write_json(folder / "manifest.json", manifest)       # last: its presence marks a complete set
     log(f"poevp train-data: {sum(cfg.sequences)} sequences x {cfg.frames} frames at "
@@ -377,11 +368,11 @@ def build_data(scene: str, cfg: DataConfig = DataConfig(), *, cluster: Cluster =
     return data
 
 
-def _render_on_dask(scene, overrides: dict, out: Path, cl: Cluster, progress: bool, log) -> dict:
+def _render_on_dask(scene, overrides: dict, out: Path, cl: ClusterSettings, progress: bool, log) -> dict:
     """Each sequence a point of the sweep machinery (apps/sweep/sweep.py `run_points`): job
     `train_sequence` (apps/train/train_render.py), scene bundle or shared paths, worker checks, retries."""
     from poevp_optics.apps.sweep.bundle import make_plan, scene_inputs, with_hashes
-    from poevp_optics.apps.sweep.sweep import ClusterSettings, run_points
+    from poevp_optics.apps.sweep.sweep import run_points
     from poevp_optics.scene.load import load_scene, resolve_scene_path
 
     hashes: dict[str, str] = {}
@@ -393,8 +384,7 @@ def _render_on_dask(scene, overrides: dict, out: Path, cl: Cluster, progress: bo
         todo.append(({"point": n, "seed": 0, "point_key": pkey}, tuple(ov), refs, folders[s, i]))
     plan = make_plan("shared" if cl.shared_fs else "bundle", resolve_scene_path(scene),
                      [r for t in todo for r in t[2]])
-    settings = ClusterSettings(None, cl.scheduler, cl.scheduler_file, cl.shared_fs, cl.retries, cl.threads)
-    df = run_points(todo, out, JOB, plan, settings, progress=progress, log=log)
+    df = run_points(todo, out, JOB, plan, cl, progress=progress, log=log)
     failed = df[df["status"] != "ok"] if df is not None else None
     if failed is not None and len(failed):
         raise SceneError(f"{out}: {len(failed)} sequences failed on the cluster, first: {failed.iloc[0]['error']}")

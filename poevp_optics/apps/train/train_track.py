@@ -369,12 +369,12 @@ def train_track_net_scene(scene: str, data_cfg=None, *, steps: int = 3000, batch
     """`poevp train-predictor SCENE --name track_net`: build (or reuse) the scene's data
     (apps/train/train_data.py), train with checkpoints, evaluate on the held-out test split beside
     constant velocity (`flow`'s model) and `track`'s closed form; save weights + record."""
-    from poevp_optics.apps.train.train_data import DATA_KINDS, Cluster, DataConfig, build_data
+    from poevp_optics.apps.train.train_data import DATA_KINDS, DataConfig, build_data
 
     dev = resolve_device(device)
     cfg = data_cfg or DataConfig()
     t0, c0 = time.perf_counter(), time.process_time()
-    data = build_data(scene, cfg, cluster=cluster or Cluster(), progress=progress, log=log)
+    data = build_data(scene, cfg, cluster=cluster, progress=progress, log=log)
     samples = {s: scene_samples(data.splits[s]) for s in ("train", "val", "test")}
     if not samples["train"] or not samples["val"]:
         raise UserError(f"{scene}: no tracked plate region in the rendered {'train' if not samples['train'] else 'val'} "
