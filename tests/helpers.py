@@ -20,3 +20,32 @@ PLANE_XML = """\
     </shape>
 </scene>
 """
+
+
+def graph_cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """Strongly connected components with more than one node (Tarjan), each sorted: the import
+    cycles of a graph {node: nodes it imports} (test_architecture, test_import_contract)."""
+    index, low, stack, on, out = {}, {}, [], set(), []
+
+    def visit(v):
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on.add(v)
+        for w in graph.get(v, ()):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while (w := stack.pop()) != v:
+                on.discard(w)
+                comp.append(w)
+            on.discard(v)
+            out.append(sorted([v, *comp]))
+
+    for v in list(graph):
+        if v not in index:
+            visit(v)
+    return [c for c in out if len(c) > 1]

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from tests.conftest import ROOT, SCENES
+from tests.helpers import graph_cycles
 
 PKG = ROOT / "poevp_optics"
 MAX_FUNCTION_LINES = 80
@@ -66,32 +67,7 @@ def test_no_import_cycles():
             for t in _target(mod, names):
                 if t != name and not name.startswith(t + "."):      # a package's own __init__
                     graph[name].add(t)
-    index, low, stack, on, sccs = {}, {}, [], set(), []
-
-    def visit(v):
-        index[v] = low[v] = len(index)
-        stack.append(v)
-        on.add(v)
-        for w in graph[v]:
-            if w not in index:
-                visit(w)
-                low[v] = min(low[v], low[w])
-            elif w in on:
-                low[v] = min(low[v], index[w])
-        if low[v] == index[v]:
-            comp = []
-            while True:
-                w = stack.pop()
-                on.discard(w)
-                comp.append(w)
-                if w == v:
-                    break
-            sccs.append(comp)
-
-    for v in graph:
-        if v not in index:
-            visit(v)
-    cycles = [sorted(c) for c in sccs if len(c) > 1]
+    cycles = graph_cycles(graph)
     assert not cycles, cycles
 
 

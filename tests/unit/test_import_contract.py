@@ -13,6 +13,7 @@ import ast
 import re
 
 from tests.conftest import ROOT
+from tests.helpers import graph_cycles
 
 PKG = ROOT / "poevp_optics"
 DOC = ROOT / "docs" / "architecture.md"
@@ -114,41 +115,13 @@ def test_every_import_follows_the_table():
     assert set(ALLOWED) == used, f"allow-list entries no longer needed: {sorted(set(ALLOWED) - used)}"
 
 
-def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
-    """Strongly connected components with more than one node (Tarjan)."""
-    index, low, stack, on, out = {}, {}, [], set(), []
-
-    def visit(v):
-        index[v] = low[v] = len(index)
-        stack.append(v)
-        on.add(v)
-        for w in graph.get(v, ()):
-            if w not in index:
-                visit(w)
-                low[v] = min(low[v], low[w])
-            elif w in on:
-                low[v] = min(low[v], index[w])
-        if low[v] == index[v]:
-            comp = []
-            while (w := stack.pop()) != v:
-                on.discard(w)
-                comp.append(w)
-            on.discard(v)
-            out.append(sorted([v, *comp]))
-
-    for v in list(graph):
-        if v not in index:
-            visit(v)
-    return [c for c in out if len(c) > 1]
-
-
 def test_no_import_cycle_between_packages():
     """The packages' import graph as the code has it (allow-list included) and as the table allows it."""
     graph: dict[str, set[str]] = {p: set() for p in MAY_IMPORT}
     for name, mod, _ in _all_imports():
         graph[_package_of(name)].add(_package_of(mod))
-    assert not _cycles(graph), _cycles(graph)
-    assert not _cycles({p: set(v) for p, v in MAY_IMPORT.items()})
+    assert not graph_cycles(graph), graph_cycles(graph)
+    assert not graph_cycles({p: set(v) for p, v in MAY_IMPORT.items()})
 
 
 def test_the_checker_sees_function_level_and_relative_imports():
@@ -164,7 +137,7 @@ def test_the_checker_sees_function_level_and_relative_imports():
     assert ("poevp_optics.apps", 6) in found and (ROOT_PKG, 6) in found
     refused = {_package_of(m) for m, _ in found} - MAY_IMPORT["core"] - {"core"}
     assert refused == {"apps", "render", ROOT_PKG}
-    assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+    assert graph_cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
 
 
 def _doc_table() -> dict[str, frozenset[str]]:
