@@ -28,8 +28,9 @@ QUICK_RENDER = ["--quiet", "--frames", "1", "--resolution", "8x8"]
 # the DR chart made small (36 patches of ~20 px) but still seconds long
 CHART = ["--quiet", "--resolution", "160x160", "--set", "predictor.resolution=[160,160]",
          "--set", "chart.repeats=8", "--set", "chart.max_iterations=4"]
-# ... and long enough (more repeats) that a signal 1.5 s in still lands before the end
-SLOW_CHART = [*CHART[:-4], "--set", "chart.repeats=48", "--set", "chart.max_iterations=4"]
+# ... and long enough that a signal 1 s in lands mid-run on any machine: 800 repeats are ~4 s of
+# captures after the chart's render (48 repeats were 0.2 s, so a 1.5 s wait raced the run's end in CI)
+SLOW_CHART = [*CHART[:-4], "--set", "chart.repeats=800", "--set", "chart.max_iterations=4"]
 
 
 def tree(root: Path) -> dict[str, str]:
@@ -79,7 +80,7 @@ def test_sigterm_then_sigkill_then_next_run(tmp_path, command, scene, args, kind
     p = start([command, str(SCENES / scene), "--out", str(out), *args])
     wait_for(staging_has(out, pattern), p)
     if command == "chart":
-        time.sleep(1.5)                       # into the render / captures
+        time.sleep(1.0)                       # into the render / captures
     p.send_signal(signal.SIGTERM)
     _, err = p.communicate(timeout=120)
     assert p.returncode == 143, err
