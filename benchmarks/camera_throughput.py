@@ -22,7 +22,7 @@ def measure(shape, k, psf):
     from poevp_optics.scene.load import load_scene
     spec = load_scene("scenes/highbeam_plate", [f"render.resolution=[{shape[0]},{shape[1]}]",
                                                 f"relay.psf='{psf}'", "relay.sigma_px=1.2"])
-    cam = Camera.from_scene(spec)
+    cam = Camera.from_params(spec.resolved.camera)
     rng = np.random.default_rng(0)
     subs = [rng.uniform(1e14, 1e18, cam.mirror_shape).astype(np.float32) for _ in range(k)]
     mask = rng.integers(0, 256, cam.mirror_shape).astype(np.float64)

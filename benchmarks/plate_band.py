@@ -46,8 +46,8 @@ def render_once(scene: str, overrides: list[str]):
     from poevp_optics.scene.load import load_scene
 
     spec = load_scene(scene, overrides)
-    renderer = Renderer(spec, guard_px=Camera.from_scene(spec).guard_px)
-    return spec, renderer, list(render_exposures(spec, renderer, progress=False))
+    renderer = Renderer(spec.resolved.render, guard_px=Camera.from_params(spec.resolved.camera).guard_px)
+    return spec, renderer, list(render_exposures(spec.resolved.render, renderer, progress=False))
 
 
 def scaled(exposures, gain: float):

@@ -74,7 +74,7 @@ def run_cell(runner, ex, name: str, mode: str = "open") -> list[dict]:
     seeds = (spec.sensor.seed, spec.render.seed)
     pspec = dataclasses.replace(spec.predictor, name=name)
     model = None if PREDICTORS[name].needs_truth else Recorder(make_predictor(name, pspec.weights, pspec.resolution))
-    step = LoopStep(cam, spec.mask, dataclasses.replace(spec.loop, mode=mode), pspec, model=model)
+    step = LoopStep(cam, spec.resolved.loop.mask, dataclasses.replace(spec.loop, mode=mode), pspec, model=model)
     top, rows = float(cam.top_level), []
     for e in ex:
         ldr = cam.capture(list(e.subframes), cam.white_mask(), e.index, capture_seed(*seeds, e.index, LDR_STREAM),
@@ -120,7 +120,7 @@ def cell_rows(a, modes, speeds, es, preds, log=print):
         d = 1 if ti % 2 == 0 else -1                  # as apps/evaluate/evaluate.py plan()
         seqs = [SequenceSpec(text, "lateral", v, cfg.frames, d) for v in speeds]
         spec = load_eval_scene(cfg, text, cfg.frames)
-        runner = Runner(cfg, spec, Camera.from_scene(spec))
+        runner = Runner(cfg, spec, Camera.from_params(spec.resolved.camera))
         cal = calibrate(spec, runner.cam.guard_px)
         for seq, exps in zip(seqs, render_sequences(spec, seqs, cal, runner.cam.guard_px, log=log)):
             r0 = overexposure(runner.cam, exps)

@@ -37,7 +37,7 @@ def main():
         f[150:190, 200 + 8 * t:340 + 8 * t] = 255.0
         frames.append(f)
     spec = load_scene("scenes/highbeam_plate", [f"render.resolution=[{H},{W}]"])
-    cam = Camera.from_scene(spec)
+    cam = Camera.from_params(spec.resolved.camera)
     rows = []
     for name in ("hold", "flow", "track", "track_net", "dmvfn_lite", "dmvfn"):
         if name == "dmvfn":
@@ -53,7 +53,7 @@ def main():
             t0 = time.perf_counter()
             p = pred(frames)
             t1 = time.perf_counter()
-            predicted_mask(cam, spec.mask, p, 0)
+            predicted_mask(cam, spec.resolved.loop.mask, p, 0)
             t2 = time.perf_counter()
             ts.append(t1 - t0)
             tm.append(t2 - t1)

@@ -123,7 +123,7 @@ def per_sample(h: int, w: int, spp_lo: int, spp_hi: int) -> dict:
     from poevp_optics.scene.load import load_scene
 
     spec = load_scene(SCENE, scaled_sets(h, w))
-    r = Renderer(spec)
+    r = Renderer(spec.resolved.render)
     out = {"pixels": h * w, "poses": []}
     frame_cost = []
     for fi in (0, spec.timing.frames - 1):

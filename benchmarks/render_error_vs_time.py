@@ -50,7 +50,7 @@ def _renderer(scene, res, mode, sampler, lights):
 
     spec = load_scene(scene, [f"render.resolution={res}", f"render.spectral_mode='{mode}'",
                               f"render.sampler='{sampler or DEFAULT_SAMPLER}'", f"render.light_selection='{lights}'"])
-    r = Renderer(spec)
+    r = Renderer(spec.resolved.render)
     r.set_time(float(spec.subframe_times_s(0)[0]))
     t0 = time.perf_counter()
     r.select_lights()

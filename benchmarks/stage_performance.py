@@ -36,7 +36,7 @@ def render_overhead(shape, spp=16):
     from poevp_optics.render.renderer import Renderer
     from poevp_optics.scene.load import load_scene
     spec = load_scene("scenes/highbeam_plate", [f"render.resolution=[{shape[0]},{shape[1]}]"])
-    ours = Renderer(spec)
+    ours = Renderer(spec.resolved.render)
     raw_scene = mi.load_file(str(spec.xml_path), **ours.plan.xml_params)
     seeds = iter(range(1, 10**6))
     t_raw = timed(lambda: np.array(mi.render(raw_scene, sensor=ours.sensor, spp=spp, seed=next(seeds))), 5)[0]
@@ -49,7 +49,7 @@ def chain_vs_copy(shape):
     from poevp_optics.camera.camera import Camera
     from poevp_optics.scene.load import load_scene
     spec = load_scene("scenes/highbeam_plate", [f"render.resolution=[{shape[0]},{shape[1]}]"])
-    cam = Camera.from_scene(spec)
+    cam = Camera.from_params(spec.resolved.camera)
     rng = np.random.default_rng(0)
     sub = rng.uniform(1e14, 1e18, cam.mirror_shape).astype(np.float32)
     mask = rng.integers(0, 256, cam.mirror_shape).astype(np.float64)
@@ -78,7 +78,7 @@ def closed_loop_fps(names=("hold", "flow", "dmvfn_lite"), frames=12):
     from poevp_optics.scene.load import load_scene
 
     spec = load_scene("scenes/highbeam_plate", ["loop.mode='demodulated'", "loop.init_frames=0"])
-    cam = Camera.from_scene(spec)
+    cam = Camera.from_params(spec.resolved.camera)
     h, w = cam.shape
     rng = np.random.default_rng(0)
     base = rng.uniform(1e13, 1e15, (h, w)).astype(np.float32)
@@ -89,7 +89,7 @@ def closed_loop_fps(names=("hold", "flow", "dmvfn_lite"), frames=12):
         radiance.append(f)
     out = {}
     for name in names:
-        step = LoopStep(cam, spec.mask, spec.loop, dataclasses.replace(spec.predictor, name=name,
+        step = LoopStep(cam, spec.resolved.loop.mask, spec.loop, dataclasses.replace(spec.predictor, name=name,
                                                                        resolution=(h, w)))
         per = []
         for i, rad in enumerate(radiance):
@@ -121,11 +121,11 @@ rad = rng.uniform(1e14, 1e18, (h, w)).astype(np.float32)
 mask = rng.integers(0, 256, (h, w)).astype(np.float64)
 if stage == "render":
     from poevp_optics.render.renderer import Renderer
-    r = Renderer(spec)
+    r = Renderer(spec.resolved.render)
 elif stage == "camera":
-    cam = Camera.from_scene(spec)                 # first capture measured: DrJit's pool grows once
+    cam = Camera.from_params(spec.resolved.camera)                 # first capture measured: DrJit's pool grows once
 elif stage == "reconstruct":
-    cam = Camera.from_scene(spec); cam.capture([rad], mask, 0, 0)
+    cam = Camera.from_params(spec.resolved.camera); cam.capture([rad], mask, 0, 0)
 elif stage == "predict":
     from poevp_optics.control.predictors import make_predictor
     p = make_predictor("flow"); f = (rad / rad.max() * 255).astype(np.float32); p([f, f])

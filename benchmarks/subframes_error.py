@@ -115,8 +115,8 @@ def _dense(name, frame, res, spp):
     if path.is_file():
         z = np.load(path)
         return spec, z["imgs"].astype(np.float64), z["times"], tuple(int(v) for v in z["box"])
-    cam = Camera.from_scene(spec)
-    r = Renderer(spec, guard_px=cam.guard_px)
+    cam = Camera.from_params(spec.resolved.camera)
+    r = Renderer(spec.resolved.render, guard_px=cam.guard_px)
     t0, t1 = spec.exposure_window_s(frame)
     times = node_times_s(t0, t1, N_DENSE)
     imgs, box = [], None
@@ -142,7 +142,7 @@ def part_b(name, frame, res, spp):
         a = (t - rel[j]) / (rel[j + 1] - rel[j])
         return (1 - a) * imgs[j] + a * imgs[j + 1]
 
-    cam = Camera.from_scene(spec)
+    cam = Camera.from_params(spec.resolved.camera)
     rules = Rules(cam.schedule(frame), LEVELS)
     ref = rules.plane(lambda t: L(t), rel)
     rows, curves = [], {}
@@ -155,7 +155,7 @@ def part_b(name, frame, res, spp):
     # the encoded plate with the frame's oracle mask, at the scene's K
     w_t = np.gradient(rel)
     truth = np.einsum("k,khw->hw", w_t / w_t.sum(), imgs)
-    mask = oracle_mask(cam, spec.mask, truth, frame)
+    mask = oracle_mask(cam, spec.resolved.loop.mask, truth, frame)
     lv = np.rint(mask).astype(int)
     uq, inv = np.unique(lv, return_inverse=True)
     inv = inv.reshape(lv.shape)
@@ -192,9 +192,9 @@ def part_c(spec, frame, dense, spps=(128, 512)):
 
     _, _, box, mask = dense
     spec = dataclasses.replace(spec, render=dataclasses.replace(spec.render, temporal_spp=64))
-    cam = Camera.from_scene(spec)
-    r = Renderer(spec, guard_px=cam.guard_px)
-    ex = list(render_exposures(spec, r, progress=False))[frame]
+    cam = Camera.from_params(spec.resolved.camera)
+    r = Renderer(spec.resolved.render, guard_px=cam.guard_px)
+    ex = list(render_exposures(spec.resolved.render, r, progress=False))[frame]
     est = temporal_error(spec, r, cam, ex, mask)
     sched = cam.schedule(frame)
     t0 = spec.exposure_window_s(frame)[0]

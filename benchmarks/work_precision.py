@@ -47,7 +47,7 @@ def float_precision():
     from poevp_optics.camera.sensor import NoiseSwitches
 
     spec = load_scene("scenes/highbeam_plate", ["render.subframes=8"])
-    cam = Camera.from_scene(spec, NoiseSwitches.off())
+    cam = Camera.from_params(spec.resolved.camera, NoiseSwitches.off())
     rng = np.random.default_rng(0)
     subs = [rng.uniform(1e12, 1e18, cam.mirror_shape).astype(np.float32) for _ in range(8)]
     mask = rng.integers(0, 256, cam.mirror_shape).astype(np.float64)

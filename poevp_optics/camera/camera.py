@@ -53,6 +53,23 @@ class Capture:
     exposure_blurred_s: np.ndarray | None = None   # exposure seen through the relay PSF (None: delta)
 
 
+@dataclass(frozen=True)
+class CameraParams:
+    """Everything a `Camera` is built from, resolved from a scene by scene/resolve.py (no scene
+    object below apps/): its stages' params, the sensor's (H, W), the accuracy settings, the folder
+    relative files (a measured PSF) are read from and the lamps' PWM drives by emitter name."""
+
+    sensor: SensorSpec
+    dmd: DMDSpec
+    relay: RelaySpec
+    objective: ObjectiveSpec
+    timing: TimingSpec
+    shape: tuple[int, int]
+    accuracy: Accuracy = Accuracy()
+    base_dir: object = None
+    flicker: object = None
+
+
 class Camera:
     """The DMD camera of a scene: DMD, relay PSF and a sensor instance (fixed-pattern noise).
 
@@ -68,8 +85,8 @@ class Camera:
     def __init__(self, sensor: SensorSpec, dmd: DMDSpec, relay: RelaySpec, objective: ObjectiveSpec,
                  timing: TimingSpec, shape: tuple[int, int], accuracy: Accuracy = Accuracy(), *,
                  base_dir=None, flicker=None, switches: NoiseSwitches | None = None):
-        """A camera from its stages' params (no scene file needed: `Camera.from_scene` reads
-        them from a SceneSpec). shape: the sensor's (H, W); base_dir: where relative files (a
+        """A camera from its stages' params (no scene file needed; `Camera.from_params` takes them
+        as one `CameraParams`). shape: the sensor's (H, W); base_dir: where relative files (a
         measured PSF) are read; flicker: PWM-lamp drives by emitter name (basis_tables)."""
         self.timing, self.dmd_spec, self.relay_spec = timing, dmd, relay
         self.accuracy = accuracy
@@ -94,10 +111,11 @@ class Camera:
         self.throughput = self.params.optical_throughput * (relay.transmission if self.dmd else 1.0)
 
     @classmethod
-    def from_scene(cls, spec, switches: NoiseSwitches | None = None) -> "Camera":
-        """The camera a scene describes (its [sensor], [dmd], [relay], [objective], [timing])."""
-        return cls(spec.sensor, spec.dmd, spec.relay, spec.objective, spec.timing, spec.render.resolution,
-                   spec.accuracy, base_dir=spec.toml_path.parent, flicker=spec.flicker, switches=switches)
+    def from_params(cls, p: CameraParams, switches: NoiseSwitches | None = None) -> "Camera":
+        """The camera `p` describes (scene/resolve.py builds `p` from a scene's [sensor], [dmd],
+        [relay], [objective], [timing])."""
+        return cls(p.sensor, p.dmd, p.relay, p.objective, p.timing, p.shape, p.accuracy, base_dir=p.base_dir,
+                   flicker=p.flicker, switches=switches)
 
     def _init_objective(self, spec: ObjectiveSpec, dmd: DMDSpec, base_dir) -> None:
         """The objective's resolved params (None: identity, the stage is skipped) and its guard

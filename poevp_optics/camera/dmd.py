@@ -53,7 +53,8 @@ import numpy as np
 from poevp_optics.camera.registration import RegistrationSpec
 from poevp_optics.core.params import param
 from poevp_optics.core.registry import Registry
-from poevp_optics.core.timing import TimingSpec
+from poevp_optics.core.timing import (Schedule, TimingSpec, node_time_weights_s, node_times_s,  # noqa: F401
+                                       switch_times_s)
 
 
 @dataclass(frozen=True)
@@ -89,40 +90,6 @@ class DMDSpec:
     pitch_m: float = param(7.56e-6, gt=0, max=1e-3)
     controller: str = param("ideal", choices=DMD_CONTROLLERS)
     registration: RegistrationSpec = param(RegistrationSpec())
-
-
-@dataclass(frozen=True)
-class Schedule:
-    """Absolute times (s) of the exposure and display window of one frame."""
-
-    exposure_start_s: float
-    exposure_s: float
-    window_start_s: float
-    window_s: float
-    outside_on: bool
-    bits: int
-    msb_first: bool
-    settle_s: float
-    planes_from_s: float = -math.inf      # planes starting in [from, until) show the level's bit,
-    planes_until_s: float = math.inf      # the others are off (a late mask: late_exposure_weights)
-
-    @classmethod
-    def for_frame(cls, dmd: DMDSpec, timing: TimingSpec, frame_start_s: float) -> "Schedule":
-        return cls(frame_start_s + timing.exposure_offset_s, timing.exposure_s,
-                   frame_start_s + timing.dmd_window_offset_s, timing.dmd_window_s,
-                   timing.outside_window == "white", dmd.bits, dmd.bit_order == "msb_first",
-                   dmd.settle_s)
-
-    def plane_intervals(self) -> list[tuple[int, float, float]]:
-        """(bit, start_s, end_s) of each bit-plane, in display order."""
-        n = (1 << self.bits) - 1
-        order = range(self.bits - 1, -1, -1) if self.msb_first else range(self.bits)
-        out, t = [], self.window_start_s
-        for b in order:
-            d = self.window_s * (1 << b) / n
-            out.append((b, t, t + d))
-            t += d
-        return out
 
 
 def timing_problem(dmd: DMDSpec, timing: TimingSpec) -> tuple[str, str] | None:
@@ -181,36 +148,6 @@ def _segments(levels: np.ndarray, sched: Schedule):
     return (np.stack(t0s, 1), np.stack(t1s, 1), np.stack(m0s, 1), np.stack(m1s, 1))
 
 
-def node_times_s(t0_s: float, t1_s: float, k: int, extra_s=()) -> np.ndarray:
-    """Times (s) of the radiance samples of the exposure [t0, t1]: its midpoint for K = 1, else
-    K equally spaced nodes including both ends, joined by `extra_s` (e.g. the DMD's switching
-    times, `switch_times_s`) that fall inside. Between nodes the radiance is taken as piecewise
-    linear in time (hat-function quadrature, `on_time_table`)."""
-    if k < 1:
-        raise ValueError(f"K = {k}: need at least one radiance sample per exposure")
-    if k == 1:
-        return np.array([(t0_s + t1_s) / 2])
-    t = t0_s + np.arange(k) * ((t1_s - t0_s) / (k - 1))
-    t[-1] = t1_s
-    extra = np.asarray(extra_s, dtype=np.float64)
-    if extra.size:
-        tol = 1e-9 * (t1_s - t0_s)
-        inside = extra[(extra > t0_s + tol) & (extra < t1_s - tol)]
-        t = np.sort(np.concatenate([t, inside]))
-        t = t[np.concatenate([[True], np.diff(t) > tol])]
-    return t
-
-
-def switch_times_s(sched: "Schedule") -> np.ndarray:
-    """Absolute times (s) at which mirrors may switch: the display window's edges and every
-    bit-plane boundary. A mask level's on-time is a union of intervals between them, so radiance
-    nodes there resolve even the shortest planes (a level lit only by its low bits integrates
-    L(t) over a millisecond, which K uniform nodes alone resolve only for K >> T / 1 ms)."""
-    out = [sched.window_start_s]
-    out += [b for _, _, b in sched.plane_intervals()]
-    return np.array(out)
-
-
 def _nodes_rel(sched: "Schedule", nodes) -> np.ndarray:
     """Node times relative to the exposure start (s): an int K means K uniform nodes."""
     if np.isscalar(nodes):
@@ -222,22 +159,6 @@ def _nodes_rel(sched: "Schedule", nodes) -> np.ndarray:
                          or abs(rel[-1] - sched.exposure_s) > 1e-9 * sched.exposure_s):
         raise ValueError("radiance nodes must include both ends of the exposure")
     return rel
-
-
-def node_time_weights_s(exposure_s: float, nodes) -> np.ndarray:
-    """Integral over the exposure of each node's hat function (s): the trapezoid weights
-    (h_j-1 + h_j) / 2 (h/2 at the ends); t_I for a single node. They sum to t_I. `nodes`: an
-    int K (uniform) or node times relative to the exposure start."""
-    if np.isscalar(nodes):
-        nodes = node_times_s(0.0, exposure_s, int(nodes))
-    rel = np.asarray(nodes, dtype=np.float64)
-    if rel.size == 1:
-        return np.array([exposure_s])
-    h = np.diff(rel)
-    w = np.zeros(rel.size)
-    w[:-1] += h / 2
-    w[1:] += h / 2
-    return w
 
 
 #: Cells (levels x segments x intervals) evaluated per block, bounding the memory of the tables.

@@ -23,7 +23,7 @@ the camera has: its previous masks and captures.
   Brighter plates clip once and are bracketed (below). On a road scene `mask.prior_beam_cd`
   ties P to our own beams: P is the prior under beams of that intensity and scales with
   [road].highbeam's intensity_cd (the light a plate returns from our beams is proportional to
-  them, and a camera knows its own beams; scene/validate.controller_prior).
+  them, and a camera knows its own beams; scene/resolve.py prior_first_guess).
 - k = `mask.clip_step` (default 2): the bracket after a clip. A clipped measurement says only
   X > lower bound L, so the next guess is k L: the next frame puts X at target X / (k L), i.e.
   0.3 of full scale if X was just above L (still read), and clips again only if X > k L /

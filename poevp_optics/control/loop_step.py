@@ -208,6 +208,19 @@ class DMDCommand:
         return (self.late_levels, self.switch_s) if self.late_levels is not None else None
 
 
+@dataclass(frozen=True)
+class LoopParams:
+    """What the loop is built from (scene/resolve.py): the mask law (with any value the scene
+    derived, e.g. the controller prior scaled to our beams), the loop mode, the predictor, the
+    real-time budget and the attenuator."""
+
+    mask: MaskSpec
+    loop: LoopSpec
+    predictor: PredictorSpec
+    budget: BudgetSpec = BudgetSpec()
+    attenuator: AttenuatorSpec = AttenuatorSpec()
+
+
 class LoopStep:
     """The closed loop's state and its per-frame step (module docstring). State is real here:
     the history of what the predictor has seen, the mask clock and the attenuator's setting."""
@@ -233,6 +246,11 @@ class LoopStep:
                                camera.dmd.spec.bits) if camera.dmd else None
         self.controller = ExposureController(mask.first_guess, mask.clip_step, int(np.ceil(3 * mask.smooth_px)),
                                              p.saturation_capacity_e, mask.carry == "extrapolate") if camera.dmd else None
+
+    @classmethod
+    def from_params(cls, camera, p: LoopParams, model=None) -> "LoopStep":
+        """The loop `p` describes, for `camera` (model: an already built predictor)."""
+        return cls(camera, p.mask, p.loop, p.predictor, model=model, budget=p.budget, attenuator=p.attenuator)
 
     def next_mask(self, index: int, truth: np.ndarray | None = None) -> MaskDecision:
         """The mask for frame `index`; `truth` (mirror grid, time-averaged radiance) for the oracle."""

@@ -9,6 +9,8 @@ from typing import Any
 
 import numpy as np
 
+from poevp_optics.core.units import PHOTON_RADIANCE_UNIT
+
 
 class Quantity(enum.Enum):
     """What a frame's pixels measure."""
@@ -62,6 +64,18 @@ class RenderedExposure:
     ground_truth: dict | None = None    # from a frame source: plate text, frames read, plate velocity
     spp: tuple[int, ...] = ()           # spp each radiance sample (or basis image) actually used
     target_met: bool | None = None      # render.target_rel_error reached (None: no target)
+
+    @classmethod
+    def build(cls, index: int, t0_s: float, t1_s: float, times_s: np.ndarray, subframes, mean: np.ndarray,
+              variance: np.ndarray, roi, rel_error: float | None = None, rel_error_roi: float | None = None,
+              **extra) -> "RenderedExposure":
+        """The one way every source makes an exposure: frame `index` exposed over [t0_s, t1_s]
+        (s), its radiance samples at `times_s` and their time average `mean` (photon radiance,
+        `PHOTON_RADIANCE_UNIT`) with its MC variance; the MC errors as the source measured them
+        (None: not estimated, e.g. read from files)."""
+        frame = Frame(mean, Quantity.RADIANCE, PHOTON_RADIANCE_UNIT, t0_s, t1_s - t0_s, index)
+        return cls(index, t0_s, t1_s - t0_s, times_s, tuple(subframes), frame, variance, roi, rel_error,
+                   rel_error_roi, **extra)
 
     def capture_timing(self) -> dict:
         """The keyword a capture of these samples takes: the basis names, or the sample times."""

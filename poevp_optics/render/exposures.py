@@ -14,9 +14,8 @@ from __future__ import annotations
 import numpy as np
 from tqdm import tqdm
 
-from poevp_optics.core.frame import Frame, Quantity, RenderedExposure
+from poevp_optics.core.frame import RenderedExposure
 from poevp_optics.core.seeds import render_seeds
-from poevp_optics.core.units import PHOTON_RADIANCE_UNIT
 from poevp_optics.render.progressive import Replicates, Target, rel_error, render_to_target
 
 __all__ = ["RenderedExposure", "rel_error", "render_exposures", "render_sample", "flicker_bases"]
@@ -97,9 +96,8 @@ def flicker_bases(spec, renderer):
 
 
 def _exposure(i, t0, t1, times, subs, mean, var, roi, **extra) -> RenderedExposure:
-    frame = Frame(mean, Quantity.RADIANCE, PHOTON_RADIANCE_UNIT, t0, t1 - t0, i)
-    return RenderedExposure(i, t0, t1 - t0, times, subs, frame, var, roi, rel_error(mean, var),
-                            rel_error(mean, var, roi), **extra)
+    return RenderedExposure.build(i, t0, t1, times, subs, mean, var, roi, rel_error(mean, var),
+                                  rel_error(mean, var, roi), **extra)
 
 
 def _met(flags) -> bool | None:

@@ -36,7 +36,7 @@ BEST_LOOP: dict[str, tuple[str, dict[str, Any]]] = {
     "predictor": ("name", {"name": "track_net"}),
 }
 
-#: [mask] defaults that only a [road] scene takes: the prior follows its high beams (validate.controller_prior).
+#: [mask] defaults that only a [road] scene takes: the prior follows its high beams (scene/resolve.py prior_first_guess).
 ROAD_ONLY = {"mask": {"prior_beam_cd": 100000.0}}
 
 

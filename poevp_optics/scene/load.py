@@ -173,7 +173,7 @@ def build_spec(raw: dict, path: Path, ctx: Where | None = None, *, cross_checks:
     validate.check_plugin_tables(ctx, path, tables["spectra"], tables["sheeting"])
     if "road" in raw:
         validate.check_road(ctx, sec["road"], tables["spectra"], tables["sheeting"])
-    sec["mask"] = validate.controller_prior(ctx, sec["mask"], sec["road"], tables["spectra"], "road" in raw)
+    validate.check_controller_prior(ctx, sec["mask"], sec["road"], tables["spectra"], "road" in raw)
     validate.check_sensor_and_relay(ctx, path, sec["sensor"], sec["relay"])
     validate.check_layout(ctx, sec)
     for ident in tables["flicker"]:

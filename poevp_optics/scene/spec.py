@@ -23,15 +23,17 @@
 | [chart]              | ChartSpec        | analysis/charts.py |
 | [outputs]            | OutputsSpec      | scene/outputs.py (the writer: apps/run/outputs.py) |
 
-Accuracy settings (spp, nodes, MC splits, PSF support, ...) are gathered into one
-core.accuracy.Accuracy by `SceneSpec.accuracy`.
+The spec is what the TOML says (after validation and the best-loop defaults); `resolve`
+(scene/resolve.py, `SceneSpec.resolved`) turns it into each stage's own inputs, with the
+accuracy settings as one core.accuracy.Accuracy and the values derived from other keys.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
-from typing import Any, Mapping
+from typing import TYPE_CHECKING, Any, Mapping
 
 import numpy as np
 
@@ -56,6 +58,9 @@ from poevp_optics.sources.motion import MotionSpec
 from poevp_optics.sources.plates import PlateSpec
 from poevp_optics.sources.road import RoadSpec
 from poevp_optics.sources.spectra import SpectrumSpec
+
+if TYPE_CHECKING:
+    from poevp_optics.scene.resolve import ResolvedScene
 
 
 @dataclass(frozen=True)
@@ -90,24 +95,22 @@ class SceneSpec:
     origin: str = ""               # the file and the --set overrides it was read with (messages)
     defaults_applied: tuple[str, ...] = ()  # "section.key=value" of the best loop the scene did not choose (defaults.py)
 
+    @cached_property
+    def resolved(self) -> "ResolvedScene":
+        """The stages' inputs (scene/resolve.py), resolved once per spec."""
+        from poevp_optics.scene.resolve import resolve
+
+        return resolve(self)
+
     @property
     def accuracy(self) -> Accuracy:
-        """The run's numerical settings, from the stable [render] and [relay] keys."""
-        r, rel = self.render, self.relay
-        return Accuracy(spp=r.spp, subframes=r.subframes, pwm_nodes=r.pwm_nodes, mc_splits=r.mc_splits,
-                        temporal_spp=r.temporal_spp, sampler=r.sampler, light_selection=r.light_selection,
-                        target_rel_error=r.target_rel_error, max_spp=r.max_spp, psf_support_energy=rel.support_energy,
-                        psf_support_px=rel.support_px, guard_max_px=rel.guard_max_px,
-                        poisson_sampler=self.sensor.poisson_sampler)
+        """The run's numerical settings (`resolved.accuracy`)."""
+        return self.resolved.accuracy
 
     @property
     def sensor_qe(self) -> str:
-        """The QE curve (core/spectra.py name) of the scene's sensor, its preset's unless
-        overridden: the response the render weights wavelengths by (render/ reads it here, so
-        it needs nothing of camera/)."""
-        from poevp_optics.camera.sensor import resolve_sensor
-
-        return resolve_sensor(self.sensor).qe
+        """The QE curve (core/spectra.py name) of the scene's sensor (`resolved.render.sensor_qe`)."""
+        return self.resolved.render.sensor_qe
 
     @property
     def has_road(self) -> bool:
@@ -116,13 +119,13 @@ class SceneSpec:
 
     @property
     def geometry_static(self) -> bool:
-        """True when no shape or emitter moves (a frame source is taken to change in time)."""
-        return self.source.renders and all(m.is_static for m in self.motion.values())
+        """True when no shape or emitter moves (`resolved.render.geometry_static`)."""
+        return self.resolved.render.geometry_static
 
     @property
     def is_static(self) -> bool:
         """True when nothing changes in time (no motion, no flicker): rendered once, K = 1."""
-        return self.geometry_static and not self.flicker
+        return self.resolved.render.is_static
 
     def frame_start_s(self, index: int) -> float:
         return self.timing.frame_start_s(index)
@@ -131,28 +134,12 @@ class SceneSpec:
         return self.timing.exposure_window_s(index)
 
     def subframe_times_s(self, index: int) -> np.ndarray:
-        """Times (s) of the radiance samples of frame `index`'s exposure: K = render.subframes
-        uniform nodes including both ends (the midpoint for K = 1), joined, when
-        render.pwm_nodes is on and a DMD is in the path, by the DMD's switching times inside the
-        exposure (window edges, bit-plane boundaries: dmd.switch_times_s). Moving scenes only;
-        a static scene needs one sample."""
-        from poevp_optics.camera.dmd import Schedule, node_times_s, switch_times_s
-
-        t0, t1 = self.exposure_window_s(index)
-        k = self.render.subframes
-        extra = ()
-        if k > 1 and self.render.pwm_nodes and self.dmd.enabled:
-            extra = switch_times_s(Schedule.for_frame(self.dmd, self.timing, self.frame_start_s(index)))
-        return node_times_s(t0, t1, k, extra)
+        """Times (s) of frame `index`'s radiance samples (core/timing.py `ExposureClock`)."""
+        return self.resolved.render.clock.subframe_times_s(index)
 
     def subframe_weights(self, index: int) -> np.ndarray:
         """Weight of each radiance sample in the exposure's time average (sums to 1)."""
-        from poevp_optics.camera.dmd import node_time_weights_s
-
-        t = self.subframe_times_s(index)
-        t0, t1 = self.exposure_window_s(index)
-        w = node_time_weights_s(t1 - t0, t - t0)
-        return w / w.sum()
+        return self.resolved.render.clock.subframe_weights(index)
 
 
 SECTIONS = {

@@ -333,22 +333,22 @@ def check_road(ctx, road, spectra_, sheeting) -> None:
         raise ctx.fail("road.sheeting", f"{road.sheeting!r} names no [sheeting] entry")
 
 
-def controller_prior(ctx, mask: MaskSpec, road, spectra_, has_road: bool) -> MaskSpec:
-    """[mask] with `first_guess` scaled by our high beams' intensity_cd / `prior_beam_cd` when
-    that is set: the prior is the plate's over-exposure under the beams it was worked out for,
-    and a camera beside its own beams knows their intensity, so g x the beams is g x the prior
-    (the signal of light returned from our beams is proportional to their intensity)."""
+def check_controller_prior(ctx, mask: MaskSpec, road, spectra_, has_road: bool) -> None:
+    """`mask.prior_beam_cd`: the prior it scales (scene/resolve.py `prior_first_guess`, reported as
+    derived; the spec keeps the written first_guess) needs a [road] high beam and must land in
+    first_guess's own range [1, 1e9] x saturation."""
+    from poevp_optics.scene.resolve import prior_first_guess
+
     if mask.prior_beam_cd == 0 or mask.law != "exposure_controller":
-        return mask                     # other laws have no prior (first_guess is inert there too)
+        return                          # other laws have no prior (first_guess is inert there too)
     key = "mask.prior_beam_cd"
     if not has_road:
         raise ctx.fail(key, "needs a [road] section: the prior follows its high beam's intensity_cd")
-    beams_cd = spectra_[road.highbeam].intensity_cd
-    guess = mask.first_guess * beams_cd / mask.prior_beam_cd
+    guess = prior_first_guess(mask, road, spectra_, has_road)
     if not 1.0 <= guess <= 1e9:
+        beams_cd = spectra_[road.highbeam].intensity_cd
         raise ctx.fail(key, f"first_guess {mask.first_guess:g} x {beams_cd:g} cd / "
                        f"{mask.prior_beam_cd:g} cd = {guess:.4g} x saturation, outside [1, 1e9]")
-    return dataclasses.replace(mask, first_guess=guess)
 
 
 def check_attenuator(ctx, sec: dict):

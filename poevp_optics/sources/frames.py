@@ -45,8 +45,7 @@ from typing import Sequence
 import numpy as np
 
 from poevp_optics.core.exceptions import UserError
-from poevp_optics.core.frame import Frame, Quantity, RenderedExposure
-from poevp_optics.core.units import PHOTON_RADIANCE_UNIT
+from poevp_optics.core.frame import RenderedExposure
 from poevp_optics.sources import spectra
 
 SUBFRAME_MODES = ("nearest", "linear", "integrate")
@@ -508,9 +507,7 @@ class FrameSequenceSource:
             mean = np.asarray(mean, dtype=np.float32)
             var = np.zeros(mean.shape)
             roi, truth = self.truth(used)
-            frame = Frame(mean, Quantity.RADIANCE, PHOTON_RADIANCE_UNIT, t0, t1 - t0, i)
-            yield RenderedExposure(i, t0, t1 - t0, times, tuple(subs), frame, var, roi, None, None,
-                                   ground_truth=truth)
+            yield RenderedExposure.build(i, t0, t1, times, subs, mean, var, roi, ground_truth=truth)
 
     def truth(self, used: Sequence[int]):
         """ROI (mirror grid: the union of the used frames' boxes) and ground truth: plate text,

@@ -24,7 +24,7 @@ def _camera(exposure_s, *extra, noise=False):
                                          f"timing.exposure_s={exposure_s}",
                                          f"timing.dmd_window_s={exposure_s}", *extra])
     sw = None if noise else NoiseSwitches(False, False, True, False, False, False)
-    return spec, Camera.from_scene(spec, sw)
+    return spec, Camera.from_params(spec.resolved.camera, sw)
 
 
 @pytest.mark.parametrize("exposure_s", [1e-6, 1e-3, 0.0333, 10.0])
@@ -258,7 +258,7 @@ def test_noise_free_dn_honours_the_dark_current_switch():
 
     spec, cam = _camera(10.0, "sensor.bits=12", "sensor.dark_current_e_per_s=100.0")
     on = cam.noise_free_dn(np.zeros((2, 2)))
-    cam_off = Camera.from_scene(spec, NoiseSwitches(False, False, False, False, False, True))
+    cam_off = Camera.from_params(spec.resolved.camera, NoiseSwitches(False, False, False, False, False, True))
     off = cam_off.noise_free_dn(np.zeros((2, 2)))
     p = cam.params
     assert np.all(off == np.rint(p.offset_dn))

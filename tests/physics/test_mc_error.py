@@ -21,7 +21,7 @@ def test_rel_error_falls_as_inverse_sqrt_spp():
     # their estimate's honesty
     spec = _smoke("render.mc_splits=8", "render.spp=8", "render.spectral_mode='spectral'",
                   "render.sampler='independent'")
-    r = Renderer(spec)
+    r = Renderer(spec.resolved.render)
     spps = [8, 32, 128, 512]
     errs = []
     for spp in spps:
@@ -42,7 +42,7 @@ def test_rel_error_falls_as_inverse_sqrt_spp():
 
 def test_same_seed_is_bit_identical_and_seeds_matter():
     spec = _smoke()
-    r = Renderer(spec)
+    r = Renderer(spec.resolved.render)
     r.set_time(0.01)
     a = r.render_once(1234, 8)
     b = r.render_once(1234, 8)
@@ -50,6 +50,6 @@ def test_same_seed_is_bit_identical_and_seeds_matter():
     np.testing.assert_array_equal(a, b)
     assert np.any(a != c)
     # a fresh renderer (re-loaded scene) reproduces it too
-    r2 = Renderer(spec)
+    r2 = Renderer(spec.resolved.render)
     r2.set_time(0.01)
     np.testing.assert_array_equal(a, r2.render_once(1234, 8))

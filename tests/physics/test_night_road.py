@@ -35,7 +35,7 @@ def test_per_frame_angles_follow_the_law_of_cosines(spec):
         t0, t1 = spec.timing.exposure_window_s(i)
         tm = 0.5 * (t0 + t1)
         p = np.array([0.0, 0.5, 60.0 - 25.0 * tm])
-        np.testing.assert_allclose(plate_centre_m(spec, tm), p, atol=1e-12)
+        np.testing.assert_allclose(plate_centre_m(spec.resolved.render, tm), p, atol=1e-12)
         g = plate_geometry(spec.road, p, *laws)
         d_l, d_c = np.linalg.norm(p - lamp), np.linalg.norm(p - cam)
         alpha = math.degrees(math.acos((d_l ** 2 + d_c ** 2 - 0.25) / (2 * d_l * d_c)))
@@ -45,8 +45,8 @@ def test_per_frame_angles_follow_the_law_of_cosines(spec):
         assert g["camera_distance_m"] == pytest.approx(d_c, rel=1e-12)
         # small-angle check: alpha ~ h cos(elevation) / d between 0.47 deg (60 m) and 2.9 deg (10 m)
         assert 0.4 < left["observation_deg"] < 3.0
-    first = plate_geometry(spec.road, plate_centre_m(spec, 0.014), *laws)["lamps"]["left"]["observation_deg"]
-    last = plate_geometry(spec.road, plate_centre_m(spec, 2.014), *laws)["lamps"]["left"]["observation_deg"]
+    first = plate_geometry(spec.road, plate_centre_m(spec.resolved.render, 0.014), *laws)["lamps"]["left"]["observation_deg"]
+    last = plate_geometry(spec.road, plate_centre_m(spec.resolved.render, 2.014), *laws)["lamps"]["left"]["observation_deg"]
     assert first < 0.5 < 2.5 < last
 
 
@@ -133,11 +133,11 @@ def test_light_selection_weighs_the_beams_by_what_the_plate_returns(spec):
     within -3 % (pilot noise: 16 K samples) and +10 % (the road's symmetric share) of it."""
     from poevp_optics.render.renderer import Renderer
 
-    r = Renderer(spec)
+    r = Renderer(spec.resolved.render)
     r.set_time(0.0)
     w = r.select_lights()
     assert {"highbeam_left", "highbeam_right"} <= set(w)
-    lamps = plate_geometry(spec.road, plate_centre_m(spec, 0.0), *scene_laws(spec))["lamps"]
+    lamps = plate_geometry(spec.road, plate_centre_m(spec.resolved.render, 0.0), *scene_laws(spec))["lamps"]
     ratio = lamps["right"]["r_a"] / lamps["left"]["r_a"]
     assert 0.25 < ratio < 0.45                     # Type I at 1.43 vs 0.48 deg: about 1/3
     assert ratio * 0.97 < w["highbeam_right"] / w["highbeam_left"] < ratio * 1.10

@@ -402,7 +402,7 @@ def _objective_camera(*extra):
     from tests.conftest import SCENES
 
     spec = load_scene(SCENES / "smoke", ["render.resolution=[96,128]", *extra])
-    return Camera.from_scene(spec, NoiseSwitches(False, False, False, False, False, False))
+    return Camera.from_params(spec.resolved.camera, NoiseSwitches(False, False, False, False, False, False))
 
 
 #: Glare halo of 5 % between 0.05 and 0.5 deg (2.9 and 29 mirrors at 25 mm, 7.56 um): it fits the

@@ -151,7 +151,7 @@ def test_wall_illuminance_matches_file_candela(write_scene, lamp_file, points, m
     source = "neutral:{RHO}"
     """
     spec = load_scene(write_scene(toml, LAMP_XML.format(d=D_M), name=f"lamp_{mode}_{path.stem}{path.suffix[1:]}"))
-    r = Renderer(spec)
+    r = Renderer(spec.resolved.render)
     assert r.plan.mode == mode
     spp = 8 if mode == "mono" else 128
     mean, se = _render_tiles(r, points, spp, seeds=list(range(1, 9)))
@@ -197,4 +197,4 @@ def test_bad_distribution_keys_are_one_line_errors(write_scene):
     # a photometric emitter whose lamp has no distribution: caught when the render is planned
     folder = write_scene(base, LAMP_XML.format(d=D_M), name="nodist")
     with pytest.raises(SceneError, match="spectra.beam.distribution"):
-        Renderer(load_scene(folder))
+        Renderer(load_scene(folder).resolved.render)

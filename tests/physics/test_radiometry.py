@@ -72,7 +72,7 @@ def _closed_form(spec) -> np.ndarray:
 ])
 def test_lambertian_plane_matches_closed_form(write_scene, mode, rho_source):
     spec = _scene(write_scene, rho_source, mode, spp=64)
-    r = Renderer(spec)
+    r = Renderer(spec.resolved.render)
     assert r.plan.mode == mode
     seeds = [101, 202, 303, 404]
     mean, var = r.render_with_error(seeds, spec.render.spp)
@@ -93,9 +93,9 @@ def test_lambertian_plane_matches_closed_form(write_scene, mode, rho_source):
 
 def test_mono_and_spectral_paths_agree_on_spectral_plate(write_scene):
     """Pre-integrated mono equals spectral when one emitter lights a spectral reflectance once."""
-    mono = Renderer(_scene(write_scene, "colorchecker:orange", "mono", 16))
+    mono = Renderer(_scene(write_scene, "colorchecker:orange", "mono", 16).resolved.render)
     m, vm = mono.render_with_error([1, 2, 3, 4], 16)
-    spec = Renderer(_scene(write_scene, "colorchecker:orange", "spectral", 256))
+    spec = Renderer(_scene(write_scene, "colorchecker:orange", "spectral", 256).resolved.render)
     s, vs = spec.render_with_error([5, 6, 7, 8], 256)
     diff = float(m.sum(dtype=np.float64) - s.sum(dtype=np.float64))
     sigma = math.sqrt(float(vm.sum() + vs.sum()))
@@ -114,7 +114,7 @@ def test_cie_a_lamp_matches_planck_closed_form_over_the_whole_band(write_scene):
     import colour
 
     spec = _scene(write_scene, "neutral:0.5", "mono", spp=16)
-    img = Renderer(spec).render_with_error([1, 2, 3, 4], spec.render.spp)[0].astype(np.float64)
+    img = Renderer(spec.resolved.render).render_with_error([1, 2, 3, 4], spec.render.spp)[0].astype(np.float64)
     wl = np.arange(360.0, 830.5, 1.0)
     wl_m = wl * 1e-9
     planck = wl_m ** -5 / np.expm1(1.4388e-2 / (wl_m * 2856.0))              # relative SPD

@@ -78,7 +78,7 @@ def test_predicted_mask_lands_on_the_highlight_after_a_registration_round_trip()
     spec = load_scene(SCENES / "smoke", [f"render.resolution=[{H},{W}]", "mask.smooth_px=1.0",
                                          "dmd.registration.offset_px=[20.0, -6.0]",
                                          "dmd.registration.rotation_deg=12.0", "dmd.registration.scale=1.1"])
-    cam = Camera.from_scene(spec)
+    cam = Camera.from_params(spec.resolved.camera)
     pred = np.full((H, W), 20.0)
     cy, cx = 30, 14
     yy, xx = np.mgrid[0:H, 0:W]

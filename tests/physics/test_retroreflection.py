@@ -120,7 +120,7 @@ def test_rendered_luminance_coefficient_matches_astm_table(write_scene, mode):
     rows = []
     for alpha, beta in CASES:
         spec = _scene(write_scene, alpha, beta, mode, spp)
-        r = Renderer(spec)
+        r = Renderer(spec.resolved.render)
         assert r.plan.mode == mode
         mean, var = r.render_with_error(list(range(11, 19)), spp)
         ra, sigma_ra = _recovered_ra(spec, alpha, beta, mean, var)
@@ -291,7 +291,7 @@ def test_printed_characters_blend(write_scene):
         f'<bsdf type="diffuse"><spectrum name="reflectance" value="{ink}"/></bsdf>'
         '<bsdf type="retroreflective">').replace("</bsdf>\n    </shape>", "</bsdf></bsdf>\n    </shape>")
     spec.xml_path.write_text(xml)
-    r = Renderer(load_scene(spec.toml_path))
+    r = Renderer(load_scene(spec.toml_path).resolved.render)
     mean, var = r.render_with_error(list(range(11, 19)), 16)
     ra, sigma_ra = _recovered_ra(spec, alpha, beta, mean, var)
     # _recovered_ra removed the full diffuse base rho; the blend keeps w rho and adds (1 - w) ink

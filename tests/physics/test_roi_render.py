@@ -26,7 +26,7 @@ SPLITS = 16        # variances with 15 dof: z = d / sigma_hat is t-distributed, 
 
 def _renderer(*sets):
     spec = load_scene(SCENES / "highbeam_plate", ["render.resolution=[92,160]", *sets])
-    r = Renderer(spec)
+    r = Renderer(spec.resolved.render)
     r.set_time(float(spec.subframe_times_s(0)[0]))
     return r
 

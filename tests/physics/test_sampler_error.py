@@ -33,7 +33,7 @@ REF_SPP = 8192
 def _renderer(sampler: str, splits: int = 2):
     spec = load_scene(SCENES / "highbeam_plate", [f"render.resolution={RES}", f"render.sampler='{sampler}'",
                                                   f"render.mc_splits={splits}", f"render.spp={max(splits, 16)}"])
-    r = Renderer(spec)
+    r = Renderer(spec.resolved.render)
     r.set_time(float(spec.subframe_times_s(0)[0]))
     return r
 

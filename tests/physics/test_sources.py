@@ -49,8 +49,8 @@ def mitsuba_run(tmp_path_factory):
     """highbeam_plate at 46x80, 3 frames, rendered once; its exposures exported as EXR samples."""
     root = tmp_path_factory.mktemp("roundtrip")
     spec = load_scene(SCENES / "highbeam_plate", SMALL)
-    cam = Camera.from_scene(spec)
-    src = open_source(spec, cam.guard_px)
+    cam = Camera.from_params(spec.resolved.camera)
+    src = open_source(spec.resolved.render, cam.guard_px)
     exposures = list(src.exposures(progress=False))
     run_render(spec, root / "mitsuba", progress=False, renderer=src, exposures=exposures)
     keys = export_exr_sequence(exposures, root / "exr" / "frames", guard_px=cam.guard_px,
@@ -124,7 +124,7 @@ def test_integrate_conserves_the_exposure_integral(tmp_path):
         psf = "delta"
         """))
     spec = load_scene(tmp_path)
-    for ex in open_source(spec, 0).exposures(progress=False):
+    for ex in open_source(spec.resolved.render, 0).exposures(progress=False):
         a, b = spec.exposure_window_s(ex.index)
         # frame j stands for [j, j + 1) ms (t0_s = 0.5 ms at its centre): exact overlap weights
         exact = sum(max(0.0, min(b, (j + 1) / fps) - max(a, j / fps)) * vals[j].astype(np.float64)
@@ -173,7 +173,7 @@ def test_ldr_highlight_is_eq3_per_pixel(tmp_path, rule, sigma_of_r):
         [relay]
         psf = "delta"
         """))
-    exps = list(open_source(load_scene(tmp_path), 0).exposures(progress=False))
+    exps = list(open_source(load_scene(tmp_path).resolved.render, 0).exposures(progress=False))
     lin = _srgb_decode(rgb / 255.0)
     o = 0.2126 * lin[..., 0] + 0.7152 * lin[..., 1] + 0.0722 * lin[..., 2]
     sigma = sigma_of_r(r_px * math.sqrt(h / 720 * w / 1280))       # R = 5 px at 72x128

@@ -64,11 +64,11 @@ def test_extreme_scene_outputs_are_finite_and_bounded(tmp_path, name):
 @pytest.mark.parametrize("name", EXTREME)
 def test_reconstruction_never_exceeds_truth_beyond_its_noise(name):
     spec = _small(name)
-    renderer = Renderer(spec)
-    cam = Camera.from_scene(spec)
+    renderer = Renderer(spec.resolved.render)
+    cam = Camera.from_params(spec.resolved.camera)
     p = cam.params
     worst = 0.0
-    for ex in render_exposures(spec, renderer, progress=False):
+    for ex in render_exposures(spec.resolved.render, renderer, progress=False):
         subs = list(ex.subframes) if not spec.is_static else [ex.radiance.data]
         from poevp_optics.control.loop_step import oracle_mask
 
@@ -101,9 +101,9 @@ def test_float32_chain_matches_float64_on_the_noise_free_path(name):
     the noise-free electrons, relative 2e-5 where the signal exceeds 1e-3 e- (float32 sums of K
     terms: ~K x 6e-8)."""
     spec = _small(name)
-    renderer = Renderer(spec)
-    cam = Camera.from_scene(spec, NoiseSwitches.off())
-    ex = next(iter(render_exposures(spec, renderer, progress=False)))
+    renderer = Renderer(spec.resolved.render)
+    cam = Camera.from_params(spec.resolved.camera, NoiseSwitches.off())
+    ex = next(iter(render_exposures(spec.resolved.render, renderer, progress=False)))
     subs = list(ex.subframes) if not spec.is_static else [ex.radiance.data]
     mask = np.tile(np.linspace(0, cam.top_level, ex.radiance.data.shape[1]).round(), (ex.radiance.data.shape[0], 1))
     times = ex.subframe_times_s if len(subs) > 1 and not ex.basis else None
@@ -124,14 +124,14 @@ def test_float32_chain_matches_float64_on_the_noise_free_path(name):
 
 def test_led_flicker_capture_converges_to_the_exact_time_integral():
     spec = load_scene(SCENES / "led_flicker", ["render.resolution=[12,16]", "render.spp=2"])
-    bases, _ = flicker_bases(spec, Renderer(spec))
+    bases, _ = flicker_bases(spec.resolved.render, Renderer(spec.resolved.render))
     rest, lamp = bases["rest"][0].astype(np.float64), bases["highbeam"][0].astype(np.float64)
     fl = spec.flicker["highbeam"]
     levels = np.array([255, 200, 128, 37, 5, 1])
     mask = np.tile(np.repeat(levels, [3, 3, 3, 3, 2, 2])[None, :], (12, 1)).astype(float)
     # exact: per level, integral of the DMD transmission over the exposure (rest) and over the
     # LED's on-intervals (lamp), from the closed-form cumulative on-time of the schedule
-    cam = Camera.from_scene(spec, NoiseSwitches.off())
+    cam = Camera.from_params(spec.resolved.camera, NoiseSwitches.off())
     sched = cam.schedule(0)
     thr, cr = throughput_on(spec.dmd), spec.dmd.contrast_ratio
 
@@ -157,7 +157,7 @@ def test_led_flicker_capture_converges_to_the_exact_time_integral():
     for k in (4, 16, 64, 256, 1024):
         subs = [(rest + d * lamp).astype(np.float32) for d in drive(node_times_s(t0, t1, k))]
         spec_k = dataclasses.replace(spec, render=dataclasses.replace(spec.render, subframes=k))
-        cap = Camera.from_scene(spec_k, NoiseSwitches.off()).capture(subs, mask, 0, seed=1)
+        cap = Camera.from_params(spec_k.resolved.camera, NoiseSwitches.off()).capture(subs, mask, 0, seed=1)
         errs.append(float(np.max(np.abs(cap.signal_e / exact - 1))))
     print("led_flicker max rel error vs K:", dict(zip((4, 16, 64, 256, 1024), errs)))
     # stiff: K radiance samples of a square-wave drive see each of its ~24 switches per

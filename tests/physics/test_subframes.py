@@ -95,9 +95,9 @@ def test_temporal_error_estimate_tracks_the_true_error_of_the_encoded_plate():
 
     spec = load_scene(SCENES / "fast_pass", ["render.resolution=[92,160]", "render.spp=32",
                                              "render.subframes=5", "timing.frames=2"])
-    cam = Camera.from_scene(spec)
-    r = Renderer(spec, guard_px=cam.guard_px)
-    ex = list(render_exposures(spec, r, progress=False))[1]
+    cam = Camera.from_params(spec.resolved.camera)
+    r = Renderer(spec.resolved.render, guard_px=cam.guard_px)
+    ex = list(render_exposures(spec.resolved.render, r, progress=False))[1]
     mask = oracle_mask(cam, spec.mask, ex.radiance.data, 1)
     est = temporal_error(spec, r, cam, ex, mask)
     t0, t1 = spec.exposure_window_s(1)

@@ -51,7 +51,7 @@ def test_capture_through_the_attenuator_is_the_capture_of_dimmed_radiance():
     """The camera with transmission g exposes exactly what it exposes for radiance x g, and the
     reconstruction divides g out (its exposure carries g)."""
     spec = load_scene(SCENES / "smoke", [f"render.resolution=[{H},{W}]"])
-    cam = Camera.from_scene(spec, NoiseSwitches(False, False, True, False, False, False))
+    cam = Camera.from_params(spec.resolved.camera, NoiseSwitches(False, False, True, False, False, False))
     fw_rad = cam.params.full_well_e / (cam.electrons_per_radiance() * cam.white_exposure_s(0))
     rad = (np.logspace(-1, 1.3, H * W).reshape(H, W) * fw_rad).astype(np.float32)   # 0.1-20x full well
     mask = np.where(np.arange(W)[None, :] < W // 2, cam.top_level, 100.0) * np.ones((H, 1))

@@ -296,7 +296,7 @@ def test_lamp_files_sheeting_tables_psf_and_weights_are_listed_and_travel(lamp_s
     # the loaders themselves: every scene or assets/ file Python opens to load, check and build
     # this scene (lamp and sheeting parsed again by the Mitsuba plugins) and its predictor is listed
     load_distribution.cache_clear()                     # read the lamp file again, not from memory
-    opened = _opened_by_python(lambda: (check_run(load_scene(toml), "render", memory=False), Renderer(spec),
+    opened = _opened_by_python(lambda: (check_run(load_scene(toml), "render", memory=False), Renderer(spec.resolved.render),
                                         make_predictor(spec.predictor.name, spec.predictor.weights,
                                                        spec.predictor.resolution)))
     mine = {p for p in opened if p.startswith((str(folder.resolve()), str(ASSETS_DIR.resolve())))}
@@ -346,7 +346,7 @@ def test_a_frame_source_scene_sends_its_frames_and_csvs(tmp_path):
     listed = {r.key: r.source for r in refs if r.kind == "scene"}
     assert listed == {"scene file": str(toml.resolve()), "source.boxes": str(frames[0].parent / "boxes.csv"),
                       **{f"source.frames[{i}]": str(p) for i, p in enumerate(frames)}}
-    assert set(listed.values()) == {str(toml.resolve())} | {str(p.resolve()) for p in source_files(spec)}
+    assert set(listed.values()) == {str(toml.resolve())} | {str(p.resolve()) for p in source_files(spec.resolved.render)}
     plan = make_plan("bundle", toml, refs)
     work = tmp_path / "worker"
     work.mkdir()

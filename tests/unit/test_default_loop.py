@@ -65,7 +65,7 @@ def _run(folder: Path):
     """(spec, report, per-loop-frame highlight captures, 8-bit) of the scene in `folder`; the
     full-scale radiance from the camera's own electrons per radiance and full well."""
     _write_frames(folder, 1.0)
-    cam = Camera.from_scene(load_scene(folder))
+    cam = Camera.from_params(load_scene(folder).resolved.camera)
     sat = cam.params.full_well_e / (cam.electrons_per_radiance() * cam.white_exposure_s(0))
     _write_frames(folder, sat)
     spec = load_scene(folder)

@@ -22,14 +22,14 @@ from tests.conftest import SCENES
 @pytest.fixture(scope="module")
 def setup():
     spec = load_scene(SCENES / "highbeam_plate", eval_overrides((184, 320), 4, 8, "KA 7391"))
-    cam = Camera.from_scene(spec)
+    cam = Camera.from_params(spec.resolved.camera)
     return spec, cam, calibrate(spec, cam.guard_px)
 
 
 def _boxes(spec, cam, seq, cal):
     """Plate box at the start of each frame's exposure (Renderer.roi_box at the keyframed poses)."""
     t = node_times(spec, seq.frames)[:, 0]
-    r = Renderer(with_poses(spec, np.arange(len(t), dtype=float), poses(seq, cal, spec.timing.fps, t)),
+    r = Renderer(with_poses(spec, np.arange(len(t), dtype=float), poses(seq, cal, spec.timing.fps, t)).resolved.render,
                  guard_px=cam.guard_px)
     out = []
     for i in range(len(t)):

@@ -144,7 +144,8 @@ def _doc_table() -> dict[str, frozenset[str]]:
     """docs/architecture.md's package table: row name (`core/`, `cli.py`, `poevp_optics/__init__.py`)
     -> the backticked package names of its 'may import' column."""
     out = {}
-    for row in re.findall(r"^\|(.+)\|\s*$", DOC.read_text(), re.M):
+    section = DOC.read_text().split("## The package table", 1)[1].split("\n## ", 1)[0]
+    for row in re.findall(r"^\|(.+)\|\s*$", section, re.M):
         cells = [c.strip() for c in row.split("|")]
         if len(cells) != 3 or not cells[0].startswith("`"):
             continue

@@ -135,7 +135,7 @@ def test_predictor_input_per_mode():
     from poevp_optics.control.loop_step import predictor_input
     from poevp_optics.scene.load import load_scene
     spec = load_scene(SCENES / "smoke", ["render.resolution=[8,8]"])
-    cam = Camera.from_scene(spec)
+    cam = Camera.from_params(spec.resolved.camera)
     ldr = SimpleNamespace(dn=np.full((8, 8), float(cam.params.max_dn)))
     enc = SimpleNamespace(dn=np.full((8, 8), 100.0))
     assert np.all(predictor_input("open", cam, ldr, enc, None, None, 0, spec.mask.clipped_gain) == 255)

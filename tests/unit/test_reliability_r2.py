@@ -313,12 +313,12 @@ def test_mitsuba_loader_errors_name_file_line_and_key(scene):
     _edit(scene / "scene.xml", 'value="$ink"', 'value="0.03"')
     with pytest.raises(Exception) as e:
         mi.load_file(str(scene / "scene.xml"), ink="0.0336")
-    line = mitsuba_load_error(str(e.value), spec)
+    line = mitsuba_load_error(str(e.value), spec.resolved.render)
     assert "$ink" in line and "spectra.ink" in line and str(spec.toml_path) in line
     _edit(scene / "scene.xml", "<integrator", '<include filename="nothere.xml"/>\n    <integrator')
     with pytest.raises(Exception) as e:
         mi.load_file(str(scene / "scene.xml"))
-    line = mitsuba_load_error(str(e.value), spec)
+    line = mitsuba_load_error(str(e.value), spec.resolved.render)
     assert "scene.xml: line 8" in line and "nothere.xml" in line and "\n" not in line
 
 

@@ -50,8 +50,8 @@ def test_static_scene_renders_once_to_target():
     spec = load_scene(SCENES / "smoke", ["render.resolution=[24,32]", "motion.plate.velocity_m_per_s=[0.0,0.0,0.0]",
                                          "render.target_rel_error=0.03", "timing.frames=3"])
     assert spec.is_static
-    r = Renderer(spec)
-    exs = list(render_exposures(spec, r, progress=False))
+    r = Renderer(spec.resolved.render)
+    exs = list(render_exposures(spec.resolved.render, r, progress=False))
     assert all(e.target_met and e.rel_error_roi <= 0.03 for e in exs)
     assert exs[0].radiance.data is exs[2].radiance.data      # rendered once, reused
     assert sum(exs[0].spp) * 24 * 32 > 0 and r.stats.calls == exs[0].spp[0] // 2

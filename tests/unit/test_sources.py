@@ -111,7 +111,7 @@ def _response():
 
 def test_radiance_w_is_weighted_by_the_sensor_response(tmp_path):
     d = _exr_scene(tmp_path / "s", EXR.replace("photon_radiance", "radiance_w") + 'spectrum = "cie:A"\n')
-    src = open_source(load_scene(d), 0)
+    src = open_source(load_scene(d).resolved.render, 0)
     spd = spectra.load_spectrum("cie:A", emissive=True)
     k = np.trapezoid(_response() * spd, spectra.WAVELENGTHS_NM) / np.trapezoid(spd, spectra.WAVELENGTHS_NM)
     assert src.factor == pytest.approx(k, rel=1e-12)
@@ -128,7 +128,7 @@ def test_relative_with_a_luminance_anchor(tmp_path):
         reference_frame = 1
         spectrum = "cie:LED-B4"
         """), values=vals)
-    src = open_source(load_scene(d), 0)
+    src = open_source(load_scene(d).resolved.render, 0)
     spd = spectra.load_spectrum("cie:LED-B4", emissive=True)
     v = spectra.photopic_v()
     per_cd = np.trapezoid(_response() * spd, spectra.WAVELENGTHS_NM) / (683.002 * np.trapezoid(v * spd, spectra.WAVELENGTHS_NM))
@@ -138,7 +138,7 @@ def test_relative_with_a_luminance_anchor(tmp_path):
 def test_exposures_carry_roi_text_and_motion_from_boxes(tmp_path):
     d = _exr_scene(tmp_path / "s", EXR + 'boxes = "boxes.csv"\nsubframes = "nearest"\n', n=4)
     (d / "boxes.csv").write_text("frame,x0,y0,x1,y1,text\n0,2,3,6,5,AB 12\n1,4,3,8,5,AB 12\n")
-    exps = list(open_source(load_scene(d), 0).exposures(progress=False))
+    exps = list(open_source(load_scene(d).resolved.render, 0).exposures(progress=False))
     assert exps[0].roi == (3, 2, 5, 8)            # union of frames 0 and 1 (nearest over 0 .. 20 ms)
     gt = exps[0].ground_truth
     assert gt["text"] == "AB 12" and gt["frames"] == ["f_0.exr", "f_1.exr"]
@@ -299,9 +299,9 @@ def test_ldr_video_matches_its_frames(tmp_path):
     for f in frames:
         w.write(cv2.cvtColor(f, cv2.COLOR_GRAY2BGR))
     w.release()
-    a = [e.subframes[0] for e in open_source(load_scene(d), 0).exposures(progress=False)]
+    a = [e.subframes[0] for e in open_source(load_scene(d).resolved.render, 0).exposures(progress=False)]
     (d / "scene.toml").write_text((d / "scene.toml").read_text().replace('frames = "ldr/*.png"', 'video = "clip.avi"'))
-    src = open_source(load_scene(d), 0)
+    src = open_source(load_scene(d).resolved.render, 0)
     b = [e.subframes[0] for e in src.exposures(progress=False)]
     assert src.plan.reason.startswith("video clip.avi (3 frames)")
     for x, y in zip(a, b):
@@ -328,7 +328,7 @@ def test_jpeg_frames_and_gamma_transfer(tmp_path):
         cv2.imwrite(str(d / "ldr" / f"o_{j}.jpg"), np.full((12, 16, 3), 200, np.uint8))
     src = LDR.replace("ldr/*.png", "ldr/*.jpg").replace("e = 9.0", "e = 0.0") + 'transfer = "gamma"\ngamma = 2.2\n'
     (d / "scene.toml").write_text("[source]\n" + src + CAMERA)
-    ex = next(open_source(load_scene(d), 0).exposures(progress=False))
+    ex = next(open_source(load_scene(d).resolved.render, 0).exposures(progress=False))
     rgb = cv2.imread(str(d / "ldr" / "o_0.jpg"))[..., ::-1].astype(float)   # JPEG may move a code
     np.testing.assert_allclose(ex.subframes[0], 1e16 * ((rgb / 255.0) ** 2.2) @ [0.2126, 0.7152, 0.0722], rtol=1e-6)
     assert abs(rgb.mean() - 200) <= 1

@@ -70,7 +70,7 @@ def paper_overrides(e: float, law: str = PAPER_LAW) -> list[str]:
 
 def paper_exposures(spec, cam: Camera) -> list:
     """The sequence's exposures (Eq. 3 radiance on the mirror grid, boxes and text from the CSV)."""
-    return list(open_source(spec, cam.guard_px).exposures(progress=False))
+    return list(open_source(spec.resolved.render, cam.guard_px).exposures(progress=False))
 
 
 def paper_camera_images(runner, spec, cfg):
@@ -89,7 +89,7 @@ def paper_camera_images(runner, spec, cfg):
 
     seq = pc.paper_sequence(spec)
     sensor = resolve_sensor(spec.sensor)
-    images, secs = pc.method_images(seq, cfg.methods, spec.mask, pc.effects_from(cfg.paper_effects), model_of,
+    images, secs = pc.method_images(seq, cfg.methods, spec.resolved.loop.mask, pc.effects_from(cfg.paper_effects), model_of,
                                     contrast_ratio=spec.dmd.contrast_ratio,
                                     saturation_e=sensor.saturation_capacity_e, read_noise_e=sensor.read_noise_e,
                                     seed=spec.sensor.seed)
@@ -105,7 +105,7 @@ def run_paper(cfg, runner_cls, score, shift_px, log=print) -> list[dict]:
     rows, runner, t0 = [], None, time.perf_counter()
     for e in PAPER_E:
         spec = load_scene(cfg.scene, paper_overrides(e, cfg.paper_law))
-        cam = Camera.from_scene(spec)
+        cam = Camera.from_params(spec.resolved.camera)
         if runner is None:
             runner = runner_cls(dataclasses.replace(cfg, loop_mode="open"), spec, cam)
         runner.spec, runner.cam = spec, cam

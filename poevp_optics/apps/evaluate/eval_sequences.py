@@ -34,11 +34,9 @@ import numpy as np
 from poevp_optics import __version__
 from poevp_optics.camera.dmd import node_time_weights_s, node_times_s
 from poevp_optics.core.exceptions import SceneError
-from poevp_optics.core.frame import Frame, Quantity
 from poevp_optics.core.io import atomic_path
 from poevp_optics.core.cache import cache_file, digest, json_digest
 from poevp_optics.core.seeds import render_seeds
-from poevp_optics.core.units import PHOTON_RADIANCE_UNIT
 from poevp_optics.render.exposures import RenderedExposure, rel_error, union_box
 from poevp_optics.sources.ldr_highlight import srgb_to_linear
 from poevp_optics.sources.motion import MotionSpec
@@ -124,7 +122,7 @@ def calibrate(spec, guard_px: int) -> Calibration:
     from poevp_optics.render.renderer import Renderer
 
     probe = with_poses(spec, (0.0, 1.0, 2.0), ((0, 0, 0), (1.0, 0, 0), (0, 0, 4.0)))
-    r = Renderer(probe, guard_px=guard_px)
+    r = Renderer(probe.resolved.render, guard_px=guard_px)
     boxes = []
     for t in (0.0, 1.0, 2.0):
         r.set_time(t)
@@ -200,9 +198,9 @@ def _exposures(spec, renders: dict, times: np.ndarray) -> list[RenderedExposure]
         roi = None
         for k in range(times.shape[1]):
             roi = union_box(roi, renders[i, k][2])
-        frame = Frame(mean.astype(np.float32), Quantity.RADIANCE, PHOTON_RADIANCE_UNIT, t0, t1 - t0, i)
-        out.append(RenderedExposure(i, t0, t1 - t0, times[i], subs, frame, var.astype(np.float32), roi,
-                                    rel_error(mean, var), rel_error(mean, var, roi)))
+        out.append(RenderedExposure.build(i, t0, t1, times[i], subs, mean.astype(np.float32),
+                                          var.astype(np.float32), roi, rel_error(mean, var),
+                                          rel_error(mean, var, roi)))
     return out
 
 
@@ -243,7 +241,7 @@ def render_sequences(spec, seqs: list[SequenceSpec], cal: Calibration, guard_px:
     if missing:
         # one global keyframe timeline: pose m of the missing sequences at time m (s)
         all_offs = np.concatenate([plan[j][2] for j in missing])
-        r = Renderer(with_poses(spec, np.arange(len(all_offs), dtype=float), all_offs), guard_px=guard_px)
+        r = Renderer(with_poses(spec, np.arange(len(all_offs), dtype=float), all_offs).resolved.render, guard_px=guard_px)
         m = 0
         for j in missing:
             seq, times, offs, path = plan[j]

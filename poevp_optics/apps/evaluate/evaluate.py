@@ -232,7 +232,7 @@ class Runner:
         pspec = dataclasses.replace(spec.predictor, name=name)
         if name not in self.models and not PREDICTORS[name].needs_truth:
             self.models[name] = make_predictor(name, pspec.weights, pspec.resolution)
-        step = LoopStep(cam, spec.mask, dataclasses.replace(spec.loop, mode=self.cfg.loop_mode), pspec,
+        step = LoopStep(cam, spec.resolved.loop.mask, dataclasses.replace(spec.loop, mode=self.cfg.loop_mode), pspec,
                         model=self.models.get(name), attenuator=spec.attenuator)
         out, secs = {}, []
         for e, c in zip(ex, ldr):
@@ -328,7 +328,7 @@ def run_evaluation(cfg: EvalConfig, log=print, keep=lambda *a: None) -> list[dic
         mine = [(s, es) for s, es in jobs if s.text == text]
         spec = load_eval_scene(cfg, text, max(s.frames for s, _ in mine))
         if runner is None:
-            runner = Runner(cfg, spec, Camera.from_scene(spec))
+            runner = Runner(cfg, spec, Camera.from_params(spec.resolved.camera))
             cal = calibrate(spec, runner.cam.guard_px)
         runner.spec = spec
         exps = render_sequences(spec, [s for s, _ in mine], cal, runner.cam.guard_px, log=log)

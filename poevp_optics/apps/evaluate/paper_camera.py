@@ -81,7 +81,7 @@ def paper_sequence(spec) -> PaperSequence:
 
     from poevp_optics.camera.sensor import resolve_sensor
 
-    src = LdrHighlightSource(spec, 0, resolve_sensor(spec.sensor).qe)
+    src = LdrHighlightSource(spec.resolved.render, 0, resolve_sensor(spec.sensor).qe)
     sigma = RADIUS_RULES[spec.source.radius_rule](frame_radius_px(spec.source.r_px, src.shape_in))
     hdr, boxes, texts = [], {}, {}
     n = min(spec.timing.frames, len(src.files) if src._video is None else src._video.count)

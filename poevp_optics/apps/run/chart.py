@@ -51,11 +51,11 @@ def settle_mask(spec: SceneSpec, cam: Camera, truth: np.ndarray, white_capture) 
     1 % of mirrors changing their exposure by more than 25 % from one frame to the next."""
     lev = cam.level_exposure_s(0)
     if spec.chart.mask_source == "oracle":
-        return oracle_mask(cam, spec.mask, cam.dmd_image(truth), 0), {"source": "oracle", "frames": 0, "converged": True,
+        return oracle_mask(cam, spec.resolved.loop.mask, cam.dmd_image(truth), 0), {"source": "oracle", "frames": 0, "converged": True,
                                                        "history": []}
     # no [attenuator] here: a global ND scales both ends of one frame's range alike, so it leaves
     # the chart's (intra-frame) dynamic range unchanged
-    step = LoopStep(cam, spec.mask, spec.loop, spec.predictor)
+    step = LoopStep(cam, spec.resolved.loop.mask, spec.loop, spec.predictor)
     source = f"loop ({step.model.name}, {spec.loop.mode})"
     mask, frames = cam.white_mask(), []
     min_level = min(spec.mask.min_level, cam.top_level)
@@ -120,7 +120,7 @@ def measure_camera(spec: SceneSpec, truth_field, regions, lum, dens, true_sig) -
     """LDR (scene bits and 8-bit readout), settled mask, encoded: tables, DR, limits.
     truth_field: the chart rendered with a guard band at least this camera's."""
     t0 = time.perf_counter()
-    cam = Camera.from_scene(spec)
+    cam = Camera.from_params(spec.resolved.camera)
     truth = _center_crop(truth_field, cam.mirror_shape)
     top = cam.top_level
     white = cam.white_mask()
@@ -131,7 +131,7 @@ def measure_camera(spec: SceneSpec, truth_field, regions, lum, dens, true_sig) -
     emva = charts.emva_dr(cam.params, spec.timing.exposure_s)
     if cam.params.bits != 8:
         spec8 = dataclasses.replace(spec, sensor=dataclasses.replace(spec.sensor, bits=8))
-        cam8 = Camera.from_scene(spec8)
+        cam8 = Camera.from_params(spec8.resolved.camera)
         res["tables"]["ldr_8bit"], _, _ = _measure(cam8, spec8, _center_crop(truth_field, cam8.mirror_shape),
                                                    regions, cam8.white_mask(), 1, lum, dens, true_sig)
         res["emva_8bit"] = charts.emva_dr(cam8.params, spec.timing.exposure_s)
@@ -424,9 +424,9 @@ def run_chart(spec: SceneSpec, out_dir: Path, progress: bool = True) -> dict:
         raise SceneError(f"{file}: motion: a dynamic-range chart must be static")
     out_dir = Path(out_dir)
     ref = load_scene(spec.toml_path.parent / spec.chart.reference_camera) if spec.chart.reference_camera else None
-    cam = Camera.from_scene(spec)
-    guard = max(cam.guard_px, Camera.from_scene(_with_camera(spec, ref)).guard_px if ref else 0)
-    renderer = Renderer(spec, guard_px=guard)
+    cam = Camera.from_params(spec.resolved.camera)
+    guard = max(cam.guard_px, Camera.from_params(_with_camera(spec, ref).resolved.camera).guard_px if ref else 0)
+    renderer = Renderer(spec.resolved.render, guard_px=guard)
     names = [spec.chart.param(i) for i in range(spec.chart.patches)]
     expected = np.array([spectra.integrate(renderer.plan.response_e_per_J * absolute_spectrum(spec.spectra[n]))
                          for n in names])

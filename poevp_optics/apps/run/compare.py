@@ -24,7 +24,7 @@ from poevp_optics.core.io import atomic_path, write_png
 from poevp_optics.render.radiance import open_source
 def compare(base, predictors, modes, out: Path, progress=True, frames_shown=4) -> list[dict]:
     """Every predictor x loop mode on one render of the scene `base` (a SceneSpec)."""
-    renderer = open_source(base, Camera.from_scene(base).guard_px)     # the scene's [source] kind
+    renderer = open_source(base.resolved.render, Camera.from_params(base.resolved.camera).guard_px)     # the scene's [source] kind
     exposures = list(renderer.exposures(progress))
     n = base.timing.frames
     shown = tuple(sorted({min(n - 1, max(base.loop.init_frames, round(x))) for x in

@@ -66,7 +66,7 @@ def frame_record(spec, camera, fc, laws) -> dict:
     """The plate's per-frame numbers (module docstring); `laws` from sources.road.scene_laws."""
     ex = fc.exposure
     t0, t1 = spec.timing.exposure_window_s(ex.index)
-    geo = plate_geometry(spec.road, plate_centre_m(spec, 0.5 * (t0 + t1)), *laws)
+    geo = plate_geometry(spec.road, plate_centre_m(spec.resolved.render, 0.5 * (t0 + t1)), *laws)
     box = fc.box
     sat_e = camera.params.saturation_capacity_e
     rec = {"distance_m": geo["camera_distance_m"], "viewing_deg": geo["viewing_deg"], "lamps": geo["lamps"],

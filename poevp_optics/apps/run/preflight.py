@@ -63,7 +63,7 @@ def check_run(spec: SceneSpec, job: str = "render", *, workers: int = 1, memory:
     check_relay(spec)                # the memory estimate reads the PSF file's size
     est = check_memory(spec, job, workers=workers) if memory else None
     if spec.source.renders:
-        plan = plan_spectra(spec)
+        plan = plan_spectra(spec.resolved.render)
         check_xml_references(spec, plan.xml_params)
         check_emitters(spec, plan.response_e_per_J)
         check_variant(spec, plan)
@@ -75,7 +75,7 @@ def check_run(spec: SceneSpec, job: str = "render", *, workers: int = 1, memory:
     if load and spec.source.renders:
         from poevp_optics.render.renderer import Renderer
 
-        Renderer(spec)
+        Renderer(spec.resolved.render)
     return Preflight(plan, est)
 
 
@@ -85,7 +85,7 @@ def check_frame_source(spec: SceneSpec):
     from poevp_optics.camera.camera import Camera
     from poevp_optics.render.radiance import check_frame_source as check
 
-    return check(spec, Camera.from_scene(spec).guard_px)
+    return check(spec.resolved.render, Camera.from_params(spec.resolved.camera).guard_px)
 
 
 def _fail(spec: SceneSpec, key: str, msg: str) -> SceneError:

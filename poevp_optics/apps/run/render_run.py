@@ -95,7 +95,7 @@ def _capture(spec, camera: Camera, step: LoopStep | None, ex: RenderedExposure, 
         if step.needs_truth and not cmd.decision.init:   # the oracle's own decision: not computed twice
             oracle, oracle_g = cmd.decision.levels, cmd.decision.transmission
         else:
-            oracle, oracle_g = oracle_decision(camera, spec.mask, truth, i, spec.attenuator)
+            oracle, oracle_g = oracle_decision(camera, spec.resolved.loop.mask, truth, i, spec.attenuator)
         res.stage_seconds["mask"] += time.perf_counter() - tm
         mask = cmd.levels
         enc = camera.capture(subs, mask, i, capture_seed(spec.sensor.seed, spec.render.seed, i, ENCODED_STREAM),
@@ -257,8 +257,7 @@ def loop_step_of(spec, camera: Camera) -> LoopStep | None:
     from poevp_optics.control.predictors.dmvfn import WeightsError
 
     try:
-        return LoopStep(camera, spec.mask, spec.loop, spec.predictor, budget=spec.budget,
-                        attenuator=spec.attenuator)
+        return LoopStep.from_params(camera, spec.resolved.loop)
     except WeightsError as e:
         raise SceneError(f"{spec.toml_path}: predictor.weights: {e}") from None
 
@@ -274,8 +273,8 @@ def run_frames(spec, out_dir: Path, progress: bool = True, *, renderer=None,
     captures come back in the second value."""
     out_dir = Path(out_dir)
     t_run = time.perf_counter()
-    camera = Camera.from_scene(spec)
-    renderer = renderer or open_source(spec, camera.guard_px)       # the scene's [source] kind
+    camera = Camera.from_params(spec.resolved.camera)
+    renderer = renderer or open_source(spec.resolved.render, camera.guard_px)       # the scene's [source] kind
     if renderer.guard_px != camera.guard_px:
         raise ValueError(f"renderer guard band {renderer.guard_px} px != camera's {camera.guard_px} px")
     step = loop_step_of(spec, camera)
@@ -298,6 +297,8 @@ def run_frames(spec, out_dir: Path, progress: bool = True, *, renderer=None,
     else:
         temporal = temporal_error(spec, renderer, camera, *(res.mid_frame or (None, None)))
     report = build_report(spec, renderer, camera, step, res, setup_s=setup_s, t_run=t_run, temporal=temporal)
+    if spec.resolved.derived:          # values the scene computed from other keys (scene/resolve.py)
+        report["derived"] = dict(spec.resolved.derived)
     if spec.defaults_applied:          # the best loop the scene did not choose (scene/defaults.py)
         report["defaults_applied"] = list(spec.defaults_applied)
         report["notes"].append("defaults applied (the scene chose no mask law / loop mode / predictor): "

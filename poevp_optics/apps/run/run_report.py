@@ -207,7 +207,7 @@ def camera_sections(spec, camera, floor) -> dict:
                  "attenuation_floor": floor} if camera.dmd else None),
         "mask": ({"law": spec.mask.law, "vs": spec.mask.vs, "a": spec.mask.a, "b": spec.mask.b,
                   "target": spec.mask.target, "smooth_px": spec.mask.smooth_px,
-                  "predictor": spec.predictor.name, **_controller_keys(spec.mask)} if camera.dmd else None),
+                  "predictor": spec.predictor.name, **_controller_keys(spec.resolved.loop.mask)} if camera.dmd else None),
     }
 
 

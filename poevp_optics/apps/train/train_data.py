@@ -167,7 +167,7 @@ def _probe(spec, poses) -> list:
     from poevp_optics.apps.evaluate.eval_sequences import with_poses
     from poevp_optics.render.renderer import Renderer
 
-    r = Renderer(with_poses(spec, tuple(float(t) for t in range(len(poses))), tuple(poses)))
+    r = Renderer(with_poses(spec, tuple(float(t) for t in range(len(poses))), tuple(poses)).resolved.render)
     out = []
     for t in range(len(poses)):
         r.set_time(float(t))

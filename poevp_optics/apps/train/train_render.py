@@ -26,7 +26,7 @@ def _camera(spec):
     key = (str(spec.toml_path), tuple(spec.render.resolution), spec.timing.exposure_s, spec.sensor.seed)
     if key not in _CAMERAS:
         _CAMERAS.clear()
-        _CAMERAS[key] = Camera.from_scene(spec)
+        _CAMERAS[key] = Camera.from_params(spec.resolved.camera)
     return _CAMERAS[key]
 
 
@@ -38,7 +38,7 @@ def render_frames(spec) -> tuple[np.ndarray, np.ndarray]:
     from poevp_optics.render.renderer import Renderer
 
     cam = _camera(spec)
-    r = Renderer(spec, guard_px=cam.guard_px)
+    r = Renderer(spec.resolved.render, guard_px=cam.guard_px)
     white = cam.white_mask()
     frames, boxes = [], []
     for i in range(spec.timing.frames):

@@ -47,8 +47,8 @@ def render_ldr_sequence(overrides: list[str], frames: int, seed: int) -> np.ndar
     from poevp_optics.render.renderer import Renderer
     from poevp_optics.scene.load import load_scene
     spec = load_scene(SCENE, [*overrides, f"timing.frames={frames}", f"render.seed={seed}"])
-    cam = Camera.from_scene(spec)
-    r = Renderer(spec, guard_px=cam.guard_px)
+    cam = Camera.from_params(spec.resolved.camera)
+    r = Renderer(spec.resolved.render, guard_px=cam.guard_px)
     out = []
     white = cam.white_mask()
     for i in range(frames):
