@@ -8,15 +8,15 @@
 | measured  | an image (PNG/EXR, sensor-pixel sampling) from assets/ or the scene folder | the file |
 
 Veiling glare (`glare_fraction` g > 0, any psf): the kernel becomes (1 - g) core + g halo, the
-halo a Gaussian of `glare_sigma_px` (a stray-light pedestal; lenses have veiling-glare indices of
-about 1-5 %, ISO 9358). With a delta core and g = 0 the stage is skipped.
+halo glare.py's `gaussian` entry of `GLARE_MODELS` with sigma `glare_sigma_px` (a stray-light
+pedestal; lenses have veiling-glare indices of about 1-5 %, ISO 9358). With a delta core and g = 0
+the stage is skipped.
 
 Kernels are normalised to unit sum, so the convolution conserves flux. The camera renders a
 guard band of the kernel's radius around the sensor's field (light from beyond the field's edge
 spills in, as from the DMD's outer mirrors) and crops it after the blur; `convolve` continues
-the image by reflection beyond what was rendered. Kernels up to 15 px wide are applied directly (OpenCV, float64), larger
-ones by FFT in float64 (torch.fft) (a float32 FFT would put a noise floor at ~1e-7 of the peak into the dark
-parts of a 200 dB scene). Support (an accuracy setting) defaults to the radius that holds
+the image by reflection beyond what was rendered (convolution.py's `convolve_reflect`, shared
+with the objective: direct up to 15 px, else a float64 FFT). Support (an accuracy setting) defaults to the radius that holds
 99.9 % of the untruncated kernel's energy; the missing energy is reported as truncation error.
 
 Wide kernels are capped at 2 max(H, W) - 1 px for an H x W image (`max_support_px`): a tap
@@ -37,13 +37,13 @@ from typing import Callable
 
 import numpy as np
 
+from poevp_optics.camera.convolution import DIRECT_MAX_PX, convolve_reflect, fft_bytes, fft_shape, pad_to  # noqa: F401
+from poevp_optics.camera.glare import GLARE_MODELS, GaussianHalo, gaussian_radius_px
+from poevp_optics.camera.kernels import STRIP_SAMPLES, cap_note, capped_radius, max_radius_px, pixel_integrated  # noqa: F401
 from poevp_optics.core.params import param
 from poevp_optics.core.paths import ASSETS_DIR
 from poevp_optics.core.registry import Registry
 
-DIRECT_MAX_PX = 15
-#: Fine samples evaluated at once while building a kernel (bounds its temporary memory).
-STRIP_SAMPLES = 1 << 22
 
 
 @dataclass(frozen=True)
@@ -60,52 +60,19 @@ class PSF:
 def max_support_px(image_shape) -> int:
     """Widest kernel (odd, px) that can matter for an image of `image_shape` (H, W): a tap
     farther than the image's extent moves light only off the image."""
-    return 2 * max(int(image_shape[0]), int(image_shape[1])) - 1
+    return 2 * max_radius_px(image_shape) + 1
 
 
-def _capped_radius(r: int, cap_px: int | None) -> int:
-    return r if cap_px is None else max(min(r, (cap_px - 1) // 2), 0)
-
-
-def _cap_note(wanted_r: int, r: int) -> str:
-    if r >= wanted_r:
-        return ""
-    return (f"support capped at {2 * r + 1} px (asked for {2 * wanted_r + 1} px): wider taps only "
-            "move light off the image; the energy beyond the cap is in the truncation error")
-
-
-def _pixel_integrated(profile, radius_px: int, oversample: int = 7) -> np.ndarray:
-    """Sample a radial profile f(r_px) on `oversample`^2 points per pixel and bin it; built in
-    row strips of at most `STRIP_SAMPLES` fine samples (memory does not grow with n^2 o^2)."""
-    n = 2 * radius_px + 1
-    c = (np.arange(n * oversample) + 0.5) / oversample - (n / 2)
-    out = np.empty((n, n))
-    rows = max(1, STRIP_SAMPLES // (n * oversample * oversample))
-    for i0 in range(0, n, rows):
-        i1 = min(n, i0 + rows)
-        x, y = np.meshgrid(c, c[i0 * oversample:i1 * oversample])
-        fine = profile(np.hypot(x, y))
-        out[i0:i1] = fine.reshape(i1 - i0, oversample, n, oversample).sum(axis=(1, 3))
-    return out
-
-
-def gaussian_radius_px(sigma_px: float, support_px: int = 0, energy: float = 0.9995) -> int:
-    """Kernel radius (px) before any cap: support_px // 2, or the radius holding `energy`."""
-    # 2-D Gaussian: energy outside radius r is exp(-r^2 / (2 sigma^2))
-    if support_px:
-        return support_px // 2
-    return max(int(math.ceil(sigma_px * math.sqrt(-2 * math.log(1 - energy)))), 1)
+def _cap_radius(cap_px: int | None) -> int | None:
+    return None if cap_px is None else (cap_px - 1) // 2
 
 
 def gaussian_psf(sigma_px: float, support_px: int = 0, energy: float = 0.9995,
                  cap_px: int | None = None) -> PSF:
-    """Pixel-integrated Gaussian; cap_px: widest support allowed (`max_support_px`)."""
-    wanted = gaussian_radius_px(sigma_px, support_px, energy)
-    r = _capped_radius(wanted, cap_px)
-    k = _pixel_integrated(lambda rr: np.exp(-0.5 * (rr / sigma_px) ** 2), r)
-    # energy outside the square support, from the radial Gaussian tail (a lower bound)
-    trunc = math.exp(-0.5 * ((r + 0.5) / sigma_px) ** 2)
-    return PSF("gaussian", k / k.sum(), trunc, _cap_note(wanted, r))
+    """Pixel-integrated Gaussian (glare.py's `GaussianHalo`); cap_px: widest support allowed
+    (`max_support_px`)."""
+    g = GaussianHalo(sigma_px, support_px, energy).kernel(_cap_radius(cap_px))
+    return PSF("gaussian", g.kernel, g.truncation_error, g.note)
 
 
 def _airy_band(band_nm: np.ndarray, weights: np.ndarray):
@@ -134,7 +101,7 @@ def airy_psf(f_number: float, pixel_pitch_m: float, band_nm: np.ndarray, weights
     lam_m, w, lam_mean = _airy_band(band_nm, weights)
     # encircled energy of the Airy pattern: 1 - J0(x)^2 - J1(x)^2 -> tail ~ 2 / (pi x)
     wanted = airy_radius_px(f_number, pixel_pitch_m, band_nm, weights, support_px, energy)
-    r = _capped_radius(wanted, cap_px)
+    r = capped_radius(wanted, _cap_radius(cap_px))
 
     # radial profile on a fine 1-D grid (1/64 px), interpolated onto the 2-D sub-pixel grid
     r_grid = np.arange(0, (r + 1) * math.sqrt(2) + 1, 1 / 64)
@@ -148,12 +115,12 @@ def airy_psf(f_number: float, pixel_pitch_m: float, band_nm: np.ndarray, weights
     def profile(r_px):
         return np.interp(r_px, r_grid, prof)
 
-    k = _pixel_integrated(profile, r)
+    k = pixel_integrated(profile, r)
     from scipy.special import j0
 
     x_edge = math.pi * (r + 0.5) * pixel_pitch_m / (lam_mean * f_number)
     trunc = float(j0(x_edge) ** 2 + j1(x_edge) ** 2)
-    return PSF("airy", k / k.sum(), trunc, _cap_note(wanted, r))
+    return PSF("airy", k / k.sum(), trunc, cap_note(wanted, r))
 
 
 class PSFFileError(ValueError):
@@ -191,13 +158,13 @@ def measured_psf(path: Path, support_px: int = 0, cap_px: int | None = None) -> 
     total = img.sum()
     trunc = 0.0
     wanted = img.shape[0] // 2
-    r = _capped_radius(support_px // 2 if support_px else wanted, cap_px)
+    r = capped_radius(support_px // 2 if support_px else wanted, _cap_radius(cap_px))
     if r < wanted:
         c = img.shape[0] // 2
         cut = img[c - r:c + r + 1, c - r:c + r + 1]
         trunc = 1 - cut.sum() / total
         img = cut
-    note = _cap_note(support_px // 2 if support_px else wanted, r) if cap_px is not None else ""
+    note = cap_note(support_px // 2 if support_px else wanted, r) if cap_px is not None else ""
     return PSF("measured", img / img.sum(), float(trunc), note)
 
 
@@ -276,11 +243,11 @@ def kernel_size_px(spec: RelaySpec, ctx: PSFContext) -> int:
     (1 when the stage is skipped): for the memory estimate and the guard band."""
     radii = [PSFS[spec.psf].radius_px(spec, ctx)]
     if spec.glare_fraction > 0:
-        radii.append(gaussian_radius_px(spec.glare_sigma_px, ctx.support_px, ctx.support_energy))
+        radii.append(_glare_halo(spec, ctx).radius_px())
     r = max(radii)
     if r == 0:
         return 1
-    return 2 * _capped_radius(r, ctx.cap_px) + 1
+    return 2 * capped_radius(r, _cap_radius(ctx.cap_px)) + 1
 
 
 def build_psf(spec: RelaySpec, ctx: PSFContext) -> PSF | None:
@@ -290,65 +257,25 @@ def build_psf(spec: RelaySpec, ctx: PSFContext) -> PSF | None:
     g = spec.glare_fraction
     if g <= 0:
         return core
-    halo = gaussian_psf(spec.glare_sigma_px, ctx.support_px, ctx.support_energy, ctx.cap_px)
+    halo = _glare_halo(spec, ctx).kernel(_cap_radius(ctx.cap_px))
     ck = core.kernel if core else np.ones((1, 1))
     n = max(ck.shape[0], halo.kernel.shape[0])
-    k = (1 - g) * _pad_to(ck, n) + g * _pad_to(halo.kernel, n)
+    k = (1 - g) * pad_to(ck, n) + g * pad_to(halo.kernel, n)
     trunc = (1 - g) * (core.truncation_error if core else 0.0) + g * halo.truncation_error
     note = "; ".join(x for x in ((core.note if core else ""), halo.note and f"glare halo {halo.note}") if x)
     return PSF(f"{core.name if core else 'delta'}+glare", k / k.sum(), trunc, note)
 
 
-def _pad_to(k: np.ndarray, n: int) -> np.ndarray:
-    p = (n - k.shape[0]) // 2
-    return np.pad(k, p) if p else k
-
-
-def fft_shape(image_shape, kernel_px: int) -> tuple[int, int]:
-    """FFT size for a same-size convolution of an image, continued by reflection over the
-    kernel's reach on each side, with an odd kernel: the padded image (no wrap-around reaches the
-    kept part), the reach limited to the image extent, rounded up to a fast FFT length. At most
-    about (3H - 2) x (3W - 2), whatever the kernel."""
-    from scipy.fft import next_fast_len
-
-    r = kernel_px // 2
-    h, w = int(image_shape[0]), int(image_shape[1])
-    return (next_fast_len(h + 2 * min(r, h - 1), real=True), next_fast_len(w + 2 * min(r, w - 1), real=True))
-
-
-def fft_bytes(image_shape, kernel_px: int) -> int:
-    """Peak bytes of `convolve`'s FFT path: padded image and kernel (float64), their spectra and
-    product (complex128), the inverse transform and the float64 copies of image and kernel."""
-    fh, fw = fft_shape(image_shape, kernel_px)
-    spectrum = fh * (fw // 2 + 1) * 16
-    return 3 * spectrum + 2 * fh * fw * 8 + 2 * int(image_shape[0]) * int(image_shape[1]) * 8
+def _glare_halo(spec: RelaySpec, ctx: PSFContext):
+    """The relay's glare halo: glare.py's `gaussian` entry, shaped by [relay] and the accuracy."""
+    return GLARE_MODELS["gaussian"].from_keys(spec, ctx.support_px, ctx.support_energy)
 
 
 def convolve(image: np.ndarray, psf: PSF) -> np.ndarray:
-    """Linear convolution, same size. Beyond the image the field is continued by reflection
-    (the DMD-plane image does not end at the sensor's edge: the camera renders a guard band of
-    the PSF's radius and crops it, and reflection stands in for anything beyond the guard).
-
-    Kernels up to DIRECT_MAX_PX wide: direct (OpenCV); wider: FFT (`fft_shape`), exact in
-    float64 and with a cost set by the image, not the kernel."""
-    import cv2
-    import torch
-
-    k = psf.kernel
+    """Linear convolution, same size, clipped at 0, in the image's float dtype (float64 for
+    others). Beyond the image the field is continued by reflection (the DMD-plane image does not
+    end at the sensor's edge: the camera renders a guard band of the PSF's radius and crops it,
+    and reflection stands in for anything beyond the guard): convolution.convolve_reflect."""
     img = np.asarray(image)
-    if k.shape[0] <= DIRECT_MAX_PX:
-        # OpenCV correlates: flip the kernel for a convolution
-        out = cv2.filter2D(img.astype(np.float64), -1, np.ascontiguousarray(k[::-1, ::-1]),
-                           borderType=cv2.BORDER_REFLECT)
-    else:
-        h, w_ = img.shape
-        c = k.shape[0] // 2
-        ry, rx = min(c, h - 1), min(c, w_ - 1)        # taps reaching past the reflected image are dropped
-        k = k[c - ry:c + ry + 1, c - rx:c + rx + 1]
-        padded = np.pad(img.astype(np.float64), ((ry, ry), (rx, rx)), mode="symmetric")
-        fh, fw = fft_shape(img.shape, 2 * c + 1)
-        fi = torch.fft.rfft2(torch.from_numpy(padded), s=(fh, fw))
-        fi *= torch.fft.rfft2(torch.from_numpy(np.ascontiguousarray(k)), s=(fh, fw))
-        full = torch.fft.irfft2(fi, s=(fh, fw)).numpy()
-        out = full[2 * ry:2 * ry + h, 2 * rx:2 * rx + w_]
-    return np.maximum(out, 0.0).astype(image.dtype if np.issubdtype(np.asarray(image).dtype, np.floating) else np.float64)
+    out = convolve_reflect(img, psf.kernel)
+    return np.maximum(out, 0.0).astype(img.dtype if np.issubdtype(img.dtype, np.floating) else np.float64)

@@ -29,7 +29,7 @@ DMD) and the sensor's QE.
 | wavelengths_nm         | tuple  | nm    | ()        | physics  | explicit wavelengths, weighted by the sensor response there; () = the sensor band |
 | vignetting             | str    | -     | "none"    | physics  | registry `VIGNETTING`: none, cos4, prescription |
 | glare_fraction         | float  | -     | 0.0       | physics  | g: share of the image-plane energy in the glare halo (ISO 9358 VGI ~ 1-5 %) |
-| glare_model            | str    | -     | "power_law" | physics | registry `GLARE_MODELS` |
+| glare_model            | str    | -     | "power_law" | physics | registry `GLARE_MODELS` (camera/glare.py): the halos the [objective] keys shape |
 | glare_exponent         | float  | -     | 2.0       | physics  | n in the halo's r^-n (a Harvey-model slope typical of polished optics, Stover, Optical Scattering, 3rd ed.) |
 | glare_core_radius_deg  | float  | deg   | 0.05      | physics  | halo flat inside this field angle from the source |
 | glare_outer_radius_deg | float  | deg   | 30.0      | physics  | halo ends here (capped at the image's extent; the rest is reported as truncation) |
@@ -39,7 +39,8 @@ DMD) and the sensor's QE.
 | support_energy         | float  | -     | 0.999     | accuracy | PSF kernels keep the square holding this energy; the rest is reported |
 | guard_max_px           | int    | px    | 256       | accuracy | widest guard band rendered for the objective's kernels |
 
-Registries (core.registry, name -> entry with its source): `OBJECTIVE_PSFS`, `PRESCRIPTIONS`, `VIGNETTING`, `GLARE_MODELS`.
+Registries (core.registry, name -> entry with its source): `OBJECTIVE_PSFS`, `PRESCRIPTIONS`, `VIGNETTING`, and
+the camera's one glare registry `GLARE_MODELS` (camera/glare.py, shared with the relay's Gaussian halo).
 Adding one is one entry.
 
 Spatially varying blur: the PSF is computed at a grid of field nodes and the image is blurred as
@@ -47,7 +48,8 @@ sum_n K_n * (w_n x), w_n the bilinear hat weights of node n (a partition of unit
 point's PSF is the bilinear interpolation of its four neighbouring node PSFs, so every source
 keeps its flux and a constant PSF gives exactly the plain convolution (Nagy & O'Leary, SIAM J.
 Sci. Comput. 19(4), 1998, "Restoring images degraded by spatially variant blur"). Each node is
-an overlap-add of FFT convolutions (float64) over the tiles its weight covers.
+an overlap-add of FFT convolutions (float64) over the tiles its weight covers. The convolutions
+are camera/convolution.py's, shared with the relay (`convolve_reflect`, `field_convolve`).
 
 Borders, as in relay.convolve: the image is continued by reflection over the kernel's reach;
 the camera renders a guard band of `radius_px(params, footprint)` around the sensor's footprint
@@ -69,7 +71,8 @@ The prescription PSF grid is cached on disk ($POEVP_CACHE_DIR/objective, default
 shape, cache.py's CACHE_VERSION and optiland's version (optiland import + numba JIT take
 seconds).
 
-One job per module (`from poevp_optics.camera.objective import X` serves every name):
+One job per module (`from poevp_optics.camera.objective import X` serves every name, including those of
+camera/convolution.py, camera/glare.py and camera/kernels.py it uses):
 
 | module           | holds |
 |------------------|-------|
@@ -78,24 +81,24 @@ One job per module (`from poevp_optics.camera.objective import X` serves every n
 | psfs.py          | `PSFGrid` and the `OBJECTIVE_PSFS` builders (delta, gaussian, airy, prescription), `psf_grid` |
 | cache.py         | the on-disk cache of PSF grids and RI tables (`cache_key`, `CACHE_VERSION`) |
 | vignetting.py    | `VIGNETTING` entries, `relative_illumination`, `ri_profile` |
-| glare.py         | `GLARE_MODELS` entries, `glare_kernel`, `glare_floor` (VGI) |
-| convolution.py   | `convolve_reflect`, `field_convolve` (bilinear PSF interpolation) |
+| glare.py         | the halo from camera/glare.py's `GLARE_MODELS`, `glare_kernel`, `glare_floor` (VGI) |
 | stage.py         | `apply`, `radius_px` (guard band), `is_identity`, `summary` |
 | memory.py        | `radius_bound_px`, `memory_bytes` (apps/run/memory.py's estimate) |
 """
 
-from poevp_optics.camera.objective.params import (ACCURACY_KEYS, DEFAULT_F_NUMBER, GLARE_MODELS, OBJECTIVE_PSFS,
-                                                  PRESCRIPTIONS, VIGNETTING, ObjectiveParamError, ObjectiveParams,
-                                                  ObjectiveSpec, band, sensor_band)
+from poevp_optics.camera.objective.params import (ACCURACY_KEYS, DEFAULT_F_NUMBER, OBJECTIVE_PSFS, PRESCRIPTIONS,
+                                                  VIGNETTING, ObjectiveParamError, ObjectiveParams, ObjectiveSpec, band,
+                                                  sensor_band)
 from poevp_optics.camera.objective.prescriptions import Prescription, build_lens, check_field, corner_radius_m
 from poevp_optics.camera.objective.cache import CACHE_VERSION, cache_key
-from poevp_optics.camera.objective.psfs import (PSFEntry, PSFGrid, airy_radius_px, max_radius_px, node_positions_px,
-                                                pixel_integrated_radial, psf_grid)
+from poevp_optics.camera.kernels import max_radius_px, pixel_integrated_radial
+from poevp_optics.camera.objective.psfs import PSFEntry, PSFGrid, airy_radius_px, node_positions_px, psf_grid
 from poevp_optics.camera.objective.vignetting import (VignettingEntry, field_angle_rad, relative_illumination,
                                                       ri_profile)
-from poevp_optics.camera.objective.glare import (GlareKernel, glare_floor, glare_kernel, glare_radii_px,
-                                                 power_law_energy_beyond, power_law_halo)
-from poevp_optics.camera.objective.convolution import convolve_reflect, field_convolve
+from poevp_optics.camera.glare import (GLARE_MODELS, GlareKernel, glare_radii_px, power_law_energy_beyond,
+                                       power_law_halo)
+from poevp_optics.camera.objective.glare import glare_floor, glare_kernel
+from poevp_optics.camera.convolution import convolve_reflect, field_convolve
 from poevp_optics.camera.objective.stage import apply, is_identity, radius_px, summary
 from poevp_optics.camera.objective.memory import memory_bytes, radius_bound_px
 

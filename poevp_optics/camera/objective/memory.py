@@ -7,9 +7,11 @@ import math
 
 import numpy as np
 
-from poevp_optics.camera.objective.glare import glare_radii_px
+from poevp_optics.camera.convolution import fft_bytes
+from poevp_optics.camera.glare import glare_radii_px
+from poevp_optics.camera.kernels import max_radius_px
 from poevp_optics.camera.objective.params import ObjectiveParams, band
-from poevp_optics.camera.objective.psfs import airy_radius_px, max_radius_px
+from poevp_optics.camera.objective.psfs import airy_radius_px
 
 def radius_bound_px(params: ObjectiveParams, image_shape) -> int:
     """An upper bound of `radius_px` without building a kernel (the memory estimate): the glare
@@ -31,10 +33,8 @@ def radius_bound_px(params: ObjectiveParams, image_shape) -> int:
 def memory_bytes(params: ObjectiveParams, image_shape, subframes: int) -> int:
     """Peak bytes of the stage on an image of `image_shape` (upper bound, from `radius_bound_px`):
     the PSF grid, the reflected and accumulated float64 images of `field_convolve`, one full-size
-    FFT each for the PSF and the glare (relay.fft_bytes), the relative illumination, and the
+    FFT each for the PSF and the glare (convolution.fft_bytes), the relative illumination, and the
     camera's float32 outputs of `subframes` images (kept for the frame's captures)."""
-    from poevp_optics.camera.relay import fft_bytes
-
     h, w = int(image_shape[0]), int(image_shape[1])
     r = radius_bound_px(params, image_shape)
     nodes = (2 * params.field_samples - 1) ** 2 if params.psf == "prescription" else 1

@@ -11,6 +11,7 @@ from typing import get_type_hints
 
 import numpy as np
 
+from poevp_optics.camera.glare import models_of
 from poevp_optics.core import spectra
 from poevp_optics.core.exceptions import ParamError
 from poevp_optics.core.params import Where, check_value, param
@@ -26,7 +27,9 @@ DEFAULT_F_NUMBER = 2.8 / (3.45e-6 / 7.56e-6)
 OBJECTIVE_PSFS = Registry("objective PSF")
 PRESCRIPTIONS = Registry("lens prescription")
 VIGNETTING = Registry("vignetting model")
-GLARE_MODELS = Registry("glare model")
+#: objective.glare_model's choices: the entries of camera/glare.py's `GLARE_MODELS` (the one
+#: glare registry, re-exported here) that the [objective] keys shape.
+OBJECTIVE_GLARE_MODELS = models_of("objective")
 
 
 class ObjectiveParamError(ParamError):
@@ -45,7 +48,7 @@ class ObjectiveSpec:
     wavelengths_nm: tuple[float, ...] = param((), min=spectra.WAVELENGTH_MIN_NM, max=spectra.WAVELENGTH_MAX_NM)
     vignetting: str = param("none", choices=VIGNETTING)
     glare_fraction: float = param(0.0, min=0.0, max=0.5)
-    glare_model: str = param("power_law", choices=GLARE_MODELS)
+    glare_model: str = param("power_law", choices=OBJECTIVE_GLARE_MODELS)
     glare_exponent: float = param(2.0, gt=0.5, max=6.0)
     glare_core_radius_deg: float = param(0.05, gt=1e-4, max=10.0)
     glare_outer_radius_deg: float = param(30.0, gt=1e-4, max=89.0)

@@ -11,6 +11,7 @@ from typing import Callable
 
 import numpy as np
 
+from poevp_optics.camera.kernels import cap_note, max_radius_px, pixel_integrated_radial
 from poevp_optics.camera.objective.cache import cache_key, resolve_cache_dir, save_npz
 from poevp_optics.camera.objective.params import (OBJECTIVE_PSFS, ObjectiveParamError, ObjectiveParams, band,
                                                   sensor_band)
@@ -46,33 +47,6 @@ def node_positions_px(field_samples: int, size: int) -> np.ndarray:
     return c + np.linspace(-1.0, 1.0, 2 * field_samples - 1) * c
 
 
-def pixel_integrated_radial(profile, radius_px: int, oversample: int) -> np.ndarray:
-    """Integrate a radial profile f(r_px) over each pixel of a (2R+1)^2 kernel by the midpoint
-    rule on oversample^2 sub-pixels; one quadrant is computed and mirrored (the profile is
-    radial), in row strips (memory stays ~ 4 M samples)."""
-    n = radius_px + 1
-    sub = (np.arange(oversample) + 0.5) / oversample - 0.5
-    cols = (np.arange(n)[:, None] + sub[None, :]).ravel()
-    quad = np.empty((n, n))
-    rows_per = max(1, (1 << 22) // (n * oversample * oversample))
-    for i0 in range(0, n, rows_per):
-        i1 = min(n, i0 + rows_per)
-        rows = (np.arange(i0, i1)[:, None] + sub[None, :]).ravel()
-        f = profile(np.hypot(rows[:, None], cols[None, :]))
-        quad[i0:i1] = f.reshape(i1 - i0, oversample, n, oversample).mean(axis=(1, 3))
-    full = np.empty((2 * radius_px + 1, 2 * radius_px + 1))
-    full[radius_px:, radius_px:] = quad
-    full[:radius_px, radius_px:] = quad[:0:-1]
-    full[:, :radius_px] = full[:, :radius_px:-1]
-    return full
-
-
-def max_radius_px(image_shape) -> int:
-    """Widest kernel radius that can matter for an image of this shape (relay.max_support_px):
-    a tap farther than the image's extent moves light only off the image."""
-    return max(int(image_shape[0]), int(image_shape[1])) - 1
-
-
 def _single(name, kernel, trunc, note=""):
     k = kernel / kernel.sum()
     return PSFGrid(name, np.zeros(1), np.zeros(1), k[None, None], float(trunc), note)
@@ -87,11 +61,6 @@ def _gaussian_grid(params: ObjectiveParams, image_shape, cache_dir=None) -> PSFG
     k = pixel_integrated_radial(lambda rr: np.exp(-0.5 * (rr / s) ** 2), r, 7)
     trunc = math.exp(-0.5 * ((r + 0.5) / s) ** 2)
     return _single("gaussian", k, trunc, cap_note(want, r))
-
-
-def cap_note(want, r):
-    return "" if r >= want else (f"support capped at {2 * r + 1} px by the image's extent (asked for "
-                                 f"{2 * want + 1} px); the energy beyond is in the truncation error")
 
 
 def airy_radius_px(params: ObjectiveParams) -> int:

@@ -7,8 +7,9 @@ import math
 
 import numpy as np
 
-from poevp_optics.camera.objective.convolution import convolve_reflect, field_convolve
-from poevp_optics.camera.objective.glare import GlareKernel, glare_kernel
+from poevp_optics.camera.convolution import convolve_reflect, field_convolve
+from poevp_optics.camera.glare import GlareKernel
+from poevp_optics.camera.objective.glare import glare_kernel
 from poevp_optics.camera.objective.params import ObjectiveParams, band
 from poevp_optics.camera.objective.prescriptions import corner_radius_m
 from poevp_optics.camera.objective.psfs import PSFGrid, psf_grid

@@ -1,0 +1,179 @@
+"""The camera's convolutions (objective and relay): same-size linear convolution of an image
+continued by reflection beyond its border, shift-invariant (`convolve_reflect`) or field-varying
+over a grid of PSFs (`field_convolve`), in float64.
+
+Borders: the image is continued by mirror reflection (`np.pad` mode "symmetric", OpenCV
+BORDER_REFLECT: ...cba|abc...) over the kernel's reach, the reach limited to the image's extent
+(taps beyond the reflected image are dropped); the camera renders a guard band of the kernel's
+radius and crops it afterwards, so reflection stands in only for what lies beyond the guard.
+
+Methods (`convolve_reflect`):
+- kernels up to `DIRECT_MAX_PX` wide: direct (OpenCV filter2D, float64), faster than an FFT of
+  the whole image for small kernels (1080 x 1920, 7 px: 9 ms vs 42 ms on 2 shared cores);
+- wider: one real FFT (scipy.fft, float64) of the padded image at `fft_shape` (no wrap-around
+  reaches the kept part), so the cost is set by the image, not the kernel. The kernel's spectrum
+  is cached by (kernel identity, cropped size, FFT shape): the PSF and the glare kernel are the
+  same for every frame of a run, so each is transformed once per image size. A float32 FFT would
+  put a noise floor at ~1e-7 of the peak into the dark parts of a 200 dB scene.
+One rule and one FFT backend serve both stages. Measured when they were merged (issue 30): the
+relay's wide kernels had gone through torch.fft, and scipy.fft moves highbeam_plate's 29 px Airy
+blur by at most 24 on a peak of 4.3e16 (1.5e-15 of the peak, 1.6e-11 of the dimmest pixel) with
+every regression hash unchanged; the objective had taken kernels <= 15 px by FFT too, and the
+direct path moves them by < 1e-15 of the peak (no regression case has an objective).
+
+Field-varying (`field_convolve`): sum over nodes n of K_n * (w_n x), w_n the bilinear hat
+weights of node n (a partition of unity; each source point's PSF is the bilinear interpolation
+of its four neighbouring node PSFs, and a constant grid gives the plain convolution: Nagy &
+O'Leary, SIAM J. Sci. Comput. 19(4), 1998), each node an overlap-add of FFT convolutions over
+the tiles its weight covers.
+"""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+import numpy as np
+
+from poevp_optics.core import runtime
+
+#: Widest kernel (px) applied directly; wider ones by FFT.
+DIRECT_MAX_PX = 15
+
+#: Kernel spectra by (kernel identity, cropped size, FFT shape) -> (kernel, spectrum); the entry
+#: holds the kernel, so its id cannot be reused while the entry lives. At most 8 entries.
+_KERNEL_SPECTRA: dict = {}
+_CACHE_ENTRIES = 8
+
+
+class KernelGrid(Protocol):
+    """What `field_convolve` reads of a PSF grid (objective.psfs.PSFGrid): kernels[j, i], the
+    unit-sum (2r+1)^2 kernel at (node_y_px[j], node_x_px[i]) in pixel coordinates."""
+
+    node_y_px: np.ndarray
+    node_x_px: np.ndarray
+    kernels: np.ndarray
+
+    @property
+    def radius_px(self) -> int: ...
+
+
+def reach_px(image_shape, kernel_px: int) -> tuple[int, int]:
+    """(rows, columns) the image is continued by reflection on each side for an odd kernel of
+    `kernel_px`: its radius, limited to the image's extent (H - 1, W - 1)."""
+    r = int(kernel_px) // 2
+    return min(r, int(image_shape[0]) - 1), min(r, int(image_shape[1]) - 1)
+
+
+def fft_shape(image_shape, kernel_px: int) -> tuple[int, int]:
+    """FFT size for a same-size convolution of an image continued by reflection over the
+    kernel's reach (`reach_px`) with an odd kernel: the padded image (no wrap-around reaches the
+    kept part), rounded up to a fast real-FFT length. At most about (3H - 2) x (3W - 2)."""
+    from scipy.fft import next_fast_len
+
+    ry, rx = reach_px(image_shape, kernel_px)
+    h, w = int(image_shape[0]), int(image_shape[1])
+    return next_fast_len(h + 2 * ry, real=True), next_fast_len(w + 2 * rx, real=True)
+
+
+def fft_bytes(image_shape, kernel_px: int) -> int:
+    """Peak bytes of `convolve_reflect`'s FFT path: padded image and kernel (float64), their
+    spectra and product (complex128, the kernel's kept in the cache), the inverse transform and
+    the float64 copies of image and kernel."""
+    fh, fw = fft_shape(image_shape, kernel_px)
+    spectrum = fh * (fw // 2 + 1) * 16
+    return 3 * spectrum + 2 * fh * fw * 8 + 2 * int(image_shape[0]) * int(image_shape[1]) * 8
+
+
+def pad_to(kernel: np.ndarray, n: int) -> np.ndarray:
+    """An odd square kernel zero-padded to n x n (n odd, not smaller), centre kept."""
+    p = (n - kernel.shape[0]) // 2
+    return np.pad(kernel, p) if p else kernel
+
+
+def _kernel_spectrum(kernel: np.ndarray, k: np.ndarray, shape, workers: int) -> np.ndarray:
+    from scipy import fft as sfft
+
+    key = (id(kernel), k.shape, shape)
+    hit = _KERNEL_SPECTRA.get(key)
+    if hit is None or hit[0] is not kernel:
+        if len(_KERNEL_SPECTRA) >= _CACHE_ENTRIES:
+            _KERNEL_SPECTRA.pop(next(iter(_KERNEL_SPECTRA)))
+        hit = _KERNEL_SPECTRA[key] = (kernel, sfft.rfft2(k, s=shape, workers=workers))
+    return hit[1]
+
+
+def convolve_reflect(image: np.ndarray, kernel: np.ndarray) -> np.ndarray:
+    """Same-size linear convolution (float64) of `image` (H, W) with an odd square `kernel`,
+    the image continued by reflection over the kernel's reach (module docstring): direct up to
+    `DIRECT_MAX_PX`, else FFT with the kernel's spectrum cached. No clipping, no normalisation."""
+    img = np.asarray(image, np.float64)
+    if kernel.shape[0] <= DIRECT_MAX_PX:
+        import cv2
+
+        # OpenCV correlates: flip the kernel for a convolution
+        return cv2.filter2D(img, -1, np.ascontiguousarray(kernel[::-1, ::-1]), borderType=cv2.BORDER_REFLECT)
+    from scipy import fft as sfft
+
+    h, w = img.shape
+    c = kernel.shape[0] // 2
+    ry, rx = reach_px(img.shape, kernel.shape[0])
+    k = kernel[c - ry:c + ry + 1, c - rx:c + rx + 1]
+    padded = np.pad(img, ((ry, ry), (rx, rx)), mode="symmetric")
+    shape = fft_shape(img.shape, kernel.shape[0])
+    workers = runtime.fft_workers()
+    spec = sfft.rfft2(padded, s=shape, workers=workers)
+    spec *= _kernel_spectrum(kernel, k, shape, workers)
+    full = sfft.irfft2(spec, s=shape, workers=workers)
+    return full[2 * ry:2 * ry + h, 2 * rx:2 * rx + w]
+
+
+def hat_weights(nodes: np.ndarray, coords: np.ndarray) -> np.ndarray:
+    """(len(nodes), len(coords)) piecewise-linear hat weights, clamped beyond the end nodes;
+    they sum to 1 at every coordinate."""
+    n = len(nodes)
+    if n == 1:
+        return np.ones((1, len(coords)))
+    c = np.clip(coords, nodes[0], nodes[-1])
+    idx = np.clip(np.searchsorted(nodes, c, side="right") - 1, 0, n - 2)
+    t = (c - nodes[idx]) / (nodes[idx + 1] - nodes[idx])
+    wts = np.zeros((n, len(coords)))
+    cols = np.arange(len(coords))
+    wts[idx, cols] = 1 - t
+    wts[idx + 1, cols] += t
+    return wts
+
+
+def field_convolve(image: np.ndarray, grid: KernelGrid) -> np.ndarray:
+    """Spatially varying convolution (float64): sum over nodes of K_n * (w_n x), w_n bilinear
+    hat weights over the node grid (clamped beyond it), on the image continued by reflection.
+    Each node convolves only the rows and columns where its weight is non-zero (overlap-add)."""
+    from scipy import fft as sfft
+    from scipy.signal import fftconvolve
+
+    with sfft.set_workers(runtime.fft_workers()):
+        return _field_convolve(image, grid, fftconvolve)
+
+
+def _field_convolve(image: np.ndarray, grid: KernelGrid, fftconvolve) -> np.ndarray:
+    img = np.asarray(image, np.float64)
+    h, w = img.shape
+    r = grid.radius_px
+    ry, rx = reach_px(img.shape, 2 * r + 1)
+    kern = grid.kernels[:, :, r - ry:r + ry + 1, r - rx:r + rx + 1]
+    padded = np.pad(img, ((ry, ry), (rx, rx)), mode="symmetric")
+    wy = hat_weights(np.asarray(grid.node_y_px, float), np.arange(-ry, h + ry, dtype=float))
+    wx = hat_weights(np.asarray(grid.node_x_px, float), np.arange(-rx, w + rx, dtype=float))
+    acc = np.zeros((h + 4 * ry, w + 4 * rx))
+    for j in range(wy.shape[0]):
+        rows = np.flatnonzero(wy[j])
+        if rows.size == 0:
+            continue
+        r0, r1 = rows[0], rows[-1] + 1
+        for i in range(wx.shape[0]):
+            cols = np.flatnonzero(wx[i])
+            if cols.size == 0:
+                continue
+            c0, c1 = cols[0], cols[-1] + 1
+            part = padded[r0:r1, c0:c1] * (wy[j, r0:r1, None] * wx[i, None, c0:c1])
+            acc[r0:r1 + 2 * ry, c0:c1 + 2 * rx] += fftconvolve(part, kern[j, i], mode="full")
+    return acc[2 * ry:2 * ry + h, 2 * rx:2 * rx + w]

@@ -1,0 +1,147 @@
+"""The camera's one convolution module (camera/convolution.py) and glare registry (camera/glare.py)
+against definitions computed independently: a direct reflect-padded sum, flux conservation, the
+plain convolution as the constant-grid limit, and each halo's closed-form encircled energy."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+from scipy import ndimage
+
+from poevp_optics.camera.convolution import DIRECT_MAX_PX, convolve_reflect, field_convolve
+from poevp_optics.camera.glare import GLARE_MODELS, GaussianHalo, PowerLawHalo
+
+
+def _direct(image: np.ndarray, kernel: np.ndarray) -> np.ndarray:
+    """Same-size convolution by its definition: image continued by mirror reflection
+    (...cba|abc...), sum_k K[k] x[i - k] (scipy.ndimage correlates; 'reflect' is that mirror)."""
+    return ndimage.convolve(image, kernel, mode="reflect")
+
+
+def _kernel(n: int, seed: int) -> np.ndarray:
+    """A random odd n x n kernel, not symmetric (a flipped kernel would not pass)."""
+    k = np.random.default_rng(seed).random((n, n)) + np.linspace(0, 1, n)[:, None]
+    return k / k.sum()
+
+
+@pytest.mark.parametrize("n", [3, DIRECT_MAX_PX, DIRECT_MAX_PX + 2, 41])
+def test_reflect_convolution_equals_the_direct_reflect_padded_sum(n):
+    """Both methods (direct up to DIRECT_MAX_PX, FFT beyond) equal the definition to 1e-12 of the
+    image's scale in float64, on an image smaller than the kernel in one axis (the reach is
+    limited to the image's extent: 41 px over 19 rows)."""
+    img = np.random.default_rng(n).random((19, 57)) * 1e3
+    k = _kernel(n, n + 1)
+    if n <= 19:
+        ref = _direct(img, k)
+    else:   # ndimage reflects once more beyond the reflected image; build the definition by hand
+        ref = _loop_reference(img, k)
+    got = convolve_reflect(img, k)
+    assert got.dtype == np.float64 and got.shape == img.shape
+    np.testing.assert_allclose(got, ref, rtol=1e-12, atol=1e-12 * np.abs(ref).max())
+
+
+def _loop_reference(img: np.ndarray, k: np.ndarray) -> np.ndarray:
+    """sum over taps within the once-reflected image (taps reaching beyond it are dropped)."""
+    h, w = img.shape
+    c = k.shape[0] // 2
+    ry, rx = min(c, h - 1), min(c, w - 1)
+    pad = np.pad(img, ((ry, ry), (rx, rx)), mode="symmetric")
+    out = np.zeros_like(img)
+    for dy in range(-ry, ry + 1):
+        for dx in range(-rx, rx + 1):
+            out += k[c + dy, c + dx] * pad[ry - dy:ry - dy + h, rx - dx:rx - dx + w]
+    return out
+
+
+def test_the_loop_reference_is_ndimage_where_both_apply():
+    img = np.random.default_rng(3).random((21, 30))
+    k = _kernel(9, 4)
+    np.testing.assert_allclose(_loop_reference(img, k), _direct(img, k), rtol=1e-13)
+
+
+@pytest.mark.parametrize("n", [5, 31])
+def test_a_unit_sum_kernel_conserves_flux_on_a_mirror_symmetric_image(n):
+    """On an image that is its own mirror image about both borders' reflection (a tile of a
+    periodic, mirror-symmetric field), reflection loses and gains the same light: the total is
+    kept to rounding."""
+    rng = np.random.default_rng(n)
+    q = rng.random((16, 24)) ** 4
+    img = np.block([[q, q[:, ::-1]], [q[::-1], q[::-1, ::-1]]])       # symmetric about its centre lines
+    out = convolve_reflect(img, _kernel(n, 7))
+    assert out.sum() == pytest.approx(img.sum(), rel=1e-12)
+
+
+@dataclass
+class _Grid:
+    node_y_px: np.ndarray
+    node_x_px: np.ndarray
+    kernels: np.ndarray
+
+    @property
+    def radius_px(self) -> int:
+        return self.kernels.shape[-1] // 2
+
+
+def test_field_convolution_with_a_constant_grid_is_the_plain_convolution():
+    """Bilinear hat weights sum to one, so the same kernel at every node of a 3 x 4 grid gives
+    the shift-invariant convolution (Nagy & O'Leary 1998)."""
+    img = np.random.default_rng(5).random((40, 64))
+    k = _kernel(21, 8)
+    grid = _Grid(np.linspace(0, 39, 3), np.linspace(0, 63, 4), np.broadcast_to(k, (3, 4, 21, 21)))
+    np.testing.assert_allclose(field_convolve(img, grid), _loop_reference(img, k), rtol=1e-11, atol=1e-13)
+
+
+def test_field_convolution_follows_the_node_kernels():
+    """A point source at a node is blurred by that node's kernel alone (its weight is 1 there)."""
+    img = np.zeros((41, 41))
+    img[0, 40] = 1.0
+    ks = np.zeros((2, 2, 5, 5))
+    for j in range(2):
+        for i in range(2):
+            ks[j, i] = _kernel(5, 10 * j + i)
+    out = field_convolve(img, _Grid(np.array([0.0, 40.0]), np.array([0.0, 40.0]), ks))
+    np.testing.assert_allclose(out, _loop_reference(img, ks[0, 1]), atol=1e-15)
+
+
+HALOS = {"power_law": PowerLawHalo(2.0, 30.0, 2.0), "gaussian": GaussianHalo(6.0, 0, 0.9995)}
+
+
+def _tail(name: str, rho: float) -> float:
+    """Closed forms, written here: power law A (pi rc^2 + 2 pi rc^n ln(ro/rc)) normalisation with
+    n = 2; Gaussian exp(-rho^2 / 2 sigma^2)."""
+    if name == "gaussian":
+        return math.exp(-rho * rho / (2 * 6.0 ** 2))
+    rc, ro = 2.0, 30.0
+    a = 1 / (math.pi * rc * rc + 2 * math.pi * rc * rc * math.log(ro / rc))
+    return 0.0 if rho >= ro else a * 2 * math.pi * rc * rc * math.log(ro / max(rho, rc)) + (
+        a * math.pi * (rc * rc - rho * rho) if rho < rc else 0.0)
+
+
+def test_every_registry_entry_is_tested_and_cites_a_source():
+    assert set(GLARE_MODELS) == set(HALOS)
+    for name in GLARE_MODELS:
+        assert len(GLARE_MODELS.entry(name).source) > 10
+        assert isinstance(HALOS[name], GLARE_MODELS[name])
+
+
+@pytest.mark.parametrize("name", list(HALOS))
+def test_each_glare_kernel_sums_to_one_and_its_tail_is_the_closed_form(name):
+    halo = HALOS[name]
+    g = halo.kernel()
+    assert g.kernel.sum() == pytest.approx(1.0, abs=1e-12) and g.radius_px == halo.radius_px()
+    for rho in (1.0, 5.0, 12.0, 25.0):
+        assert halo.energy_beyond(rho) == pytest.approx(_tail(name, rho), rel=1e-12)
+    # the kernel's own energy beyond rho (pixel centres farther than rho), renormalised by what its
+    # support kept, matches the closed form to the pixel discretisation
+    n = g.kernel.shape[0] // 2
+    yy, xx = np.mgrid[-n:n + 1, -n:n + 1]
+    for rho in (6.5, 12.5):
+        outside = g.kernel[np.hypot(yy, xx) > rho].sum() * (1 - g.truncation_error) + g.truncation_error
+        assert outside == pytest.approx(_tail(name, rho), rel=0.05, abs=2e-4)
+    # a cap at the image's extent: the energy left out is the closed-form tail beyond it
+    capped = halo.kernel(8)
+    assert capped.radius_px == 8 and "capped" in capped.note
+    assert capped.truncation_error == pytest.approx(_tail(name, 8.5), rel=1e-12)
