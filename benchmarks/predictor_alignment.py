@@ -88,7 +88,7 @@ def run_cell(runner, ex, name: str, mode: str = "open") -> list[dict]:
         if dec.init:
             continue
         box = cam.box_to_sensor(e.roi)
-        seen = resize_to(step.history[-1], cam.shape) if model else to_8bit(ldr.dn, cam.params.max_dn)
+        seen = resize_to(step.history[-1].array, cam.shape) if model else to_8bit(ldr.dn, cam.params.max_dn)
         rs = plate_rows(box, seen.shape)
         if model is not None and len(model.preds) > n_pred:
             pred = resize_to(model.preds[-1], cam.shape)

@@ -27,6 +27,7 @@ from poevp_optics.camera.registration import (apply_taps, apply_taps_numpy, box_
 from poevp_optics.camera.relay import PSFContext, RelaySpec, build_psf, convolve, max_support_px
 from poevp_optics.camera.sensor import NoiseSwitches, Sensor, SensorSpec, pixel_etendue_m2_sr, resolve_sensor
 from poevp_optics.core.accuracy import Accuracy
+from poevp_optics.core.grids import Grid, OnGrid
 from poevp_optics.core.timing import TimingSpec
 from poevp_optics.core import spectra
 
@@ -44,13 +45,20 @@ def _sync(x):
 
 @dataclass
 class Capture:
-    """A measured frame and what produced it (numpy arrays on the sensor grid)."""
+    """A measured frame and what produced it (numpy arrays on the sensor grid, `grid`)."""
 
     dn: np.ndarray                    # digital numbers, integer-valued float32
     exposure_s: np.ndarray            # effective exposure per pixel, s (DMD throughput incl.)
     signal_e: np.ndarray              # noise-free photo-electrons reaching each pixel
     seconds: dict = field(default_factory=dict)
     exposure_blurred_s: np.ndarray | None = None   # exposure seen through the relay PSF (None: delta)
+    grid: Grid | None = None          # the sensor grid the arrays are on (core/grids.py)
+
+    def on_grid(self, name: str = "dn") -> OnGrid:
+        """One of the capture's arrays (`dn`, `exposure_s`, `signal_e`, ...) tagged with its grid."""
+        if self.grid is None:
+            raise ValueError("this capture was built without its grid")
+        return OnGrid(getattr(self, name), self.grid)
 
 
 @dataclass(frozen=True)
@@ -198,9 +206,26 @@ class Camera:
         h, w = self.shape
         return img[g:g + h, g:g + w]
 
-    def to_sensor(self, mirror_image: np.ndarray) -> np.ndarray:
+    @property
+    def sensor_grid(self) -> Grid:
+        """The sensor's pixel grid (`shape`, the sensor's pixel pitch; core/grids.py)."""
+        pitch = self.params.pixel_pitch_m
+        return Grid("sensor", self.shape, pitch if math.isfinite(pitch) else None)
+
+    @property
+    def mirror_grid(self) -> Grid:
+        """The DMD's mirror grid (`mirror_shape`: render grid, guard band included; the mirror
+        pitch, or the sensor's pitch without a DMD: layout.image_plane_pitch_m)."""
+        pitch = image_plane_pitch_m(self.dmd_spec, self.params)
+        return Grid("mirror", self.mirror_shape, pitch if math.isfinite(pitch) else None)
+
+    def to_sensor(self, mirror_image):
         """A mirror-grid (render-grid) image as the sensor pixels see it, without blur or noise
-        (area-weighted registration; float64): the ground truth on the sensor grid."""
+        (area-weighted registration; float64): the ground truth on the sensor grid. An `OnGrid`
+        must be on the mirror grid (else GridError) and comes back on the sensor grid."""
+        if isinstance(mirror_image, OnGrid):
+            src = mirror_image.on(self.mirror_grid, "Camera.to_sensor's input")
+            return OnGrid(self.to_sensor(src.array), self.sensor_grid)
         img = np.asarray(mirror_image, dtype=np.float64)
         if self.taps is None:
             g = self.guard_px
@@ -211,8 +236,12 @@ class Camera:
                                              self.accuracy.registration_oversample)
         return apply_taps_numpy(img, self._sensor_taps, self.shape)
 
-    def to_mirror(self, sensor_image: np.ndarray) -> np.ndarray:
-        """A sensor-grid picture (a predicted frame) placed on the mirror grid (registration.py)."""
+    def to_mirror(self, sensor_image):
+        """A sensor-grid picture (a predicted frame) placed on the mirror grid (registration.py).
+        An `OnGrid` must be on the sensor grid (else GridError) and comes back on the mirror grid."""
+        if isinstance(sensor_image, OnGrid):
+            src = sensor_image.on(self.sensor_grid, "Camera.to_mirror's input")
+            return OnGrid(self.to_mirror(src.array), self.mirror_grid)
         return to_mirror(sensor_image, self.registration, self.mirror_shape, self.shape)
 
     def box_to_sensor(self, box):
@@ -289,6 +318,14 @@ class Camera:
             raise ValueError(f"frame {frame_index}: mask has shape {np.shape(mask_levels)}, the mirror "
                              f"grid is {self.mirror_shape}")
 
+    def _mirror_levels(self, mask_levels, switch):
+        """The arrays of `capture`'s mask and late-mask levels: an `OnGrid` must be on the mirror
+        grid (else GridError, core/grids.py); plain arrays pass as they are."""
+        grid = self.mirror_grid
+        if switch is not None:
+            switch = (grid.take(switch[0], "Camera.capture's late mask levels"), switch[1])
+        return grid.take(mask_levels, "Camera.capture's mask levels"), switch
+
     def nodes_rel(self, frame_index: int, k: int, times_s=None) -> np.ndarray | int:
         """Radiance node times relative to the frame's exposure start (s), or K (uniform)."""
         if times_s is None:
@@ -300,20 +337,21 @@ class Camera:
 
     def capture(self, subframes, mask_levels, frame_index: int, seed: int,
                 basis: tuple[str, ...] = (), times_s=None, switch=None, transmission: float = 1.0) -> Capture:
-        """Expose the sensor to K radiance samples (mirror grid) through `mask_levels` (mirror grid;
-        None: no DMD or all white without one). times_s: the samples' absolute times (the
-        scene's `subframe_times_s`); None: K uniform nodes over the exposure (`node_times_s`).
+        """Expose the sensor to K radiance samples (mirror grid) through `mask_levels` (mirror grid,
+        `_mirror_levels`; None: no DMD or all white without one). times_s: the samples' absolute
+        times (the scene's `subframe_times_s`); None: K uniform nodes over the exposure.
 
         basis: when given, `subframes` are emitter-group images named by it (flickering lamps,
         `Camera.basis_tables`) rather than time samples: their exposures are exact integrals.
-        switch: (new_levels, switch_s): a late mask that replaces `mask_levels` for the bit-planes
-        starting at or after switch_s (absolute, s; dmd.late_schedules).
+        switch: (new_levels, switch_s): a late mask (mirror grid) that replaces `mask_levels` for
+        the bit-planes starting at or after switch_s (absolute, s; dmd.late_schedules).
         transmission: the global attenuator's setting for the frame (camera/attenuator.py): every
         mirror's exposure x transmission, in the capture's `exposure_s` too (so the
         reconstruction divides it out)."""
         import drjit as dr
         from drjit.auto import Float
 
+        mask_levels, switch = self._mirror_levels(mask_levels, switch)
         self._check_inputs(subframes, mask_levels, frame_index, transmission)
         k = len(subframes)
         h, w = self.shape
@@ -376,7 +414,7 @@ class Camera:
         _sync(dn)
         secs["sensor"] = time.perf_counter() - t2
         return Capture(np.array(dn).reshape(h, w), np.ascontiguousarray(self._crop(expo_np)),
-                       np.array(signal).reshape(h, w), secs, expo_blur)
+                       np.array(signal).reshape(h, w), secs, expo_blur, self.sensor_grid)
 
     def reconstruct(self, cap: Capture, frame_index: int):
         """(radiance estimate, flags, signal electrons) of a capture (reconstruct.py)."""

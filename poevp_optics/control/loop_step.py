@@ -14,8 +14,11 @@ Loop modes (`LOOP_MODES`, what the predictor sees; DESIGN.md "Loop modes"):
 | raw         | the encoded capture, 8-bit                                          | paper Fig. 7 (its hardware) |
 | demodulated | the reconstruction re-expressed as the all-white signal, 8-bit scale, unclipped | ours |
 
-Masks live on the mirror grid; predictions come from sensor-grid captures and are placed on the
-mirror grid through the inverse registration (camera.to_mirror) before the mask law.
+Grids (core/grids.py): the predictor's history and prediction are on the predictor grid
+(`[predictor].resolution`, `resize_onto` from and back to the sensor grid, the clip marker kept);
+captures are on the sensor grid; a prediction is placed on the mirror grid through the inverse
+registration (camera.to_mirror) before the mask law, and the DMD command's levels are on the
+mirror grid. Each crossing carries the grid (`OnGrid`) and refuses an array on another one.
 """
 
 from __future__ import annotations
@@ -30,6 +33,7 @@ from poevp_optics.control.exposure_control import ExposureController
 from poevp_optics.control.masks import ATTENUATED_LAWS, MaskSpec, mask_levels, predicted_electrons, reach_electrons
 from poevp_optics.control.timing_budget import BudgetSpec, MaskClock
 from poevp_optics.control.predictors import PREDICTORS, PredictorSpec, checked_prediction, make_predictor
+from poevp_optics.core.grids import Grid, GridError, OnGrid
 from poevp_optics.core.params import param
 from poevp_optics.core.registry import Registry
 from poevp_optics.core.units import to_8bit
@@ -60,6 +64,25 @@ def resize_keeping_clip(img: np.ndarray, shape) -> np.ndarray:
         return out
     frac = resize_to((np.asarray(img) >= CLIP_MARKER).astype(np.float32), shape)
     return np.where(frac >= 0.5, np.maximum(out, 255.0), out).astype(np.float32)
+
+
+#: The resampling `resize_onto` does: (from grid, onto grid). The mirror grid is reached only
+#: through the registration (Camera.to_mirror), never by a resize.
+_RESIZES = {("sensor", "predictor"), ("predictor", "sensor")}
+
+
+def resize_onto(x: OnGrid, target: Grid) -> OnGrid:
+    """`resize_keeping_clip` between the sensor grid and the predictor grid, tagged: a sensor-grid
+    picture onto the predictor grid (the predictor's input) or a prediction back onto the sensor
+    grid. Any other pair (a mirror-grid array, or a resize onto the mirror grid, which needs the
+    registration) is refused with a GridError naming both grids."""
+    if not isinstance(x, OnGrid):
+        raise TypeError(f"resize_onto takes an OnGrid (an array and its grid), not {type(x).__name__}")
+    if (x.grid.name, target.name) not in _RESIZES:
+        raise GridError(f"resize_onto cannot take an array on the {x.grid} onto the {target}: only the "
+                        "sensor and predictor grids are resized (the mirror grid goes through the "
+                        "registration, Camera.to_mirror / to_sensor)")
+    return OnGrid(resize_keeping_clip(x.array, target.shape), target)
 
 
 def _open_input(camera, ldr, enc, est, flags, index, clipped_gain):
@@ -104,7 +127,8 @@ class LoopSpec:
 
 
 def predictor_input(mode: str, camera, ldr, enc, est, flags, index: int, clipped_gain: float) -> np.ndarray:
-    """What the predictor sees of frame `index` (8-bit scale, float32, sensor grid), per mode."""
+    """What the predictor sees of frame `index` (8-bit scale, float32, sensor grid), per mode
+    (`LoopStep.observe` tags it with the sensor grid and resizes it onto the predictor grid)."""
     return LOOP_MODES[mode](camera, ldr, enc, est, flags, index, clipped_gain)
 
 
@@ -135,7 +159,7 @@ def attenuator_transmission(camera, mask: MaskSpec, attenuator: AttenuatorSpec, 
     return choose_transmission(demand_e, reach, attenuator)
 
 
-def predicted_mask(camera, mask: MaskSpec, pred_8bit: np.ndarray, index: int, controller=None,
+def predicted_mask(camera, mask: MaskSpec, pred_8bit: np.ndarray | OnGrid, index: int, controller=None,
                    pred_masked: bool = False) -> np.ndarray:
     """The mask law applied to a predicted frame on the 8-bit scale (sensor grid), placed on the
     mirror grid through the inverse registration first (camera.to_mirror). controller: the
@@ -144,15 +168,16 @@ def predicted_mask(camera, mask: MaskSpec, pred_8bit: np.ndarray, index: int, co
     return predicted_decision(camera, mask, pred_8bit, index, controller, pred_masked)[0]
 
 
-def predicted_decision(camera, mask: MaskSpec, pred_8bit: np.ndarray, index: int, controller=None,
+def predicted_decision(camera, mask: MaskSpec, pred_8bit: np.ndarray | OnGrid, index: int, controller=None,
                        pred_masked: bool = False,
                        attenuator: AttenuatorSpec = AttenuatorSpec()) -> tuple[np.ndarray, float]:
     """(levels, attenuator transmission) from a predicted frame (`predicted_mask`). The
     transmission is global, so it needs no prediction of where: it comes from the exposure
     controller's demand of the last capture, per mirror and not dilated (so a highlight counts
     with its measured size: camera/attenuator.py serves only highlights of serve_min_mirrors or
-    more), or from the prediction without a controller; then the levels through it."""
-    pred = camera.to_mirror(pred_8bit).astype(np.float64)
+    more), or from the prediction without a controller; then the levels through it.
+    pred_8bit: on the sensor grid (an `OnGrid` on another grid is refused by camera.to_mirror)."""
+    pred = camera.mirror_grid.take(camera.to_mirror(pred_8bit), "the placed prediction").astype(np.float64)
     e = predicted_electrons(pred, camera.params, mask.clipped_gain)
     kw = dict(pred_8bit=pred, pred_electrons=e, full_well_e=camera.params.full_well_e,
               level_exposure=camera.level_exposure_s(index), sensor=camera.params,
@@ -172,8 +197,12 @@ def controller_view(camera, enc, est, flags, index: int):
     e_white = est.astype(np.float64) * camera.electrons_per_radiance() * white_s
     clipped = ((flags.astype(np.int64) & 1) > 0).astype(np.float32)
     rel = np.asarray(enc.exposure_s, dtype=np.float64) / white_s
-    return (camera.to_mirror(e_white.astype(np.float32)), camera.to_mirror(clipped) > 0.5,
-            camera.to_mirror(rel.astype(np.float32)))
+    sensor, mirror = camera.sensor_grid, camera.mirror_grid
+
+    def placed(x: np.ndarray) -> np.ndarray:
+        return camera.to_mirror(OnGrid(x, sensor)).on(mirror).array
+
+    return placed(e_white.astype(np.float32)), placed(clipped) > 0.5, placed(rel.astype(np.float32))
 
 
 @dataclass(frozen=True)
@@ -189,22 +218,32 @@ class MaskDecision:
 
 @dataclass(frozen=True)
 class DMDCommand:
-    """What the DMD and the attenuator do in one frame's exposure window (mirror grid): the levels
-    shown from the window's start; a late mask (`late_levels`) replaces them at `switch_s` after
+    """What the DMD and the attenuator do in one frame's exposure window: the levels shown from
+    the window's start (`levels`, an OnGrid on the mirror grid; `.array` for the numbers); a late
+    mask (`late_levels`, mirror grid too) replaces them at `switch_s` after
     the start (timing_budget.MaskClock); the attenuator's transmission once its command settled
     (camera/attenuator.py); `record` holds the frame's loop entries for report.json (init,
     prediction_fallback_pixels, predict_seconds, timing_budget, attenuator)."""
 
-    levels: np.ndarray
-    late_levels: np.ndarray | None
+    levels: OnGrid
+    late_levels: OnGrid | None
     switch_s: float | None
     transmission: float
     record: dict
     decision: MaskDecision
 
+    def __post_init__(self):
+        for name in ("levels", "late_levels"):
+            x = getattr(self, name)
+            if x is not None:
+                if not isinstance(x, OnGrid):
+                    raise TypeError(f"DMDCommand.{name} must be an OnGrid on the mirror grid, "
+                                    f"not {type(x).__name__}")
+                x.expect("mirror", f"DMDCommand.{name}")
+
     @property
     def switch(self) -> tuple | None:
-        """Camera.capture's `switch` argument: (late levels, switch time s), or None."""
+        """Camera.capture's `switch` argument: (late levels on the mirror grid, switch time s), or None."""
         return (self.late_levels, self.switch_s) if self.late_levels is not None else None
 
 
@@ -223,7 +262,8 @@ class LoopParams:
 
 class LoopStep:
     """The closed loop's state and its per-frame step (module docstring). State is real here:
-    the history of what the predictor has seen, the mask clock and the attenuator's setting."""
+    the history of what the predictor has seen (on the predictor grid), the mask clock and the
+    attenuator's setting."""
 
     HISTORY = 4
 
@@ -240,7 +280,8 @@ class LoopStep:
         self.needs_truth = PREDICTORS[predictor.name].needs_truth
         self.model = None if self.needs_truth else (model or make_predictor(
             predictor.name, predictor.weights, predictor.resolution))
-        self.history: list[np.ndarray] = []
+        self.predictor_grid = Grid("predictor", tuple(predictor.resolution))
+        self.history: list[OnGrid] = []
         p = camera.params
         self.clock = MaskClock(budget, camera.timing, camera.shape, p.bits, camera.mirror_shape,
                                camera.dmd.spec.bits) if camera.dmd else None
@@ -253,7 +294,9 @@ class LoopStep:
         return cls(camera, p.mask, p.loop, p.predictor, model=model, budget=p.budget, attenuator=p.attenuator)
 
     def next_mask(self, index: int, truth: np.ndarray | None = None) -> MaskDecision:
-        """The mask for frame `index`; `truth` (mirror grid, time-averaged radiance) for the oracle."""
+        """The mask for frame `index`; `truth` (mirror grid, time-averaged radiance; an OnGrid on
+        another grid is refused) for the oracle."""
+        truth = self.camera.mirror_grid.take(truth, "the oracle's truth")
         needs = 0 if self.model is None else self.model.needs_frames
         if index < self.loop.init_frames or len(self.history) < needs:
             return MaskDecision(self.camera.white_mask(), True, None)
@@ -261,8 +304,9 @@ class LoopStep:
             levels, g = oracle_decision(self.camera, self.mask, truth, index, self.attenuator)
             return MaskDecision(levels, False, None, transmission=g)
         t0 = time.perf_counter()
-        pred, n_bad = checked_prediction(self.model, self.history)
-        levels, g = predicted_decision(self.camera, self.mask, resize_keeping_clip(pred, self.camera.shape), index,
+        pred, n_bad = checked_prediction(self.model, [h.on(self.predictor_grid).array for h in self.history])
+        pred_s = resize_onto(OnGrid(pred, self.predictor_grid), self.camera.sensor_grid)
+        levels, g = predicted_decision(self.camera, self.mask, pred_s, index,
                                        self.controller, self.loop.mode in MASKED_MODES, self.attenuator)
         return MaskDecision(levels, False, time.perf_counter() - t0, n_bad, transmission=g)
 
@@ -283,8 +327,9 @@ class LoopStep:
             rec["timing_budget"] = {k: v for k, v in shown.record.items() if k != "frame"}
         g = self._attenuator_setting(decision, index, rec)
         late = shown.late is not None
-        return DMDCommand(shown.levels, shown.late if late else None, shown.switch_s if late else None, g, rec,
-                          decision)
+        mirror = self.camera.mirror_grid
+        return DMDCommand(OnGrid(shown.levels, mirror), OnGrid(shown.late, mirror) if late else None,
+                          shown.switch_s if late else None, g, rec, decision)
 
     def _attenuator_setting(self, decision: MaskDecision, index: int, rec: dict) -> float:
         """The attenuator's transmission in frame `index`: the decision's, unless its command
@@ -308,5 +353,5 @@ class LoopStep:
         if self.model is None:
             return
         x = predictor_input(self.loop.mode, self.camera, ldr, enc, est, flags, index, self.mask.clipped_gain)
-        self.history.append(resize_keeping_clip(x, self.predictor_spec.resolution))
+        self.history.append(resize_onto(OnGrid(x, self.camera.sensor_grid), self.predictor_grid))
         self.history = self.history[-self.HISTORY:]

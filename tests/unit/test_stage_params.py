@@ -48,10 +48,11 @@ def test_loop_from_params_commands_white_then_dims_the_highlight_only():
     cy, cx = cam.mirror_shape[0] // 2, cam.mirror_shape[1] // 2
     truth[cy - 1:cy + 2, cx - 1:cx + 2] *= 400.0                            # a spot 20x over saturation
     first = step.command(0, truth)
-    assert isinstance(first, DMDCommand) and first.record.get("init") and np.all(first.levels == cam.top_level)
+    assert isinstance(first, DMDCommand) and first.record.get("init") and np.all(first.levels.array == cam.top_level)
     cmd = step.command(2, truth)
     assert not cmd.record.get("init") and cmd.switch is None
-    assert cmd.levels[cy, cx] < cam.top_level / 20                           # <= target / 20x of white
-    far = cmd.levels.copy()
+    assert cmd.levels.grid == cam.mirror_grid
+    assert cmd.levels.array[cy, cx] < cam.top_level / 20                     # <= target / 20x of white
+    far = cmd.levels.array.copy()
     far[cy - 2:cy + 3, cx - 2:cx + 3] = cam.top_level
     assert np.all(far == cam.top_level)

@@ -97,8 +97,8 @@ def _capture(spec, camera: Camera, step: LoopStep | None, ex: RenderedExposure, 
         else:
             oracle, oracle_g = oracle_decision(camera, spec.resolved.loop.mask, truth, i, spec.attenuator)
         res.stage_seconds["mask"] += time.perf_counter() - tm
-        mask = cmd.levels
-        enc = camera.capture(subs, mask, i, capture_seed(spec.sensor.seed, spec.render.seed, i, ENCODED_STREAM),
+        mask = cmd.levels.array                            # mirror grid (cmd.levels carries it)
+        enc = camera.capture(subs, cmd.levels, i, capture_seed(spec.sensor.seed, spec.render.seed, i, ENCODED_STREAM),
                              **timing, **({"switch": cmd.switch} if cmd.switch else {}), transmission=cmd.transmission)
     for k in ("dmd", "relay", "sensor"):
         res.stage_seconds[k] += enc.seconds[k]
