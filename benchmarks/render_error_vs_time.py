@@ -110,7 +110,7 @@ def measure(scene, res, ref_spp, name):
     rows, last = [], None
     for spp in c["spps"]:
         img, wall, cpu = _timed_render(r, 1000 + spp, spp)
-        rows.append([name, r.variant, r.spec.render.sampler, spp, r.last_spp, wall, cpu,
+        rows.append([name, r.variant, r.scene.render.sampler, spp, r.last_spp, wall, cpu,
                      _roi_error(img, ref, ref_var, box)])
         last = img
     y0, x0, y1, x1 = box

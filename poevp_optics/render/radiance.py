@@ -20,17 +20,17 @@ class MitsubaSource(Renderer):
     temporal_skip = None       # apps/run/temporal_check.py estimates it by step halving
 
     def exposures(self, progress: bool = True):
-        return render_exposures(self.spec, self, progress)
+        return render_exposures(self.scene, self, progress)
 
 
-def open_source(spec, guard_px: int):
+def open_source(scene, guard_px: int):
     """The scene's radiance source (`[source] kind`) on a mirror grid with `guard_px` mirrors of
     guard band beyond each edge of render.resolution (camera.Camera.guard_px)."""
-    if spec.source.renders:
-        return MitsubaSource(spec, guard_px=guard_px)
-    return open_frames(spec, guard_px, spec.sensor_qe)
+    if scene.source.renders:
+        return MitsubaSource(scene, guard_px=guard_px)
+    return open_frames(scene, guard_px, scene.sensor_qe)
 
 
-def check_frame_source(spec, guard_px: int):
+def check_frame_source(scene, guard_px: int):
     """Read every frame a frame source's run uses (sources/kinds.py check_source): its plan."""
-    return check_source(spec, guard_px, spec.sensor_qe)
+    return check_source(scene, guard_px, scene.sensor_qe)

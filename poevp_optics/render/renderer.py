@@ -128,29 +128,29 @@ def absolute_spectrum(spec_entry) -> np.ndarray:
     return spectra.scale_to_photometric(shape, value)
 
 
-def check_bindings(spec, facts: XmlFacts) -> None:
+def check_bindings(scene, facts: XmlFacts) -> None:
     """Every [spectra] entry binds a declared XML parameter, every emitter spectrum is bound."""
-    file = spec.toml_path
+    file = scene.toml_path
     if facts.problems:
-        raise SceneError(f"{spec.xml_path}: {facts.problems[0]}")
-    for name, entry in spec.spectra.items():
+        raise SceneError(f"{scene.xml_path}: {facts.problems[0]}")
+    for name, entry in scene.spectra.items():
         if name not in facts.defaults:
-            raise SceneError(f"{file}: spectra.{name}: the XML {spec.xml_path.name} declares no "
+            raise SceneError(f"{file}: spectra.{name}: the XML {scene.xml_path.name} declares no "
                              f"<default name=\"{name}\"> parameter to bind")
         if name in facts.emitter_params and entry.kind not in _EMISSIVE_KINDS:
             raise SceneError(f"{file}: spectra.{name}.kind: used by an emitter, must be one of "
                              f"{_EMISSIVE_KINDS}")
     for name in facts.emitter_params:
-        if name not in spec.spectra:
+        if name not in scene.spectra:
             raise SceneError(f"{file}: spectra.{name}: emitter parameter ${name} of "
-                             f"{spec.xml_path.name} has no [spectra.{name}] entry (absolute units)")
+                             f"{scene.xml_path.name} has no [spectra.{name}] entry (absolute units)")
 
 
-def _choose_path(spec, facts: XmlFacts, eligible: bool, why: str, force_mode: str | None) -> tuple[str, str]:
+def _choose_path(scene, facts: XmlFacts, eligible: bool, why: str, force_mode: str | None) -> tuple[str, str]:
     """The render path (spectral or mono) and why."""
-    mode = force_mode or spec.render.spectral_mode
+    mode = force_mode or scene.render.spectral_mode
     if mode == "mono" and not eligible:
-        raise SceneError(f"{spec.toml_path}: render.spectral_mode: 'mono' would not be exact here ({why})")
+        raise SceneError(f"{scene.toml_path}: render.spectral_mode: 'mono' would not be exact here ({why})")
     if mode == "auto":
         mode = "mono" if eligible else "spectral"
         return mode, (f"auto: pre-integrated mono render is exact ({why})" if eligible
@@ -176,17 +176,17 @@ def _mono_values(response, values, emissive, reflect, shapes) -> dict[str, str]:
     return params
 
 
-def plan_spectra(spec, force_mode: str | None = None) -> SpectralPlan:
+def plan_spectra(scene, force_mode: str | None = None) -> SpectralPlan:
     """Check the [spectra] bindings against the XML and choose the spectral or mono path.
 
     force_mode: "spectral" overrides the scene's choice (used when no mono variant exists).
     """
-    facts = read_xml_facts(spec.xml_path)
-    check_bindings(spec, facts)
-    response = spectra.sensor_response_e_per_J(spectra.load_spectrum(spec.sensor_qe, emissive=True))
-    values = {n: absolute_spectrum(e) for n, e in spec.spectra.items()}
-    emissive = [n for n, e in spec.spectra.items() if e.kind in _EMISSIVE_KINDS]
-    reflect = [n for n, e in spec.spectra.items() if e.kind == "reflectance"]
+    facts = read_xml_facts(scene.xml_path)
+    check_bindings(scene, facts)
+    response = spectra.sensor_response_e_per_J(spectra.load_spectrum(scene.sensor_qe, emissive=True))
+    values = {n: absolute_spectrum(e) for n, e in scene.spectra.items()}
+    emissive = [n for n, e in scene.spectra.items() if e.kind in _EMISSIVE_KINDS]
+    reflect = [n for n, e in scene.spectra.items() if e.kind == "reflectance"]
     # a lamp switched off (0 cd) adds no light: its SPD shape does not matter to the plan
     shapes = [spectra.normalised_shape(values[n]) for n in emissive
               if spectra.integrate(response * values[n]) > 0]
@@ -201,30 +201,30 @@ def plan_spectra(spec, force_mode: str | None = None) -> SpectralPlan:
         eligible = False
         why = ("emitters have different SPD shapes" if not one_shape else
                f"multiple bounces (max_depth={facts.max_depth}) over non-flat reflectances")
-    mode, reason = _choose_path(spec, facts, eligible, why, force_mode)
+    mode, reason = _choose_path(scene, facts, eligible, why, force_mode)
     params = ({n: spectra.to_mitsuba(v) for n, v in values.items()} if mode == "spectral"
               else _mono_values(response, values, emissive, reflect, shapes))
     from poevp_optics.render.materials.bindings import plugin_xml_params  # photometric lamps, retroreflective sheeting
 
-    params.update(plugin_xml_params(spec, facts.defaults))
-    if spec.plate.text:
-        if spec.plate.param not in facts.defaults:
-            raise SceneError(f"{spec.toml_path}: plate.param: the XML {spec.xml_path.name} declares no "
-                             f"<default name=\"{spec.plate.param}\"> for the plate texture")
+    params.update(plugin_xml_params(scene, facts.defaults))
+    if scene.plate.text:
+        if scene.plate.param not in facts.defaults:
+            raise SceneError(f"{scene.toml_path}: plate.param: the XML {scene.xml_path.name} declares no "
+                             f"<default name=\"{scene.plate.param}\"> for the plate texture")
         from poevp_optics.sources.plates import cached_plate_path
 
-        params[spec.plate.param] = str(cached_plate_path(spec.plate.text, spec.plate.width_px,
-                                                         spec.plate.height_px))
-    if spec.has_road:
+        params[scene.plate.param] = str(cached_plate_path(scene.plate.text, scene.plate.width_px,
+                                                         scene.plate.height_px))
+    if scene.has_road:
         from poevp_optics.sources.road import xml_params as road_xml_params
 
-        road = road_xml_params(spec.road)
+        road = road_xml_params(scene.road)
         missing = sorted(set(road) - set(facts.defaults))
         if missing:
-            raise SceneError(f"{spec.toml_path}: road: the XML {spec.xml_path.name} declares no "
+            raise SceneError(f"{scene.toml_path}: road: the XML {scene.xml_path.name} declares no "
                              f"<default name=\"{missing[0]}\"> ({len(missing)} of the [road] parameters missing)")
         params.update(road)
-    notes = tuple(n for n in (spectra.coverage_note(name, spec.spectra[name].source, response)
+    notes = tuple(n for n in (spectra.coverage_note(name, scene.spectra[name].source, response)
                               for name in emissive) if n)
     return SpectralPlan(mode, reason, params, response, notes)
 
@@ -240,7 +240,7 @@ class RenderStats:
     extra: dict = field(default_factory=dict)
 
 
-def mitsuba_load_error(text: str, spec, printed=()) -> str:
+def mitsuba_load_error(text: str, scene, printed=()) -> str:
     """Mitsuba's loader error as one line: the innermost file + line, and for a parameter the
     TOML key that binds it (`Found unused parameters: - $ink=0.0336` names no file)."""
     import re
@@ -248,10 +248,10 @@ def mitsuba_load_error(text: str, spec, printed=()) -> str:
     text = re.sub(r"\[[\w.]+:\d+\]\s*", "", text)
     unused = re.findall(r"\$([A-Za-z_]\w*)=", text) if "unused parameter" in text else []
     if unused:
-        keys = [f"spectra.{n}" if n in spec.spectra else "plate.text" if n == spec.plate.param else n
+        keys = [f"spectra.{n}" if n in scene.spectra else "plate.text" if n == scene.plate.param else n
                 for n in unused]
-        return (f"{spec.xml_path}: no element uses the parameter(s) {', '.join('$' + n for n in unused)}, "
-                f"but {spec.toml_path}: {', '.join(keys)} binds them; write value=\"$name\" where it belongs "
+        return (f"{scene.xml_path}: no element uses the parameter(s) {', '.join('$' + n for n in unused)}, "
+                f"but {scene.toml_path}: {', '.join(keys)} binds them; write value=\"$name\" where it belongs "
                 "in the XML, or remove the key")
     places = re.findall(r"(?:Error while loading|At) (.+?) \(line (\d+), col \d+\):\s*", text)
     tail = re.split(r"(?:Error while loading|At) .+? \(line \d+, col \d+\):\s*", text)[-1]
@@ -259,7 +259,7 @@ def mitsuba_load_error(text: str, spec, printed=()) -> str:
     bitmap = re.search(r'plugin of type "bitmap".*?"([^"]+)"', tail)
     if bitmap:
         tail = f"texture file {bitmap.group(1)} is not an image Mitsuba reads ({tail})"
-    where = f"{places[-1][0]}: line {places[-1][1]}" if places else str(spec.xml_path)
+    where = f"{places[-1][0]}: line {places[-1][1]}" if places else str(scene.xml_path)
     extra = " ".join(" ".join(printed).split())
     return f"{where}: Mitsuba could not load the scene: {tail}" + (f" (Mitsuba printed: {extra[:200]})" if extra else "")
 
@@ -267,21 +267,23 @@ def mitsuba_load_error(text: str, spec, printed=()) -> str:
 class Renderer:
     """A loaded Mitsuba scene that can be posed at a time and rendered (stateful: the scene)."""
 
-    def __init__(self, spec, zero_params: frozenset[str] = frozenset(), guard_px: int = 0):
-        """zero_params: emitter parameters set to zero in this instance (one emitter group's
+    def __init__(self, scene, zero_params: frozenset[str] = frozenset(), guard_px: int = 0):
+        """scene: the render's own inputs (render/render_scene.py RenderScene, resolved by
+        scene/resolve.py: the XML, [render], spectra, motion, the sensor's QE curve, accuracy).
+        zero_params: emitter parameters set to zero in this instance (one emitter group's
         image for flickering lamps, loop.render_exposures). guard_px: pixels rendered beyond
         each edge of `render.resolution` at the same focal length (the camera's guard band for
         its PSFs, camera.Camera.guard_px); images are (H + 2 guard, W + 2 guard)."""
         import mitsuba as mi
 
-        self.spec = spec
+        self.scene = scene
         self.guard_px = int(guard_px)
-        self.plan = plan_spectra(spec)
-        variant, why = runtime.choose_variant(self.plan.mode, spec.render.variant)
+        self.plan = plan_spectra(scene)
+        variant, why = runtime.choose_variant(self.plan.mode, scene.render.variant)
         if self.plan.mode == "mono" and "mono" not in variant:
             # no scalar mono variant: fall back to the spectral path, which is always exact
-            self.plan = plan_spectra(spec, force_mode="spectral")
-            variant, why = runtime.choose_variant("spectral", spec.render.variant)
+            self.plan = plan_spectra(scene, force_mode="spectral")
+            variant, why = runtime.choose_variant("spectral", scene.render.variant)
         if zero_params:
             zero = "0" if self.plan.mode == "mono" else spectra.to_mitsuba(np.zeros_like(self.plan.response_e_per_J))
             self.plan = SpectralPlan(self.plan.mode, self.plan.reason,
@@ -295,18 +297,18 @@ class Renderer:
 
         try:
             with quiet_native_stderr() as printed:
-                self.scene = mi.load_file(str(spec.xml_path), **self.plan.xml_params)
+                self.mi_scene = mi.load_file(str(scene.xml_path), **self.plan.xml_params)
         except Exception as e:  # noqa: BLE001 - Mitsuba raises RuntimeError with a long trace
-            raise SceneError(mitsuba_load_error(str(e) or type(e).__name__, spec, printed)) from None
+            raise SceneError(mitsuba_load_error(str(e) or type(e).__name__, scene, printed)) from None
         if "".join(printed).strip():   # Mitsuba's log of a scene that loads: a warning, not loose text
             import warnings
 
-            warnings.warn(f"Mitsuba loading {spec.xml_path.name}: {''.join(printed)[:500]}", stacklevel=2)
-        self.params = mi.traverse(self.scene)
+            warnings.warn(f"Mitsuba loading {scene.xml_path.name}: {''.join(printed)[:500]}", stacklevel=2)
+        self.params = mi.traverse(self.mi_scene)
         # Moving objects: analytic shapes and emitters expose `to_world`; meshes bake their
         # transform into `vertex_positions`, which we translate directly (motion is a translation).
         self._base, self._base_vertices = {}, {}
-        for ident, motion in spec.motion.items():
+        for ident, motion in scene.motion.items():
             for target in (ident, *motion.attached):
                 if f"{target}.to_world" in self.params:
                     self._base[target] = mi.Transform4f(self.params[f"{target}.to_world"])
@@ -317,15 +319,15 @@ class Renderer:
                     if any(k.startswith("object_") for k in self.params.keys()):
                         hint = (" (Mitsuba 3.7+ merges meshes whose BSDFs are identical into one "
                                 "anonymous shape: give a moving mesh a material of its own)")
-                    raise SceneError(f"{spec.toml_path}: motion.{ident}: no shape or emitter with "
-                                     f"id {target!r} in {spec.xml_path.name}{hint}")
+                    raise SceneError(f"{scene.toml_path}: motion.{ident}: no shape or emitter with "
+                                     f"id {target!r} in {scene.xml_path.name}{hint}")
         self.sensor = self._make_sensor()
         self._roi_shape = None
-        if spec.render.roi_shape:
-            found = [s for s in self.scene.shapes() if s.id() == spec.render.roi_shape]
+        if scene.render.roi_shape:
+            found = [s for s in self.mi_scene.shapes() if s.id() == scene.render.roi_shape]
             if not found:
-                raise SceneError(f"{spec.toml_path}: render.roi_shape: no shape with id "
-                                 f"{spec.render.roi_shape!r} in {spec.xml_path.name}")
+                raise SceneError(f"{scene.toml_path}: render.roi_shape: no shape with id "
+                                 f"{scene.render.roi_shape!r} in {scene.xml_path.name}")
             self._roi_shape = found[0]
         self.stats = RenderStats(variant=variant)
         self._time = None
@@ -334,9 +336,9 @@ class Renderer:
 
     def _make_sensor(self):
         mi = self.mi
-        cams = self.scene.sensors()
+        cams = self.mi_scene.sensors()
         if not cams:
-            raise SceneError(f"{self.spec.xml_path}: the XML has no <sensor> (camera pose and fov)")
+            raise SceneError(f"{self.scene.xml_path}: the XML has no <sensor> (camera pose and fov)")
         cam_id = cams[0].id()
         p = self.params
 
@@ -348,9 +350,9 @@ class Renderer:
             return float(v[0]) if hasattr(v, "__len__") else float(v)
 
         if get("x_fov") is None:
-            raise SceneError(f"{self.spec.xml_path}: sensor {cam_id!r} must be a perspective camera")
+            raise SceneError(f"{self.scene.xml_path}: sensor {cam_id!r} must be a perspective camera")
         to_world = mi.ScalarTransform4f(np.array(p[f"{cam_id}.to_world"].matrix).reshape(4, 4))
-        h0, w0 = self.spec.render.resolution
+        h0, w0 = self.scene.render.resolution
         g = self.guard_px
         h, w = h0 + 2 * g, w0 + 2 * g
         # same focal length over a wider film: tan(fov / 2) grows with the film width
@@ -370,7 +372,7 @@ class Renderer:
             # offsets are in units of the film size: keep them fixed in pixels
             "principal_point_offset_x": get("principal_point_offset_x", 0.0) * w0 / w,
             "principal_point_offset_y": get("principal_point_offset_y", 0.0) * h0 / h,
-            "film": film, "sampler": SAMPLERS[self.spec.render.sampler].mitsuba_dict(1)})
+            "film": film, "sampler": SAMPLERS[self.scene.render.sampler].mitsuba_dict(1)})
 
     # ------------------------------------------------------------------ posing
     def set_time(self, t_s: float) -> None:
@@ -378,7 +380,7 @@ class Renderer:
         if not (self._base or self._base_vertices) or self._time == t_s:
             return
         mi = self.mi
-        for ident, motion in self.spec.motion.items():
+        for ident, motion in self.scene.motion.items():
             off = motion.offset_m(t_s)
             tr = mi.Transform4f().translate(mi.Vector3f(*map(float, off)))
             for target in (ident, *motion.attached):
@@ -389,7 +391,7 @@ class Renderer:
                     self.params[f"{target}.vertex_positions"] = mi.Float(verts.astype(np.float32).ravel())
         self.params.update()
         self._time = t_s
-        if self._roi_shape is not None and LIGHT_SELECTIONS[self.spec.render.light_selection].from_pilot:
+        if self._roi_shape is not None and LIGHT_SELECTIONS[self.scene.render.light_selection].from_pilot:
             box = self.roi_box()           # the ROI grew/shrank > 25 % since the pilot: re-select
             area = (box[2] - box[0]) * (box[3] - box[1]) if box else 0
             if self._pilot_area and area and not 0.8 <= area / self._pilot_area <= 1.25:
@@ -411,7 +413,7 @@ class Renderer:
         visible = np.array(ds.pdf).ravel() > 0
         if not np.any(visible):
             return None
-        h, w = (n + 2 * self.guard_px for n in self.spec.render.resolution)
+        h, w = (n + 2 * self.guard_px for n in self.scene.render.resolution)
         u, v = uv[0][visible], uv[1][visible]
         x0, x1 = int(np.clip(np.floor(u.min()), 0, w)), int(np.clip(np.ceil(u.max()), 0, w))
         y0, y1 = int(np.clip(np.floor(v.min()), 0, h)), int(np.clip(np.ceil(v.max()), 0, h))
@@ -425,8 +427,8 @@ class Renderer:
         the current pose; returns {emitter id: weight} (the report's `light_weights`)."""
         from poevp_optics.render.lights import weights_from_moments
 
-        choice = LIGHT_SELECTIONS[self.spec.render.light_selection]
-        keys = {em.id(): f"{em.id()}.sampling_weight" for em in self.scene.emitters()}
+        choice = LIGHT_SELECTIONS[self.scene.render.light_selection]
+        keys = {em.id(): f"{em.id()}.sampling_weight" for em in self.mi_scene.emitters()}
         keys = {k: v for k, v in keys.items() if v in self.params}
         if choice.keep_xml:
             weights = {k: float(self.params[v]) for k, v in keys.items()}
@@ -445,20 +447,20 @@ class Renderer:
         ROI box at the current pose when there is one (render/lights.py roi_weighted_moments)."""
         from poevp_optics.render.lights import pilot_moments, roi_weighted_moments
 
-        frame = pilot_moments(self.mi, self.scene, self.sensor, self.spec.render.seed)
+        frame = pilot_moments(self.mi, self.mi_scene, self.sensor, self.scene.render.seed)
         box = self.roi_box() if self._roi_shape is not None else None
         if box is None:
             return frame[0]
-        h, w = (n + 2 * self.guard_px for n in self.spec.render.resolution)
+        h, w = (n + 2 * self.guard_px for n in self.scene.render.resolution)
         y0, x0, y1, x1 = box
         self._pilot_area = (y1 - y0) * (x1 - x0)
-        roi = pilot_moments(self.mi, self.scene, self.sensor, self.spec.render.seed,
+        roi = pilot_moments(self.mi, self.mi_scene, self.sensor, self.scene.render.seed,
                             (x0 / w, y0 / h, x1 / w, y1 / h))
         return roi_weighted_moments([frame, roi])
 
     def sample_count(self, spp: int) -> int:
         """The spp Mitsuba renders for a request of `spp` with this run's sampler."""
-        return sample_count(self.spec.render.sampler, spp)
+        return sample_count(self.scene.render.sampler, spp)
 
     def render_once(self, seed: int, spp: int) -> np.ndarray:
         """One mi.render call: (H, W) float32 photon radiance. `self.last_spp` is the spp the
@@ -466,7 +468,7 @@ class Renderer:
         if self.light_weights is None:
             self.select_lights()
         t0 = time.perf_counter()
-        img = self.mi.render(self.scene, sensor=self.sensor, seed=int(seed) & 0x7FFFFFFF, spp=int(spp))
+        img = self.mi.render(self.mi_scene, sensor=self.sensor, seed=int(seed) & 0x7FFFFFFF, spp=int(spp))
         arr = np.array(img, dtype=np.float32)
         self.stats.seconds += time.perf_counter() - t0
         self.stats.calls += 1
@@ -474,7 +476,7 @@ class Renderer:
         arr = arr[..., 0] if arr.ndim == 3 else arr
         if not np.all(np.isfinite(arr)):
             bad = int(np.count_nonzero(~np.isfinite(arr)))
-            raise FloatingPointError(f"{self.spec.xml_path}: render produced {bad} NaN/Inf pixels")
+            raise FloatingPointError(f"{self.scene.xml_path}: render produced {bad} NaN/Inf pixels")
         return arr
 
     def render_box(self, seed: int, spp: int, box) -> np.ndarray:
@@ -489,16 +491,16 @@ class Renderer:
         sampler's count."""
         mi = self.mi
         if self.plan.mode != "mono":
-            raise SceneError(f"{self.spec.toml_path}: render.roi_spp: the ROI box render needs the mono "
+            raise SceneError(f"{self.scene.toml_path}: render.roi_spp: the ROI box render needs the mono "
                              f"path (this scene renders {self.plan.mode}: {self.plan.reason})")
         if self.light_weights is None:
             self.select_lights()
         t0 = time.perf_counter()
         y0, x0, y1, x1 = box
         h, w = y1 - y0, x1 - x0
-        sampler = mi.load_dict(SAMPLERS[self.spec.render.sampler].mitsuba_dict(int(spp)))
+        sampler = mi.load_dict(SAMPLERS[self.scene.render.sampler].mitsuba_dict(int(spp)))
         n = int(sampler.sample_count())
-        hh, ww = (k + 2 * self.guard_px for k in self.spec.render.resolution)
+        hh, ww = (k + 2 * self.guard_px for k in self.scene.render.resolution)
         lanes = h * w * n
         sampler.set_samples_per_wavefront(n)                 # lane % n: the sample index in its pixel
         sampler.seed(int(seed) & 0x7FFFFFFF, lanes)
@@ -513,7 +515,7 @@ class Renderer:
         fy = (dr.gather(mi.Float, mi.Float(py), idx) + pos.y) / hh
         ray, ray_w = self.sensor.sample_ray(mi.Float(self.sensor.shutter_open()), mi.Float(0.5),
                                             mi.Point2f(fx, fy), mi.Point2f(0.5, 0.5))
-        L, _, _ = self.scene.integrator().sample(self.scene, sampler, ray, None, True)
+        L, _, _ = self.mi_scene.integrator().sample(self.mi_scene, sampler, ray, None, True)
         val = np.array(ray_w * L, dtype=np.float64)
         val = val.reshape(-1, lanes).mean(axis=0) if val.size != lanes else val.ravel()
         out = val.reshape(h * w, n).mean(axis=1).reshape(h, w)
@@ -521,7 +523,7 @@ class Renderer:
         self.stats.calls += 1
         self.last_spp = n
         if not np.all(np.isfinite(out)):
-            raise FloatingPointError(f"{self.spec.xml_path}: ROI render produced NaN/Inf pixels")
+            raise FloatingPointError(f"{self.scene.xml_path}: ROI render produced NaN/Inf pixels")
         return out
 
     def render_box_with_error(self, seeds: list[int], spp: int, box) -> tuple[np.ndarray, np.ndarray, int]:

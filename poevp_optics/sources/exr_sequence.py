@@ -142,10 +142,10 @@ class ExrSequenceSource(FrameSequenceSource):
 
     kind = "exr_sequence"
 
-    def __init__(self, spec, guard_px: int, sensor_qe: str):
-        src = spec.source
-        base = spec.toml_path.parent
-        where = str(spec.origin or spec.toml_path)
+    def __init__(self, scene, guard_px: int, sensor_qe: str):
+        src = scene.source
+        base = scene.toml_path.parent
+        where = str(scene.origin or scene.toml_path)
         files = frame_files(base, src.frames)
         if not files:
             raise SourceError(f"{where}: source.frames: no file matches {src.frames!r} (relative to {base})")
@@ -166,14 +166,14 @@ class ExrSequenceSource(FrameSequenceSource):
             clock = Clock.uniform(len(files), src.fps, src.t0_s)
             when = f"{src.fps:g} fps from t0_s = {src.t0_s:g} s"
         boxes = read_boxes_csv(resolve_path(base, src.boxes), len(files), shape) if src.boxes else {}
-        self.factor, how = self._unit_factor(spec, files, shape, sensor_qe)
+        self.factor, how = self._unit_factor(scene, files, shape, sensor_qe)
         reason = (f"{len(files)} EXR frames {shape[0]}x{shape[1]} ({src.frames}, channel {src.channel!r}), "
                   f"unit {src.unit}: {how}; {when}; samples by {src.subframes!r}")
-        super().__init__(spec, guard_px, files, clock, shape, src.guard_px, boxes, reason)
+        super().__init__(scene, guard_px, files, clock, shape, src.guard_px, boxes, reason)
 
-    def _unit_factor(self, spec, files, shape, sensor_qe: str) -> tuple[float, str]:
+    def _unit_factor(self, scene, files, shape, sensor_qe: str) -> tuple[float, str]:
         """Photon radiance per value (e- s-1 m-2 sr-1 per unit of the file) and how it was found."""
-        src = spec.source
+        src = scene.source
         if src.unit == "photon_radiance":
             return 1.0, "values are photon radiance"
         response = spectra.sensor_response_e_per_J(spectra.load_spectrum(sensor_qe, emissive=True))
@@ -182,7 +182,7 @@ class ExrSequenceSource(FrameSequenceSource):
             return k, f"x {k:.6g} e- J-1 (sensor response over the SPD {src.spectrum})"
         if not math.isnan(src.scale):
             return src.scale, f"x scale = {src.scale:g}"
-        where = str(spec.origin or spec.toml_path)
+        where = str(scene.origin or scene.toml_path)
         if src.reference_frame >= len(files):
             raise SourceError(f"{where}: source.reference_frame: {src.reference_frame} is not one of the "
                               f"{len(files)} frames")
@@ -200,17 +200,17 @@ class ExrSequenceSource(FrameSequenceSource):
                    f"{ref_file.name}, value {v:g})")
 
     def load(self, j: int) -> np.ndarray:
-        v = read_values(self.files[j], self.spec.source.channel, self.shape_in)
+        v = read_values(self.files[j], self.scene.source.channel, self.shape_in)
         return v if self.factor == 1.0 else v * self.factor
 
 
-def open_source(spec, guard_px: int, sensor_qe: str) -> ExrSequenceSource:
-    return ExrSequenceSource(spec, guard_px, sensor_qe)
+def open_source(scene, guard_px: int, sensor_qe: str) -> ExrSequenceSource:
+    return ExrSequenceSource(scene, guard_px, sensor_qe)
 
 
-def input_files(spec) -> list[Path]:
+def input_files(scene) -> list[Path]:
     """The files a run of this source reads (for sweep records)."""
-    src, base = spec.source, spec.toml_path.parent
+    src, base = scene.source, scene.toml_path.parent
     return frame_files(base, src.frames) + [resolve_path(base, n) for n in (src.times_csv, src.boxes) if n]
 
 

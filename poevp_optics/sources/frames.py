@@ -225,23 +225,23 @@ def read_times_csv(path: Path, files: Sequence[Path]) -> np.ndarray:
     return t
 
 
-def exposure_taps(spec, clock: Clock, mode: str, index: int):
+def exposure_taps(scene, clock: Clock, mode: str, index: int):
     """Per radiance node of frame `index`'s exposure, the (input frame, weight) pairs of its sample."""
-    times = spec.subframe_times_s(index)
+    times = scene.subframe_times_s(index)
     if mode != "integrate":
         return [clock.taps_at(float(t), mode) for t in times]
-    a, b = spec.exposure_window_s(index)
+    a, b = scene.exposure_window_s(index)
     cuts = np.concatenate([[a], 0.5 * (times[1:] + times[:-1]), [b]])
     return [clock.taps_over(float(lo), float(hi)) for lo, hi in zip(cuts[:-1], cuts[1:])]
 
 
-def check_covers(spec, clock: Clock, mode: str, where: str) -> None:
+def check_covers(scene, clock: Clock, mode: str, where: str) -> None:
     """Every sample of every exposure of the run lies inside the frames' time span."""
     lo, hi = clock.span_s(mode)
     tol = 1e-12 * max(1.0, abs(lo), abs(hi))
-    for i in range(spec.timing.frames):
-        a, b = spec.exposure_window_s(i)
-        need = spec.subframe_times_s(i) if mode != "integrate" else np.array([a, b])
+    for i in range(scene.timing.frames):
+        a, b = scene.exposure_window_s(i)
+        need = scene.subframe_times_s(i) if mode != "integrate" else np.array([a, b])
         if need.min() < lo - tol or need.max() > hi + tol:
             t = need.min() if need.min() < lo - tol else need.max()
             raise SourceError(f"{where}: source.frames: the {clock.times_s.size} frames cover t = "
@@ -425,17 +425,17 @@ class FrameSequenceSource:
 
     kind = ""
 
-    def __init__(self, spec, guard_px: int, files: Sequence[Path], clock: Clock, in_shape,
+    def __init__(self, scene, guard_px: int, files: Sequence[Path], clock: Clock, in_shape,
                  guard_in_px: int, boxes: dict[int, Box], reason: str, notes: Sequence[str] = ()):
-        self.spec = spec
+        self.scene = scene
         self.guard_px = int(guard_px)
         self.files = list(files)
         self.clock = clock
-        self.mode = spec.source.subframes
-        where = str(spec.origin or spec.toml_path)
-        check_aspect(in_shape, guard_in_px, spec.render.resolution, where, "source.frames")
-        check_covers(spec, clock, self.mode, where)
-        self.area = AreaMap.build(in_shape, guard_in_px, spec.render.resolution, self.guard_px)
+        self.mode = scene.source.subframes
+        where = str(scene.origin or scene.toml_path)
+        check_aspect(in_shape, guard_in_px, scene.render.resolution, where, "source.frames")
+        check_covers(scene, clock, self.mode, where)
+        self.area = AreaMap.build(in_shape, guard_in_px, scene.render.resolution, self.guard_px)
         self.boxes = boxes
         notes = list(notes)
         if self.area.note():
@@ -459,8 +459,8 @@ class FrameSequenceSource:
     def frames_used(self) -> list[int]:
         """Input frames the run's exposures read, in order."""
         used = set()
-        for i in range(self.spec.timing.frames):
-            for taps in exposure_taps(self.spec, self.clock, self.mode, i):
+        for i in range(self.scene.timing.frames):
+            for taps in exposure_taps(self.scene, self.clock, self.mode, i):
                 used.update(j for j, _ in taps)
         return sorted(used)
 
@@ -490,13 +490,13 @@ class FrameSequenceSource:
         variance is zero and rel_error None."""
         from tqdm import tqdm
 
-        spec = self.spec
-        for i in tqdm(range(spec.timing.frames), desc=f"read {spec.name}", unit="frame",
+        scene = self.scene
+        for i in tqdm(range(scene.timing.frames), desc=f"read {scene.name}", unit="frame",
                       disable=not progress or None, leave=False):
-            t0, t1 = spec.exposure_window_s(i)
-            times = spec.subframe_times_s(i)
-            weights = spec.subframe_weights(i)
-            all_taps = exposure_taps(spec, self.clock, self.mode, i)
+            t0, t1 = scene.exposure_window_s(i)
+            times = scene.subframe_times_s(i)
+            weights = scene.subframe_weights(i)
+            all_taps = exposure_taps(scene, self.clock, self.mode, i)
             used = sorted({j for taps in all_taps for j, _ in taps})
             for j in [j for j in self._cache if j < used[0]]:
                 del self._cache[j]

@@ -31,7 +31,7 @@ from poevp_optics.sources.frames import SUBFRAME_MODES, FrameSequenceSource, Sou
 @dataclass(frozen=True)
 class SourceKind:
     """One [source] kind: the keys it takes, their combination check (raises
-    frames.SourceKeyError), how it opens, (spec, guard_px, sensor_qe) -> source (None: rendered
+    frames.SourceKeyError), how it opens, (scene, guard_px, sensor_qe) -> source (None: rendered
     by render/radiance.py), and the files it reads besides the TOML."""
 
     keys: tuple[str, ...]
@@ -92,22 +92,22 @@ class SourceSpec:
         return SOURCES[self.kind].open is None
 
 
-def open_frames(spec, guard_px: int, sensor_qe: str) -> FrameSequenceSource:
+def open_frames(scene, guard_px: int, sensor_qe: str) -> FrameSequenceSource:
     """A frame source (`[source] kind` other than mitsuba) on a mirror grid with `guard_px`
     mirrors beyond each edge of render.resolution; sensor_qe: the sensor's QE table (a
     core/spectra.py source), for units that need its response."""
-    kind = SOURCES[spec.source.kind]
+    kind = SOURCES[scene.source.kind]
     if kind.open is None:
-        raise ValueError(f"[source] kind {spec.source.kind!r} is rendered, not read: render/radiance.py opens it")
-    return kind.open(spec, guard_px, sensor_qe)
+        raise ValueError(f"[source] kind {scene.source.kind!r} is rendered, not read: render/radiance.py opens it")
+    return kind.open(scene, guard_px, sensor_qe)
 
 
-def check_source(spec, guard_px: int, sensor_qe: str) -> SourcePlan:
+def check_source(scene, guard_px: int, sensor_qe: str) -> SourcePlan:
     """Open a frame source and read every frame its run uses (sizes, values, times, boxes);
     frames.SourceError (one line: file and key) on the first problem."""
-    return check_frames(open_frames(spec, guard_px, sensor_qe))
+    return check_frames(open_frames(scene, guard_px, sensor_qe))
 
 
-def source_files(spec) -> list[Path]:
+def source_files(scene) -> list[Path]:
     """The files a run's source reads besides the TOML (frames, CSVs, video); none for mitsuba."""
-    return SOURCES[spec.source.kind].files(spec)
+    return SOURCES[scene.source.kind].files(scene)

@@ -244,10 +244,10 @@ class LdrHighlightSource(FrameSequenceSource):
 
     kind = "ldr_highlight"
 
-    def __init__(self, spec, guard_px: int, sensor_qe: str):
-        src = spec.source
-        base = spec.toml_path.parent
-        where = str(spec.origin or spec.toml_path)
+    def __init__(self, scene, guard_px: int, sensor_qe: str):
+        src = scene.source
+        base = scene.toml_path.parent
+        where = str(scene.origin or scene.toml_path)
         self._video = None
         if src.video:
             self._video = _Video(resolve_path(base, src.video))
@@ -280,7 +280,7 @@ class LdrHighlightSource(FrameSequenceSource):
                   f"{self.sigma_px:.4g} px ({src.radius_rule}); {anchor}; {src.fps:g} fps; samples by "
                   f"{src.subframes!r}")
         clock = Clock.uniform(n, src.fps, src.t0_s)
-        super().__init__(spec, guard_px, files, clock, self.shape_in, 0, boxes, reason)
+        super().__init__(scene, guard_px, files, clock, self.shape_in, 0, boxes, reason)
         unboxed = [j for j in self.frames_used() if j not in boxes]
         if unboxed:
             self.plan = dataclasses.replace(self.plan, notes=self.plan.notes + (
@@ -301,16 +301,16 @@ class LdrHighlightSource(FrameSequenceSource):
         return img
 
     def load(self, j: int) -> np.ndarray:
-        src = self.spec.source
+        src = self.scene.source
         return self.scale * highlighted_luminance(self.decoded(j), self.boxes.get(j), src.e, self.sigma_px,
                                                   src.transfer, src.gamma, src.e_domain)
 
 
-def open_source(spec, guard_px: int, sensor_qe: str) -> LdrHighlightSource:
-    return LdrHighlightSource(spec, guard_px, sensor_qe)
+def open_source(scene, guard_px: int, sensor_qe: str) -> LdrHighlightSource:
+    return LdrHighlightSource(scene, guard_px, sensor_qe)
 
 
-def input_files(spec) -> list[Path]:
-    src, base = spec.source, spec.toml_path.parent
+def input_files(scene) -> list[Path]:
+    src, base = scene.source, scene.toml_path.parent
     files = [resolve_path(base, src.video)] if src.video else frame_files(base, src.frames)
     return files + ([resolve_path(base, src.boxes)] if src.boxes else [])

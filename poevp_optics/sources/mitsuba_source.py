@@ -19,6 +19,6 @@ def check_keys(src, given: frozenset[str], base_dir: Path) -> None:
     other before this is called)."""
 
 
-def input_files(spec) -> list[Path]:
+def input_files(scene) -> list[Path]:
     """No files besides the XML and what it names (apps/run/preflight.py lists those)."""
     return []

@@ -140,10 +140,10 @@ def plate_geometry(road: RoadSpec, plate_centre_m, candela, ra) -> dict:
             "retro_luminance_cd_m2": sum(v["retro_luminance_cd_m2"] for v in lamps.values())}
 
 
-def plate_centre_m(spec, t_s: float) -> np.ndarray:
+def plate_centre_m(scene, t_s: float) -> np.ndarray:
     """The plate's centre (world, m) at time t_s: [road] plate_position_m + [motion.plate]."""
-    p = np.asarray(spec.road.plate_position_m, float)
-    m = spec.motion.get("plate")
+    p = np.asarray(scene.road.plate_position_m, float)
+    m = scene.motion.get("plate")
     return p + (m.offset_m(t_s) if m is not None else 0.0)
 
 

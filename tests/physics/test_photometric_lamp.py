@@ -120,7 +120,7 @@ def _render_tiles(r, points, spp, seeds):
         sensor = mi.load_dict({"type": "perspective", "fov": TILE_FOV_DEG, "film": film,
                                "to_world": mi.ScalarTransform4f().look_at(
                                    origin=[0, 0, 0], target=_direction(h, v).tolist(), up=[0, 1, 0])})
-        vals = np.array([np.array(mi.render(r.scene, sensor=sensor, spp=spp, seed=s), dtype=np.float64).mean()
+        vals = np.array([np.array(mi.render(r.mi_scene, sensor=sensor, spp=spp, seed=s), dtype=np.float64).mean()
                          for s in seeds])
         means.append(vals.mean())
         ses.append(vals.std(ddof=1) / math.sqrt(len(seeds)))

@@ -55,7 +55,7 @@ def test_roi_samples_pool_with_the_frame_and_their_variance_is_honest():
     from poevp_optics.render.exposures import add_roi_samples
 
     r = _renderer("render.roi_spp=32", "render.spp=8")
-    spec = r.spec
+    spec = r.scene
     y0, x0, y1, x1 = r.roi_box()
     means, variances = [], []
     for k in range(12):

@@ -140,24 +140,26 @@ def _subframes(spec) -> int:
 
 
 def _kernel_px(spec) -> int:
-    """Width of the relay kernel (1 when the stage is skipped)."""
+    """Width of the relay kernel (1 when the stage is skipped), from the camera's resolved params
+    (`spec.resolved.camera`, what `Camera.from_params` builds from)."""
     from poevp_optics.sources import spectra
     from poevp_optics.camera.relay import PSFContext, kernel_size_px, max_support_px
     from poevp_optics.camera.layout import layout_of
     from poevp_optics.camera.sensor import resolve_sensor
 
-    relay = spec.relay
+    cp = spec.resolved.camera
+    relay = cp.relay
     if relay.psf == "delta" and relay.glare_fraction <= 0:
         return 1
-    p = resolve_sensor(spec.sensor)
+    p = resolve_sensor(cp.sensor)
     band = None
     if relay.psf == "airy":
         band = spectra.sensor_response_e_per_J(spectra.load_spectrum(p.qe, emissive=True))
-    acc = spec.accuracy
+    acc = cp.accuracy
     ctx = PSFContext(pixel_pitch_m=p.pixel_pitch_m,
-                     f_number=layout_of(spec.sensor, spec.dmd, spec.relay, spec.objective).sensor_f_number,
-                     band_nm=spectra.WAVELENGTHS_NM, band_weights=band, base_dir=spec.toml_path.parent,
-                     cap_px=max_support_px(spec.render.resolution), support_px=acc.psf_support_px,
+                     f_number=layout_of(cp.sensor, cp.dmd, cp.relay, cp.objective).sensor_f_number,
+                     band_nm=spectra.WAVELENGTHS_NM, band_weights=band, base_dir=cp.base_dir,
+                     cap_px=max_support_px(cp.shape), support_px=acc.psf_support_px,
                      support_energy=acc.psf_support_energy)
     return kernel_size_px(relay, ctx)
 
@@ -166,7 +168,8 @@ def _objective_params(spec):
     """The [objective] keys resolved as the camera resolves them (None: the stage is skipped)."""
     from poevp_optics.camera.layout import objective_params_of
 
-    return objective_params_of(spec.sensor, spec.dmd, spec.relay, spec.objective)
+    cp = spec.resolved.camera
+    return objective_params_of(cp.sensor, cp.dmd, cp.relay, cp.objective)
 
 
 def _render_shape(spec) -> tuple[int, int]:
@@ -175,14 +178,15 @@ def _render_shape(spec) -> tuple[int, int]:
     registration that shrinks the image; the objective's from objective.radius_bound_px)."""
     from poevp_optics.camera.objective import radius_bound_px
 
-    h, w = spec.render.resolution
-    g = min(_kernel_px(spec) // 2, spec.relay.guard_max_px)
-    reg = spec.dmd.registration
-    if spec.dmd.enabled and g and reg.scale < 1.0:
+    cp = spec.resolved.camera
+    h, w = cp.shape
+    g = min(_kernel_px(spec) // 2, cp.accuracy.guard_max_px)
+    reg = cp.dmd.registration
+    if cp.dmd.enabled and g and reg.scale < 1.0:
         g = int(g / reg.scale) + 1
     o = _objective_params(spec)
     if o is not None:
-        g = max(g, min(radius_bound_px(o, (h, w)), spec.objective.guard_max_px))
+        g = max(g, min(radius_bound_px(o, (h, w)), cp.objective.guard_max_px))
     return h + 2 * g, w + 2 * g
 
 

@@ -25,12 +25,12 @@ def _param(node, tag, name):
     return None
 
 
-def plugin_xml_params(spec, defaults: frozenset[str]) -> dict[str, str]:
+def plugin_xml_params(scene, defaults: frozenset[str]) -> dict[str, str]:
     """XML parameter values for photometric lamps and retroreflective sheeting."""
-    file, xml = spec.toml_path, spec.xml_path
+    file, xml = scene.toml_path, scene.xml_path
     root = ET.parse(xml).getroot()
     params: dict[str, str] = {}
-    for name, entry in spec.spectra.items():
+    for name, entry in scene.spectra.items():
         if entry.distribution:
             key = f"{name}_distribution"
             if key not in defaults:
@@ -38,7 +38,7 @@ def plugin_xml_params(spec, defaults: frozenset[str]) -> dict[str, str]:
                                  f"<default name=\"{key}\"> (use it as <string name=\"distribution\" "
                                  f"value=\"${key}\"/> in a photometric emitter)")
             params[key] = str(resolve_distribution(entry.distribution, file.parent))
-    for name, entry in spec.sheeting.items():
+    for name, entry in scene.sheeting.items():
         if name not in defaults:
             raise SceneError(f"{file}: sheeting.{name}: the XML {xml.name} declares no "
                              f"<default name=\"{name}\"> (use it as <string name=\"sheeting\" "
@@ -50,7 +50,7 @@ def plugin_xml_params(spec, defaults: frozenset[str]) -> dict[str, str]:
         ident = em.get("id") or "photometric"
         lamp = _param(em, "spectrum", "intensity")
         dist = _param(em, "string", "distribution")
-        entry = spec.spectra.get(lamp) if lamp else None
+        entry = scene.spectra.get(lamp) if lamp else None
         if entry is None or not entry.distribution:
             raise SceneError(f"{file}: spectra.{lamp}.distribution: photometric emitter {ident!r} of "
                              f"{xml.name} needs its intensity ${lamp} to name a photometric file")
@@ -61,7 +61,7 @@ def plugin_xml_params(spec, defaults: frozenset[str]) -> dict[str, str]:
         if bsdf.get("type") != "retroreflective":
             continue
         name = _param(bsdf, "string", "sheeting")
-        if name is not None and name not in spec.sheeting:
+        if name is not None and name not in scene.sheeting:
             raise SceneError(f"{file}: sheeting.{name}: retroreflective BSDF in {xml.name} uses "
                              f"${name}, which has no [sheeting.{name}] entry")
     return params
