@@ -335,6 +335,13 @@ class Camera:
             raise ValueError(f"frame {frame_index}: {k} radiance samples but {rel.size} sample times")
         return rel
 
+    def capture_command(self, subframes, command, frame_index: int, seed: int, **timing) -> Capture:
+        """`capture` through one frame's DMD command (control/loop_step.py DMDCommand: its mirror-grid
+        `levels`, its late mask `switch` and the attenuator's `transmission`); timing: `basis` or
+        `times_s` as for `capture`."""
+        return self.capture(subframes, command.levels, frame_index, seed, switch=command.switch,
+                            transmission=command.transmission, **timing)
+
     def capture(self, subframes, mask_levels, frame_index: int, seed: int,
                 basis: tuple[str, ...] = (), times_s=None, switch=None, transmission: float = 1.0) -> Capture:
         """Expose the sensor to K radiance samples (mirror grid) through `mask_levels` (mirror grid,

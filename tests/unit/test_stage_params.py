@@ -56,3 +56,26 @@ def test_loop_from_params_commands_white_then_dims_the_highlight_only():
     far = cmd.levels.array.copy()
     far[cy - 2:cy + 3, cx - 2:cx + 3] = cam.top_level
     assert np.all(far == cam.top_level)
+
+
+def test_the_command_drives_the_capture_and_unclips_the_spot():
+    """The loop's command into `Camera.capture_command`: the spot 20x over saturation clips
+    behind white mirrors and does not behind the commanded ones (noise off: the sensor's full
+    well is the clip); the background, left at white, gets the same exposure either way."""
+    from poevp_optics.camera.sensor import NoiseSwitches
+
+    cam = Camera(SensorSpec(), DMDSpec(enabled=True, bits=8), RelaySpec(), ObjectiveSpec(), TimingSpec(), SHAPE,
+                 switches=NoiseSwitches.off())
+    step = LoopStep(cam, MaskSpec(law="target", target=0.5, smooth_px=0.0), LoopSpec(), PredictorSpec(name="oracle"))
+    truth = np.full(cam.mirror_shape, 1.0, np.float32)
+    white_e = cam.electrons_per_radiance() * cam.white_exposure_s(2)
+    truth *= 0.05 * cam.params.saturation_capacity_e / white_e
+    cy, cx = cam.mirror_shape[0] // 2, cam.mirror_shape[1] // 2
+    truth[cy - 1:cy + 2, cx - 1:cx + 2] *= 400.0
+    cmd = step.command(2, truth)
+    enc = cam.capture_command([truth], cmd, 2, seed=3)
+    ldr = cam.capture([truth], cam.white_mask(), 2, seed=3)
+    sy, sx = cy - cam.guard_px, cx - cam.guard_px                         # the spot on the sensor grid
+    top = cam.params.max_dn
+    assert ldr.dn[sy, sx] >= top and enc.dn[sy, sx] < top
+    np.testing.assert_array_equal(np.asarray(enc.exposure_s)[0, 0], np.asarray(ldr.exposure_s)[0, 0])

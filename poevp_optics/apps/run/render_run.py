@@ -98,8 +98,8 @@ def _capture(spec, camera: Camera, step: LoopStep | None, ex: RenderedExposure, 
             oracle, oracle_g = oracle_decision(camera, spec.resolved.loop.mask, truth, i, spec.attenuator)
         res.stage_seconds["mask"] += time.perf_counter() - tm
         mask = cmd.levels.array                            # mirror grid (cmd.levels carries it)
-        enc = camera.capture(subs, cmd.levels, i, capture_seed(spec.sensor.seed, spec.render.seed, i, ENCODED_STREAM),
-                             **timing, **({"switch": cmd.switch} if cmd.switch else {}), transmission=cmd.transmission)
+        enc = camera.capture_command(subs, cmd, i, capture_seed(spec.sensor.seed, spec.render.seed, i, ENCODED_STREAM),
+                                     **timing)
     for k in ("dmd", "relay", "sensor"):
         res.stage_seconds[k] += enc.seconds[k]
     if camera.objective is not None:         # the LDR twin formed the image; the encoded capture reuses it
