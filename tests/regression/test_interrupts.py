@@ -125,9 +125,13 @@ def test_second_run_into_a_busy_folder_refuses(tmp_path):
     out = tmp_path / "out"
     p = start(["render", str(SCENES / "smoke"), "--out", str(out), *SLOW_RENDER])
     wait_for(staging_has(out, "*"), p)
-    r = subprocess.run([sys.executable, "-m", "poevp_optics.cli", "render", str(SCENES / "smoke"),
-                        "--out", str(out), *QUICK_RENDER], env=ENV, capture_output=True, text=True,
-                       timeout=120)
+    p.send_signal(signal.SIGSTOP)      # held mid-run (its lock too) on any machine, however fast
+    try:
+        r = subprocess.run([sys.executable, "-m", "poevp_optics.cli", "render", str(SCENES / "smoke"),
+                            "--out", str(out), *QUICK_RENDER], env=ENV, capture_output=True, text=True,
+                           timeout=120)
+    finally:
+        p.send_signal(signal.SIGCONT)
     assert r.returncode == 2 and "another poevp process" in r.stderr, r.stderr
     assert len(r.stderr.strip().splitlines()) == 1
     _, err = p.communicate(timeout=300)
