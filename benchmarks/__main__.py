@@ -7,7 +7,7 @@ import sys
 
 SCRIPTS = ["render_error_vs_time", "subframes_error", "camera_throughput", "predictor_latency",
            "loop_comparison", "sweep_scaling", "stage_performance", "work_precision", "objective_psf",
-           "night_road_check", "render_cost"]
+           "night_road_check", "render_cost", "scene_flow"]
 
 if __name__ == "__main__":
     failed = []

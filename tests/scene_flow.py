@@ -24,7 +24,19 @@ MAY_IMPORT = {"core": set(), "sources": {"core"}, "render": {"core", "sources"},
               "cli": {"core", "sources", "render", "camera", "control", "analysis", "scene", "apps"}}
 RANK = {p: len(v) for p, v in MAY_IMPORT.items()}
 SCENE_VALUES = ("SceneSpec", "ResolvedScene", "RenderScene", "CameraParams", "LoopParams")
-PACKAGE_DIR = Path(__file__).resolve().parent.parent / "poevp_optics"
+
+#: The runs followed (`poevp` arguments; the scene is a folder of scenes/): a moving render, the
+#: night road (exposure controller, report plug-ins) at 1/24 of its mirrors, a DR chart.
+RUNS = {
+    "render": ["render", "smoke", "--frames", "2", "--resolution", "16x24", "--spp", "2"],
+    "night_road": ["render", "night_road", "--set", "render.resolution=[45,80]",
+                   "--set", "objective.focal_length_m=0.002878", "--set", "mask.smooth_px=1.0",
+                   "--set", "attenuator.serve_min_mirrors=6", "--set", "render.spp=2",
+                   "--set", "render.roi_spp=0", "--set", "timing.frames=4"],
+    "chart": ["chart", "dr_chart36", "--resolution", "64x64", "--spp", "2", "--set", "chart.repeats=2",
+              "--set", "chart.max_iterations=2", "--set", "chart.roi_inset_px=1",
+              "--set", "predictor.resolution=[64,64]"],
+}
 
 
 @dataclass
@@ -48,9 +60,17 @@ class Flow:
         return sum(1 for a, b in zip(pkgs, pkgs[1:]) if a in MAY_IMPORT[b])
 
 
-def _package(filename: str) -> tuple[str, str] | None:
+def _package_dir() -> Path:
+    """The poevp_optics being traced (the one imported: an older checkout's when it is first on
+    the path)."""
+    import poevp_optics
+
+    return Path(poevp_optics.__file__).resolve().parent
+
+
+def _package(filename: str, package_dir: Path) -> tuple[str, str] | None:
     try:
-        rel = Path(filename).resolve().relative_to(PACKAGE_DIR)
+        rel = Path(filename).resolve().relative_to(package_dir)
     except ValueError:
         return None
     top = rel.parts[0]
@@ -62,6 +82,7 @@ def follow(run) -> Flow:
     """Call `run()` under a profiler and return the scene value's stops."""
     flow = Flow()
     seen: dict = {}
+    package_dir = _package_dir()
 
     def tracer(frame, event, arg):
         if event != "call":
@@ -69,7 +90,7 @@ def follow(run) -> Flow:
         code = frame.f_code
         where = seen.get(code.co_filename)
         if where is None:
-            where = seen[code.co_filename] = _package(code.co_filename) or ("", "")
+            where = seen[code.co_filename] = _package(code.co_filename, package_dir) or ("", "")
         if not where[0]:
             return
         n = code.co_argcount + code.co_kwonlyargcount
@@ -88,4 +109,17 @@ def follow(run) -> Flow:
         run()
     finally:
         sys.setprofile(None)
+    return flow
+
+
+def follow_run(name: str, out_dir: Path, scenes_dir: Path) -> Flow:
+    """Follow `poevp` RUNS[name] writing into `out_dir`."""
+    from poevp_optics.cli import main
+
+    cmd, scene, *rest = RUNS[name]
+    codes: list[int] = []
+    flow = follow(lambda: codes.append(main([cmd, str(scenes_dir / scene), "--out", str(out_dir), "--quiet",
+                                             *rest])))
+    if codes != [0]:
+        raise RuntimeError(f"poevp {' '.join(RUNS[name])} exited {codes}")
     return flow

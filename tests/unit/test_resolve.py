@@ -18,33 +18,17 @@ import dataclasses
 import numpy as np
 import pytest
 
-from poevp_optics.cli import main
 from poevp_optics.core.timing import ExposureClock, PlaneDisplay, TimingSpec
 from poevp_optics.render.render_scene import RenderScene
 from poevp_optics.render.renderer import Renderer
 from poevp_optics.scene.load import load_scene
 from tests.conftest import SCENES
-from tests.scene_flow import follow
-
-SMALL_ROAD = ["--set", "render.resolution=[45,80]", "--set", "objective.focal_length_m=0.002878",
-              "--set", "mask.smooth_px=1.0", "--set", "attenuator.serve_min_mirrors=6",
-              "--set", "render.spp=2", "--set", "render.roi_spp=0", "--set", "timing.frames=4"]
-RUNS = {
-    "render": ["render", "smoke", "--frames", "2", "--resolution", "16x24", "--spp", "2"],
-    "night_road": ["render", "night_road", *SMALL_ROAD],
-    "chart": ["chart", "dr_chart36", "--resolution", "64x64", "--spp", "2", "--set", "chart.repeats=2",
-              "--set", "chart.max_iterations=2", "--set", "chart.roi_inset_px=1",
-              "--set", "predictor.resolution=[64,64]"],
-}
+from tests.scene_flow import RUNS, follow_run
 
 
 @pytest.mark.parametrize("run", sorted(RUNS))
 def test_no_scene_object_below_apps_and_few_climbs(tmp_path, run):
-    cmd, scene, *rest = RUNS[run]
-    args = [cmd, str(SCENES / scene), "--out", str(tmp_path / "out"), "--quiet", *rest]
-    codes = []
-    flow = follow(lambda: codes.append(main(args)))
-    assert codes == [0]
+    flow = follow_run(run, tmp_path / "out", SCENES)
     assert flow.stops, "the tracer saw no scene value (it would pass vacuously)"
     assert flow.whole_scene_below_apps == [], sorted(set(flow.whole_scene_below_apps))
     # the stages below scene/ do receive their own parts
