@@ -211,43 +211,53 @@ def simulate(spec, camera: Camera, step: LoopStep | None, exposures, *, writer: 
     causal = step is not None and not step.needs_truth
     extensions = res.extensions = report_extensions(spec, causal)
     for ex in exposures:
-        fc = _capture(spec, camera, step, ex, res)
+        fc = _capture(spec, camera, step, ex, res)                 # render -> capture -> reconstruct
         if ex.index == mid and not ex.basis and not spec.is_static:
             res.mid_frame = (ex, fc.mask)
         _metrics(camera, fc)
         fc.record.update(unclipped_mc_error(camera, ex, fc.enc.dn))
-        for ext, state in extensions:
-            if ext.frame is not None and not ext.after_observe:
-                fc.record[ext.key] = ext.frame(spec, camera, fc, step, state)
+        _extension_records(extensions, spec, camera, fc, step, after_observe=False)
         if causal:
-            step.observe(ex.index, fc.ldr, fc.enc, fc.est, fc.flags)
-        for ext, state in extensions:
-            if ext.frame is not None and ext.after_observe:
-                fc.record[ext.key] = ext.frame(spec, camera, fc, step, state)
+            step.observe(ex.index, fc.ldr, fc.enc, fc.est, fc.flags)   # the loop's step
+        _extension_records(extensions, spec, camera, fc, step, after_observe=True)
         if causal:
             _against_oracle(spec, camera, fc)
         if camera.dmd:
             _law_comparison(spec, camera, fc, res, causal)
         if ex.index in keep_frames:
             res.kept[ex.index] = _kept(camera, fc)
-        box = fc.box
-        truth = {"ground_truth": ex.ground_truth} if ex.ground_truth else {}
-        if writer is None:
-            res.per_frame.append({**fc.record, "roi": list(box) if box else None, "rel_error": ex.rel_error,
-                                  "rel_error_roi": ex.rel_error_roi, **truth, **_render_effort(ex)})
-            continue
-        tw = time.perf_counter()
-        writer.frame(fc)
-        res.write_seconds += time.perf_counter() - tw
-        fc.record.update({"t_start_s": ex.t_start_s, "exposure_s": ex.exposure_s,
-                          "subframe_times_s": ex.subframe_times_s, "roi": list(box) if box else None,
-                          "radiance_mean": float(np.mean(fc.truth_s)), "radiance_max": float(np.max(fc.truth_s)),
-                          "radiance_min": float(np.min(fc.truth_s)),
-                          "roi_radiance_mean": float(np.mean(crop(fc.truth_s, box))) if box else None,
-                          "rel_error": ex.rel_error, "rel_error_roi": ex.rel_error_roi, **truth,
-                          **_render_effort(ex)})
-        res.per_frame.append(fc.record)
+        if writer is not None:
+            tw = time.perf_counter()
+            writer.frame(fc)
+            res.write_seconds += time.perf_counter() - tw
+        res.per_frame.append(_frame_record(ex, fc, written=writer is not None))
     return res
+
+
+def _extension_records(extensions, spec, camera: Camera, fc: FrameCapture, step, *, after_observe: bool) -> None:
+    """The report plug-ins' per-frame entries (report_extensions.py), before or after the loop
+    observes the frame."""
+    for ext, state in extensions:
+        if ext.frame is not None and ext.after_observe == after_observe:
+            fc.record[ext.key] = ext.frame(spec, camera, fc, step, state)
+
+
+def _frame_record(ex: RenderedExposure, fc: FrameCapture, *, written: bool) -> dict:
+    """The frame's report.json entry: the loop's record, the ROI and the render's MC error and
+    effort; a run that writes images also records its timing and radiance range."""
+    box = fc.box
+    truth = {"ground_truth": ex.ground_truth} if ex.ground_truth else {}
+    if not written:
+        return {**fc.record, "roi": list(box) if box else None, "rel_error": ex.rel_error,
+                "rel_error_roi": ex.rel_error_roi, **truth, **_render_effort(ex)}
+    fc.record.update({"t_start_s": ex.t_start_s, "exposure_s": ex.exposure_s,
+                      "subframe_times_s": ex.subframe_times_s, "roi": list(box) if box else None,
+                      "radiance_mean": float(np.mean(fc.truth_s)), "radiance_max": float(np.max(fc.truth_s)),
+                      "radiance_min": float(np.min(fc.truth_s)),
+                      "roi_radiance_mean": float(np.mean(crop(fc.truth_s, box))) if box else None,
+                      "rel_error": ex.rel_error, "rel_error_roi": ex.rel_error_roi, **truth,
+                      **_render_effort(ex)})
+    return fc.record
 
 
 def loop_step_of(spec, camera: Camera) -> LoopStep | None:
