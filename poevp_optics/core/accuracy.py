@@ -1,7 +1,8 @@
 """Numerical accuracy settings, kept apart from physics (STYLE.md 5, after GalSim's GSParams).
 
 A sweep over physics keys never changes the numerics by accident, and an error-vs-time study
-sweeps only these. Filled from the scene's stable keys (`SceneSpec.accuracy`):
+sweeps only these. Filled from the scene's stable keys by scene/resolve.py (`accuracy_of`; one
+object, `ResolvedScene.accuracy`, shared by the render and the camera):
 
 | field                   | scene key                | meaning |
 |-------------------------|--------------------------|---------|

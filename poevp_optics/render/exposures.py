@@ -4,7 +4,7 @@ A static scene is rendered once and reused for every frame (K = 1 is exact). Sta
 with PWM lamps renders each emitter group once (the scene without the flickering lamps, and each
 lamp alone) and hands the camera those images as a `basis`, whose exposures it integrates exactly
 against the lamps' drive: no time samples. A moving scene is sampled at the frame's radiance
-nodes (`SceneSpec.subframe_times_s`: K uniform nodes with both ends, joined by the DMD's switching
+nodes (`RenderScene.subframe_times_s`: K uniform nodes with both ends, joined by the DMD's switching
 times); its time average uses the nodes' hat-function weights. Monte Carlo error: every sample
 is split into `mc_splits` independent-seed renders (renderer.py).
 """

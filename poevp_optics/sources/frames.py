@@ -4,7 +4,7 @@ boxes, and the source object the run loop reads (shared by `exr_sequence` and `l
 **Time.** Input frame j shows the radiance at t_j = `t0_s` + j / `fps` on the scene clock (or at
 the times of `times_csv`) and, for `integrate`, stands for the interval between the midpoints to
 its neighbours (half a step beyond the first and the last frame). The camera asks for radiance
-samples at its nodes (`SceneSpec.subframe_times_s`: K uniform nodes including the exposure's
+samples at its nodes (`RenderScene.subframe_times_s`: K uniform nodes including the exposure's
 ends, joined by the DMD's switching times); `source.subframes` says how a sample comes from the
 frames:
 
@@ -485,7 +485,7 @@ class FrameSequenceSource:
     # ------------------------------------------------------------------ exposures
     def exposures(self, progress: bool = True):
         """Yield a `core.frame.RenderedExposure` per frame: the K radiance samples from the input frames,
-        their time mean (the weights of `SceneSpec.subframe_weights`, summed as the Mitsuba path
+        their time mean (the weights of `RenderScene.subframe_weights`, summed as the Mitsuba path
         sums them), the plate ROI and ground truth from the boxes. No Monte Carlo error: the
         variance is zero and rel_error None."""
         from tqdm import tqdm
