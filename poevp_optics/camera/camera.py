@@ -98,6 +98,7 @@ class Camera:
         measured PSF) are read; flicker: PWM-lamp drives by emitter name (basis_tables)."""
         self.timing, self.dmd_spec, self.relay_spec = timing, dmd, relay
         self.accuracy = accuracy
+        objective = obj.with_accuracy(objective, accuracy)       # the run's numerics for the objective too
         self.flicker = dict(flicker or {})
         self.shape = tuple(shape)
         self.layout = layout_of(sensor, dmd, relay, objective)

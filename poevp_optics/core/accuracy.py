@@ -19,6 +19,11 @@ object, `ResolvedScene.accuracy`, shared by the render and the camera):
 | psf_support_px          | relay.support_px         | explicit PSF support (0: from the energy) |
 | guard_max_px            | relay.guard_max_px       | widest guard band rendered for the PSF |
 | poisson_sampler         | sensor.poisson_sampler   | shot-noise sampler (camera/sensor.py POISSON_SAMPLERS) |
+| objective_field_samples | objective.field_samples  | field points of the objective's PSF grid per axis (None: the [objective] spec's) |
+| objective_band_samples  | objective.band_samples   | wavelength parts of its polychromatic PSF |
+| objective_pupil_rays    | objective.pupil_rays     | pupil sampling of its wave-optics PSF (per side) |
+| objective_support_energy| objective.support_energy | energy its PSF kernels hold |
+| objective_guard_max_px  | objective.guard_max_px   | widest guard band rendered for its kernels |
 | registration_oversample | -                        | sub-areas per sensor pixel side in the registration (4) |
 | dmd_full_table_max      | -                        | levels x nodes up to which the DMD tabulates every level |
 """
@@ -45,5 +50,24 @@ class Accuracy:
     psf_support_px: int = 0
     guard_max_px: int = 256
     poisson_sampler: str = "exact"
+    objective_field_samples: int | None = None
+    objective_band_samples: int | None = None
+    objective_pupil_rays: int | None = None
+    objective_support_energy: float | None = None
+    objective_guard_max_px: int | None = None
     registration_oversample: int = 4
     dmd_full_table_max: int = 1 << 22
+
+    def objective_numerics(self) -> dict:
+        """The objective's numerical keys this accuracy sets ({key: value}; keys of [objective]
+        without the `objective_` prefix), for camera/objective/params.py `with_accuracy`."""
+        out = {}
+        for name in OBJECTIVE_KEYS:
+            v = getattr(self, f"objective_{name}")
+            if v is not None:
+                out[name] = v
+        return out
+
+
+#: The [objective] keys that are numerics only (camera/objective/params.py ACCURACY_KEYS).
+OBJECTIVE_KEYS = ("field_samples", "band_samples", "pupil_rays", "support_energy", "guard_max_px")

@@ -27,7 +27,7 @@ from typing import Any, Mapping
 from poevp_optics.camera.camera import CameraParams
 from poevp_optics.camera.sensor import resolve_sensor
 from poevp_optics.control.loop_step import LoopParams
-from poevp_optics.core.accuracy import Accuracy
+from poevp_optics.core.accuracy import OBJECTIVE_KEYS, Accuracy
 from poevp_optics.core.timing import ExposureClock, PlaneDisplay
 from poevp_optics.render.render_scene import RenderScene
 
@@ -44,14 +44,15 @@ class ResolvedScene:
 
 
 def accuracy_of(spec) -> Accuracy:
-    """The run's numerical settings, from the stable [render], [relay] and [sensor] keys
-    (core/accuracy.py's table)."""
+    """The run's numerical settings, from the stable [render], [relay], [sensor] and [objective]
+    keys (core/accuracy.py's table)."""
     r, rel = spec.render, spec.relay
     return Accuracy(spp=r.spp, subframes=r.subframes, pwm_nodes=r.pwm_nodes, mc_splits=r.mc_splits,
                     temporal_spp=r.temporal_spp, sampler=r.sampler, light_selection=r.light_selection,
                     target_rel_error=r.target_rel_error, max_spp=r.max_spp, psf_support_energy=rel.support_energy,
                     psf_support_px=rel.support_px, guard_max_px=rel.guard_max_px,
-                    poisson_sampler=spec.sensor.poisson_sampler)
+                    poisson_sampler=spec.sensor.poisson_sampler,
+                    **{f"objective_{k}": getattr(spec.objective, k) for k in OBJECTIVE_KEYS})
 
 
 def prior_first_guess(mask, road, spectra, has_road: bool) -> float | None:

@@ -89,3 +89,23 @@ def test_renderer_from_a_render_scene_made_by_hand():
     a = Renderer(by_hand).render_with_error([1, 2], spec.render.spp)[0]
     b = Renderer(r).render_with_error([1, 2], spec.render.spp)[0]
     assert np.array_equal(a, b) and np.all(np.isfinite(a)) and a.max() > 0
+
+
+def test_the_objective_numerics_are_the_runs_accuracy():
+    """[objective]'s numerical keys reach the camera through the one Accuracy: the same scene
+    with `objective_guard_max_px` = 1 in its accuracy renders a guard of 1 mirror for the
+    objective (24 as the scene sets it), nothing else changed."""
+    from poevp_optics.camera.camera import Camera
+
+    spec = load_scene(SCENES / "night_road", ["render.resolution=[45,80]", "objective.focal_length_m=0.002878",
+                                              "mask.smooth_px=1.0", "attenuator.serve_min_mirrors=6",
+                                              "objective.guard_max_px=24"])
+    cp = spec.resolved.camera
+    assert cp.accuracy.objective_numerics() == {k: getattr(spec.objective, k) for k in
+                                                ("field_samples", "band_samples", "pupil_rays", "support_energy",
+                                                 "guard_max_px")}
+    wide = Camera.from_params(cp)
+    narrow = Camera.from_params(dataclasses.replace(cp, accuracy=dataclasses.replace(cp.accuracy,
+                                                                                    objective_guard_max_px=1)))
+    assert wide.objective_guard_px == 24 and narrow.objective_guard_px == 1
+    assert narrow.objective.field_samples == wide.objective.field_samples == spec.objective.field_samples

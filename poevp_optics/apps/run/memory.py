@@ -168,8 +168,10 @@ def _objective_params(spec):
     """The [objective] keys resolved as the camera resolves them (None: the stage is skipped)."""
     from poevp_optics.camera.layout import objective_params_of
 
+    from poevp_optics.camera.objective import with_accuracy
+
     cp = spec.resolved.camera
-    return objective_params_of(cp.sensor, cp.dmd, cp.relay, cp.objective)
+    return objective_params_of(cp.sensor, cp.dmd, cp.relay, with_accuracy(cp.objective, cp.accuracy))
 
 
 def _render_shape(spec) -> tuple[int, int]:
@@ -186,7 +188,7 @@ def _render_shape(spec) -> tuple[int, int]:
         g = int(g / reg.scale) + 1
     o = _objective_params(spec)
     if o is not None:
-        g = max(g, min(radius_bound_px(o, (h, w)), cp.objective.guard_max_px))
+        g = max(g, min(radius_bound_px(o, (h, w)), o.guard_max_px))
     return h + 2 * g, w + 2 * g
 
 

@@ -88,7 +88,7 @@ camera/convolution.py, camera/glare.py and camera/kernels.py it uses):
 
 from poevp_optics.camera.objective.params import (ACCURACY_KEYS, DEFAULT_F_NUMBER, OBJECTIVE_PSFS, PRESCRIPTIONS,
                                                   VIGNETTING, ObjectiveParamError, ObjectiveParams, ObjectiveSpec, band,
-                                                  sensor_band)
+                                                  sensor_band, with_accuracy)
 from poevp_optics.camera.objective.prescriptions import Prescription, build_lens, check_field, corner_radius_m
 from poevp_optics.camera.objective.cache import CACHE_VERSION, cache_key
 from poevp_optics.camera.kernels import max_radius_px, pixel_integrated_radial
@@ -107,7 +107,7 @@ __all__ = [
     "VIGNETTING", "GlareKernel", "ObjectiveParamError", "ObjectiveParams", "ObjectiveSpec", "PSFEntry", "PSFGrid",
     "Prescription", "VignettingEntry", "airy_radius_px", "apply", "band", "build_lens", "cache_key", "check_field",
     "convolve_reflect", "corner_radius_m", "field_angle_rad", "field_convolve", "glare_floor", "glare_kernel",
-    "glare_radii_px", "is_identity", "max_radius_px", "memory_bytes", "node_positions_px", "pixel_integrated_radial",
+    "glare_radii_px", "is_identity", "max_radius_px", "memory_bytes", "node_positions_px", "pixel_integrated_radial", "with_accuracy",
     "power_law_energy_beyond", "power_law_halo", "psf_grid", "radius_bound_px", "radius_px", "relative_illumination",
     "ri_profile", "sensor_band", "summary",
 ]

@@ -12,13 +12,14 @@ from typing import get_type_hints
 import numpy as np
 
 from poevp_optics.camera.glare import models_of
+from poevp_optics.core.accuracy import OBJECTIVE_KEYS, Accuracy
 from poevp_optics.core import spectra
 from poevp_optics.core.exceptions import ParamError
 from poevp_optics.core.params import Where, check_value, param
 from poevp_optics.core.registry import Registry
 
 #: Parameters that change numerics only (they belong to the run's Accuracy settings).
-ACCURACY_KEYS = ("field_samples", "band_samples", "pupil_rays", "support_energy", "guard_max_px")
+ACCURACY_KEYS = OBJECTIVE_KEYS          # numerics only: carried by core/accuracy.py Accuracy (objective_*)
 
 #: Default image-side f-number of `ObjectiveParams`: the sensor preset's f/2.8 divided by the relay
 #: magnification M = sensor pitch / mirror pitch = 3.45 um / 7.56 um (layout.py, 1:1 registration).
@@ -137,3 +138,11 @@ def band(params: ObjectiveParams) -> tuple[np.ndarray, np.ndarray]:
             w.append(float(sf[m].sum()))
     w = np.asarray(w)
     return np.asarray(wl), w / w.sum()
+
+
+def with_accuracy(spec: ObjectiveSpec, accuracy: Accuracy) -> ObjectiveSpec:
+    """`spec` with the numerical keys `accuracy` sets (its `objective_*` fields; the rest as in
+    `spec`): the run's one Accuracy decides the objective's numerics too (scene/resolve.py fills
+    them from [objective])."""
+    keys = accuracy.objective_numerics()
+    return dataclasses.replace(spec, **keys) if keys else spec
