@@ -24,10 +24,14 @@ from benchmarks.common import machine_line, markdown_table, save_text
 
 ROOT = Path(__file__).resolve().parent.parent
 TRACER = ROOT / "tests" / "scene_flow.py"
+HELPERS = ROOT / "tests" / "helpers.py"          # the import table the tracer counts climbs by
 
 _CHILD = """
 import importlib.util, json, sys, tempfile
 from pathlib import Path
+import tests                                       # the traced tree's; this checkout's table and tracer:
+h = importlib.util.spec_from_file_location("tests.helpers", sys.argv[3])
+sys.modules["tests.helpers"] = importlib.util.module_from_spec(h); h.loader.exec_module(sys.modules["tests.helpers"])
 spec = importlib.util.spec_from_file_location("scene_flow", sys.argv[1])
 sf = importlib.util.module_from_spec(spec); sys.modules["scene_flow"] = sf; spec.loader.exec_module(sf)
 out = {}
@@ -42,7 +46,7 @@ print("RESULT " + json.dumps(out))
 def trace(tree: Path) -> dict:
     """Follow every run with `tree`'s poevp_optics and scenes."""
     env = {**os.environ, "PYTHONPATH": str(tree)}
-    r = subprocess.run([sys.executable, "-c", _CHILD, str(TRACER), str(tree / "scenes")], env=env, cwd=tree,
+    r = subprocess.run([sys.executable, "-c", _CHILD, str(TRACER), str(tree / "scenes"), str(HELPERS)], env=env, cwd=tree,
                        capture_output=True, text=True, timeout=1800)
     line = [x for x in r.stdout.splitlines() if x.startswith("RESULT ")]
     if r.returncode or not line:

@@ -49,3 +49,25 @@ def graph_cycles(graph: dict[str, set[str]]) -> list[list[str]]:
         if v not in index:
             visit(v)
     return [c for c in out if len(c) > 1]
+
+
+ROOT_PKG = "poevp_optics"          # the package root, poevp_optics/__init__.py (its __version__)
+
+_STAGES = ("core", "sources", "render", "camera", "control", "analysis")
+_BELOW_APPS = (*_STAGES, "scene", ROOT_PKG)
+
+#: Which top-level packages each may import (itself always). DESIGN.md's table, updated where the
+#: code taught better (docs/architecture.md says what changed and why); test_import_contract checks
+#: the code against it, tests/scene_flow.py counts climbs by it.
+MAY_IMPORT: dict[str, frozenset[str]] = {
+    "core": frozenset(),
+    "sources": frozenset({"core"}),
+    "render": frozenset({"core", "sources"}),
+    "camera": frozenset({"core"}),
+    "control": frozenset({"core", "camera"}),
+    "analysis": frozenset({"core"}),
+    "scene": frozenset(_STAGES),
+    "apps": frozenset(_BELOW_APPS),
+    "cli": frozenset({*_BELOW_APPS, "apps"}),
+    ROOT_PKG: frozenset({"core"}),
+}

@@ -5,8 +5,8 @@ A *stop* is a call of a poevp_optics function one of whose arguments is a scene 
 name, so the same tracer reads an old checkout: `SceneSpec`, and since issue 30 also
 `ResolvedScene`, `RenderScene`, `CameraParams`, `LoopParams`; the value's own methods and
 properties are not stops: the value does not travel there). A *climb back up* is a stop in a
-package that sits above the previous stop's in the import table (docs/architecture.md: it may
-import it): the value went down into a stage and came back to a caller above to be handed down
+package that sits above the previous stop's in the import table (tests/helpers.py MAY_IMPORT,
+docs/architecture.md's: it may import it): the value went down into a stage and came back to a caller above to be handed down
 again. Siblings (camera -> render) are not climbs.
 """
 
@@ -16,13 +16,8 @@ import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
-#: Who may import whom (docs/architecture.md's table, tests/unit/test_import_contract.py).
-MAY_IMPORT = {"core": set(), "sources": {"core"}, "render": {"core", "sources"}, "camera": {"core"},
-              "control": {"core", "camera"}, "analysis": {"core"},
-              "scene": {"core", "sources", "render", "camera", "control", "analysis"},
-              "apps": {"core", "sources", "render", "camera", "control", "analysis", "scene"},
-              "cli": {"core", "sources", "render", "camera", "control", "analysis", "scene", "apps"}}
-RANK = {p: len(v) for p, v in MAY_IMPORT.items()}
+from tests.helpers import MAY_IMPORT, ROOT_PKG
+
 SCENE_VALUES = ("SceneSpec", "ResolvedScene", "RenderScene", "CameraParams", "LoopParams")
 
 #: The runs followed (`poevp` arguments; the scene is a folder of scenes/): a moving render, the
@@ -74,8 +69,8 @@ def _package(filename: str, package_dir: Path) -> tuple[str, str] | None:
     except ValueError:
         return None
     top = rel.parts[0]
-    pkg = "cli" if top == "cli.py" else top
-    return (pkg, str(rel)) if pkg in RANK else None
+    pkg = {"cli.py": "cli", "__init__.py": ROOT_PKG}.get(top, top)
+    return (pkg, str(rel)) if pkg in MAY_IMPORT else None
 
 
 def follow(run) -> Flow:
@@ -101,7 +96,7 @@ def follow(run) -> Flow:
         if not hits:
             return
         flow.stops.append((where[0], where[1], code.co_name))
-        if "SceneSpec" in hits and RANK[where[0]] < RANK["scene"]:
+        if "SceneSpec" in hits and where[0] in MAY_IMPORT["scene"]:      # the stages below scene/
             flow.whole_scene_below_apps.append(f"{where[1]}:{code.co_name}")
 
     sys.setprofile(tracer)

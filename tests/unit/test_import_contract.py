@@ -13,30 +13,10 @@ import ast
 import re
 
 from tests.conftest import ROOT
-from tests.helpers import graph_cycles
+from tests.helpers import MAY_IMPORT, ROOT_PKG, graph_cycles
 
 PKG = ROOT / "poevp_optics"
 DOC = ROOT / "docs" / "architecture.md"
-ROOT_PKG = "poevp_optics"          # the package root, poevp_optics/__init__.py (its __version__)
-
-_STAGES = ("core", "sources", "render", "camera", "control", "analysis")
-_BELOW_APPS = (*_STAGES, "scene", ROOT_PKG)
-
-#: Which top-level packages each may import (itself always). DESIGN.md's table, updated where the
-#: code taught better (docs/architecture.md says what changed and why).
-MAY_IMPORT: dict[str, frozenset[str]] = {
-    "core": frozenset(),
-    "sources": frozenset({"core"}),
-    "render": frozenset({"core", "sources"}),
-    "camera": frozenset({"core"}),
-    "control": frozenset({"core", "camera"}),
-    "analysis": frozenset({"core"}),
-    "scene": frozenset(_STAGES),
-    "apps": frozenset(_BELOW_APPS),
-    "cli": frozenset({*_BELOW_APPS, "apps"}),
-    ROOT_PKG: frozenset({"core"}),
-}
-
 #: (importing module, imported module) -> why it stays for now. Keep minimal; docs/architecture.md
 #: prints the same list.
 ALLOWED: dict[tuple[str, str], str] = {}
