@@ -25,7 +25,8 @@ from poevp_optics.camera.objective import ObjectiveParams, ObjectiveSpec
 from poevp_optics.camera.registration import (apply_taps, apply_taps_numpy, box_to_sensor, forward_taps,
                                               is_identity, to_mirror)
 from poevp_optics.camera.relay import PSFContext, RelaySpec, build_psf, convolve, max_support_px
-from poevp_optics.camera.sensor import NoiseSwitches, Sensor, SensorSpec, pixel_etendue_m2_sr, resolve_sensor
+from poevp_optics.camera.sensor import (NoiseSwitches, Sensor, SensorParams, SensorSpec, pixel_etendue_m2_sr,
+                                         resolve_sensor)
 from poevp_optics.core.accuracy import Accuracy
 from poevp_optics.core.grids import Grid, OnGrid
 from poevp_optics.core.timing import TimingSpec
@@ -78,6 +79,17 @@ class CameraParams:
     flicker: object = None
 
 
+def relay_psf_context(sensor: SensorParams, layout, shape, accuracy: Accuracy, base_dir) -> PSFContext:
+    """What the relay PSF is built for (relay.py PSFContext): the sensor's pixel pitch and the
+    relay's f-number on it (layout.py), the sensor's response as the band's weights, the support
+    settings and the cap set by the image's (H, W). Read alike by the camera and the memory estimate."""
+    qe = spectra.load_spectrum(sensor.qe, emissive=True)
+    return PSFContext(pixel_pitch_m=sensor.pixel_pitch_m, f_number=layout.sensor_f_number,
+                      band_nm=spectra.WAVELENGTHS_NM, band_weights=spectra.sensor_response_e_per_J(qe),
+                      base_dir=base_dir, cap_px=max_support_px(shape), support_px=accuracy.psf_support_px,
+                      support_energy=accuracy.psf_support_energy)
+
+
 class Camera:
     """The DMD camera of a scene: DMD, relay PSF and a sensor instance (fixed-pattern noise).
 
@@ -106,12 +118,7 @@ class Camera:
                                           poisson_sampler=accuracy.poisson_sampler)
         self.sensor = Sensor(self.params, self.shape, switches)
         self.dmd = DMD(dmd, accuracy.dmd_full_table_max) if dmd.enabled else None
-        qe = spectra.load_spectrum(self.params.qe, emissive=True)
-        self.psf = build_psf(relay, PSFContext(
-            pixel_pitch_m=self.params.pixel_pitch_m, f_number=self.layout.sensor_f_number,
-            band_nm=spectra.WAVELENGTHS_NM, band_weights=spectra.sensor_response_e_per_J(qe),
-            base_dir=base_dir, cap_px=max_support_px(self.shape), support_px=accuracy.psf_support_px,
-            support_energy=accuracy.psf_support_energy))
+        self.psf = build_psf(relay, relay_psf_context(self.params, self.layout, self.shape, accuracy, base_dir))
         self._init_objective(objective, dmd, base_dir)
         self._init_grids(dmd.registration if self.dmd else _IDENTITY)
         self._build_objective()

@@ -141,27 +141,18 @@ def _subframes(spec) -> int:
 
 def _kernel_px(spec) -> int:
     """Width of the relay kernel (1 when the stage is skipped), from the camera's resolved params
-    (`spec.resolved.camera`, what `Camera.from_params` builds from)."""
-    from poevp_optics.sources import spectra
-    from poevp_optics.camera.relay import PSFContext, kernel_size_px, max_support_px
+    (`spec.resolved.camera`) and the PSF context the camera builds (`relay_psf_context`)."""
+    from poevp_optics.camera.camera import relay_psf_context
     from poevp_optics.camera.layout import layout_of
+    from poevp_optics.camera.relay import kernel_size_px
     from poevp_optics.camera.sensor import resolve_sensor
 
     cp = spec.resolved.camera
-    relay = cp.relay
-    if relay.psf == "delta" and relay.glare_fraction <= 0:
+    if cp.relay.psf == "delta" and cp.relay.glare_fraction <= 0:
         return 1
-    p = resolve_sensor(cp.sensor)
-    band = None
-    if relay.psf == "airy":
-        band = spectra.sensor_response_e_per_J(spectra.load_spectrum(p.qe, emissive=True))
-    acc = cp.accuracy
-    ctx = PSFContext(pixel_pitch_m=p.pixel_pitch_m,
-                     f_number=layout_of(cp.sensor, cp.dmd, cp.relay, cp.objective).sensor_f_number,
-                     band_nm=spectra.WAVELENGTHS_NM, band_weights=band, base_dir=cp.base_dir,
-                     cap_px=max_support_px(cp.shape), support_px=acc.psf_support_px,
-                     support_energy=acc.psf_support_energy)
-    return kernel_size_px(relay, ctx)
+    layout = layout_of(cp.sensor, cp.dmd, cp.relay, cp.objective)
+    ctx = relay_psf_context(resolve_sensor(cp.sensor), layout, cp.shape, cp.accuracy, cp.base_dir)
+    return kernel_size_px(cp.relay, ctx)
 
 
 def _objective_params(spec):
