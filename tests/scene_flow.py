@@ -1,22 +1,39 @@
-"""Follow a run's scene value through the calls (issue 30): which functions receive the scene
-object or a part resolved from it, in which package, and how often the value climbs back up.
+"""Follow a run's scene value through the calls: which functions receive the scene object or a
+part resolved from it, in which package, and how often the value climbs back up.
 
 A *stop* is a call of a poevp_optics function one of whose arguments is a scene value (by class
-name, so the same tracer reads an old checkout: `SceneSpec`, and since issue 30 also
+name, so the same tracer reads an old checkout: `SceneSpec`, and in newer trees also
 `ResolvedScene`, `RenderScene`, `CameraParams`, `LoopParams`; the value's own methods and
 properties are not stops: the value does not travel there). A *climb back up* is a stop in a
 package that sits above the previous stop's in the import table (tests/helpers.py MAY_IMPORT,
 docs/architecture.md's: it may import it): the value went down into a stage and came back to a caller above to be handed down
 again. Siblings (camera -> render) are not climbs.
+
+The tracer reads every traced frame's `f_locals` under `sys.setprofile` while Mitsuba and DrJit
+run their own threads; in CPython 3.11 a profile hook that materialises `f_locals` writes the
+locals back into the frame after the hook returns (`PyFrame_LocalsToFast`), the write-back that
+CPython gh-74929 shows corrupting frames when threads, tracing and closures meet (replaced by
+PEP 667's proxies only in 3.13): the likely cause of the one crash seen, which took down a whole
+test session (a segmentation fault inside Mitsuba's render, about 70 % into the
+suite), so tests follow a run in a process of its own (`follow_run_isolated`): a crash there fails
+one test with its signal, never the suite. `python tests/scene_flow.py RUN SCENES OUT` is that
+process: it prints the Flow as JSON.
 """
 
 from __future__ import annotations
 
+import json
+import os
+import subprocess
 import sys
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-from tests.helpers import MAY_IMPORT, ROOT_PKG
+try:
+    from tests.helpers import MAY_IMPORT, ROOT_PKG
+except ModuleNotFoundError:            # run as a script: `python tests/scene_flow.py ...`
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+    from tests.helpers import MAY_IMPORT, ROOT_PKG
 
 SCENE_VALUES = ("SceneSpec", "ResolvedScene", "RenderScene", "CameraParams", "LoopParams")
 
@@ -118,3 +135,26 @@ def follow_run(name: str, out_dir: Path, scenes_dir: Path) -> Flow:
     if codes != [0]:
         raise RuntimeError(f"poevp {' '.join(RUNS[name])} exited {codes}")
     return flow
+
+
+def follow_run_isolated(name: str, out_dir: Path, scenes_dir: Path, timeout_s: float = 600.0) -> Flow:
+    """`follow_run` in a child process (this file run as a script), so that a crash of the
+    profiled render ends that process, not the caller's; a child killed by a signal or exiting
+    non-zero raises RuntimeError with its signal and the end of its output."""
+    env = {**os.environ, "PYTHONFAULTHANDLER": "1"}
+    done = subprocess.run([sys.executable, str(Path(__file__).resolve()), name, str(scenes_dir), str(out_dir)],
+                          capture_output=True, text=True, timeout=timeout_s, env=env,
+                          cwd=str(Path(__file__).resolve().parent.parent))
+    if done.returncode != 0:
+        how = (f"killed by signal {-done.returncode}" if done.returncode < 0 else f"exited {done.returncode}")
+        raise RuntimeError(f"tracing poevp {' '.join(RUNS[name])} in its own process: {how}\n"
+                           + (done.stdout + done.stderr)[-3000:])
+    data = json.loads(done.stdout.strip().splitlines()[-1])
+    return Flow(stops=[tuple(s) for s in data["stops"]], whole_scene_below_apps=data["whole_scene_below_apps"])
+
+
+if __name__ == "__main__":
+    run_name, scenes, out = sys.argv[1], Path(sys.argv[2]), Path(sys.argv[3])
+    result = follow_run(run_name, out, scenes)
+    sys.stdout.flush()
+    print(json.dumps(asdict(result)))

@@ -1,9 +1,9 @@
-"""The scene is resolved once into its stages' inputs (issue 30, scene/resolve.py).
+"""The scene is resolved once into its stages' inputs (scene/resolve.py).
 
 - No function below apps/ receives the scene object: a profiler follows whole runs (a moving
   render, the night road with its exposure controller and report plug-ins, a DR chart) and lists
   every call of a core/sources/render/camera/control/analysis function given a `SceneSpec`.
-- Following the run's scene value, it climbs back up fewer than 8 times (26 before issue 30).
+- Following the run's scene value, it climbs back up fewer than 8 times.
 - The spec stays what the TOML says: the controller prior scaled to our beams is *derived*
   (resolve), with the closed form first_guess x intensity_cd / prior_beam_cd.
 - The renderer is built from a `RenderScene` made by hand (no scene TOML) and renders the same
@@ -23,12 +23,12 @@ from poevp_optics.render.render_scene import RenderScene
 from poevp_optics.render.renderer import Renderer
 from poevp_optics.scene.load import load_scene
 from tests.conftest import SCENES
-from tests.scene_flow import RUNS, follow_run
+from tests.scene_flow import RUNS, follow_run_isolated
 
 
 @pytest.mark.parametrize("run", sorted(RUNS))
 def test_no_scene_object_below_apps_and_few_climbs(tmp_path, run):
-    flow = follow_run(run, tmp_path / "out", SCENES)
+    flow = follow_run_isolated(run, tmp_path / "out", SCENES)
     assert flow.stops, "the tracer saw no scene value (it would pass vacuously)"
     assert flow.whole_scene_below_apps == [], sorted(set(flow.whole_scene_below_apps))
     # the stages below scene/ do receive their own parts
