@@ -264,10 +264,38 @@ _GRID_KEYS = ("prescription", "f_number", "focal_length_m", "pixel_pitch_m", "wa
 def _prescription_grid(params: ObjectiveParams, image_shape, cache_dir=None) -> PSFGrid:
     """Field-dependent PSF of the `prescription` (optiland FFT PSFs, Kramer Harrison, optiland
     0.6.3, `optiland.psf.FFTPSF`), at `field_samples` nodes per quadrant axis and the band's
-    wavelengths, resampled to the pixel grid; cached on disk (an unreadable file is rebuilt)."""
+    wavelengths, resampled to the pixel grid; cached on disk (a file that fails its check is rebuilt)."""
     path = resolve_cache_dir(cache_dir) / f"psf-{cache_key('psf_grid', params, image_shape, _GRID_KEYS)}.npz"
     return cached(path, lambda: _prescription_grid_build(params, image_shape), load=_load_grid,
-                  save=_save_grid, unreadable=(OSError, KeyError, ValueError))
+                  save=_save_grid, check=lambda g: _grid_problem(g, params, image_shape))
+
+
+def _grid_problem(g: PSFGrid, params: ObjectiveParams, image_shape) -> str | None:
+    """Why a loaded grid is not the prescription grid for `image_shape` (name, image shape, the
+    node positions `node_positions_px` puts there, odd square finite non-negative unit-sum
+    kernels, a finite truncation), or None."""
+    h, w = int(image_shape[0]), int(image_shape[1])
+    want = f"prescription:{params.prescription}"
+    if g.name != want:
+        return f"name {g.name!r}, not {want!r}"
+    if g.image_shape != (h, w):
+        return f"built for {g.image_shape}, not ({h}, {w})"
+    for axis, nodes, size in (("y", g.node_y_px, h), ("x", g.node_x_px, w)):
+        expect = node_positions_px(params.field_samples, size)
+        if nodes.shape != expect.shape or not np.allclose(nodes, expect, rtol=0, atol=1e-9):
+            return f"node_{axis}_px {np.asarray(nodes).tolist()}, not {expect.tolist()}"
+    k = g.kernels
+    if k.ndim != 4 or k.shape[:2] != (g.node_y_px.size, g.node_x_px.size) or k.shape[2] != k.shape[3] \
+            or k.shape[2] % 2 != 1:
+        return f"kernels of shape {k.shape}, not ({g.node_y_px.size}, {g.node_x_px.size}, 2r+1, 2r+1)"
+    if not np.issubdtype(k.dtype, np.floating) or not np.all(np.isfinite(k)) or k.min() < 0:
+        return f"kernels not finite, non-negative floats ({k.dtype})"
+    sums = k.sum(axis=(2, 3))
+    if not np.allclose(sums, 1.0, rtol=0, atol=1e-6):    # normalised in float64 at build: ~1e-15
+        return f"kernel sums {sums.min():.6g} .. {sums.max():.6g}, not 1"
+    if not (np.isfinite(g.truncation_error) and g.truncation_error >= 0):
+        return f"truncation_error {g.truncation_error}"
+    return None
 
 
 def _load_grid(path) -> PSFGrid:

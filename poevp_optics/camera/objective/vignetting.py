@@ -98,7 +98,8 @@ def _ri_prescription(params, image_shape, cache_dir=None):
     check_field(params, math.degrees(tmax))
     path = resolve_cache_dir(cache_dir) / f"ri-{cache_key('ri', params, image_shape, _RI_KEYS)}.npz"
     th, ri = cached(path, lambda: ri_profile(params, tmax), load=_load_ri,
-                    save=lambda tmp, v: save_npz(tmp, {"theta_rad": v[0], "ri": v[1]}))
+                    save=lambda tmp, v: save_npz(tmp, {"theta_rad": v[0], "ri": v[1]}),
+                    check=lambda v: _ri_problem(v, tmax))
     if tmax == 0:
         return np.ones(theta.shape)
     return CubicSpline(th, ri)(theta)
@@ -107,6 +108,19 @@ def _ri_prescription(params, image_shape, cache_dir=None):
 def _load_ri(path):
     with np.load(path) as z:
         return z["theta_rad"], z["ri"]
+
+
+def _ri_problem(v, theta_max_rad: float) -> str | None:
+    """Why a loaded (theta_rad, ri) table is not `ri_profile`'s for `theta_max_rad`, or None."""
+    th, ri = (np.asarray(a) for a in v)
+    if th.ndim != 1 or th.shape != ri.shape or th.size < 2:
+        return f"theta_rad {th.shape} and ri {ri.shape}: not two equal 1-D tables"
+    if not (np.all(np.isfinite(th)) and np.all(np.isfinite(ri)) and ri.min() > 0 and ri[0] == 1.0):
+        return "ri not finite, positive and 1 on axis"
+    if th[0] != 0 or not np.isclose(th[-1], theta_max_rad, rtol=1e-12, atol=0) or \
+            (theta_max_rad > 0 and np.any(np.diff(th) <= 0)):
+        return f"angles {th[0]:.6g} .. {th[-1]:.6g} rad, not 0 .. {theta_max_rad:.6g} rising"
+    return None
 
 
 @dataclass(frozen=True)
