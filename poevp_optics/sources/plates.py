@@ -67,8 +67,19 @@ def plate_texture(text: str, width_px: int = 1040, height_px: int = 220,
 
 
 def cached_plate_path(text: str, width_px: int = 1040, height_px: int = 220) -> Path:
-    """Write (once) and return a plate texture PNG for `text` in the user cache folder."""
+    """Write (once) and return a plate texture PNG for `text` in the user cache folder, checked
+    (checksum, and it decodes to this texture's size and pixels) before anything reads it; a file
+    that fails is rebuilt (core/cache.py)."""
+    from poevp_optics.core.cache import cached_path
+    from poevp_optics.core.io import read_png
+
     path = cache_file("plates", f"plate_{digest(f'{text}|{width_px}|{height_px}|v1')}.png")
-    if not path.exists():
-        write_png(path, plate_texture(text, width_px, height_px))
-    return path
+    texture = plate_texture(text, width_px, height_px)
+
+    def problem(p: Path) -> str | None:
+        img = read_png(p)
+        if img.shape != texture.shape or img.dtype != texture.dtype:
+            return f"{img.dtype} image of shape {img.shape}, not uint8 {texture.shape}"
+        return None if np.array_equal(img, texture) else f"pixels differ from the plate {text!r}"
+
+    return cached_path(path, lambda tmp: write_png(tmp, texture), problem)

@@ -198,12 +198,32 @@ def write_ply(path: Path, verts: np.ndarray, tris: np.ndarray) -> None:
         Path(tmp).write_text("\n".join(lines) + "\n")
 
 
+def _ply_problem(path: Path, verts: np.ndarray, tris: np.ndarray) -> str | None:
+    """Why the PLY at `path` is not `write_ply`'s file of (verts, tris): its header (format,
+    counts, properties), then every vertex (to the 6 decimals written) and face; or None."""
+    lines = path.read_text(encoding="ascii").split("\n")
+    header = ["ply", "format ascii 1.0", f"element vertex {len(verts)}", "property float x", "property float y",
+              "property float z", f"element face {len(tris)}", "property list uchar int vertex_indices", "end_header"]
+    body = lines[len(header):]
+    if lines[:len(header)] != header:
+        return f"PLY header is not that of a {len(verts)}-vertex, {len(tris)}-face ASCII mesh"
+    if len(body) != len(verts) + len(tris) + 1 or body[-1] != "":
+        return f"{len(body) - 1} element lines after the header, not {len(verts) + len(tris)}"
+    v = np.array([ln.split() for ln in body[:len(verts)]], float)
+    f = np.array([ln.split() for ln in body[len(verts):-1]], np.int64)
+    if v.shape != verts.shape or not np.allclose(v, verts, rtol=0, atol=5.1e-7):      # %.6f: half a unit
+        return "vertices differ from the car mesh's"
+    if f.shape != (len(tris), 4) or np.any(f[:, 0] != 3) or np.any(f[:, 1:] != tris):
+        return "faces differ from the car mesh's"
+    return None
+
+
 def cached_car_mesh() -> Path:
-    """The car mesh's PLY in the package cache (written once per MESH_VERSION and layout)."""
-    from poevp_optics.core.cache import cache_file, digest
+    """The car mesh's PLY in the package cache (written once per MESH_VERSION and layout),
+    checked (checksum and every vertex and face) before anything reads it; a file that fails is
+    rebuilt (core/cache.py)."""
+    from poevp_optics.core.cache import cache_file, cached_path, digest
 
     verts, tris = car_rear_mesh()
     path = cache_file("meshes", f"car_rear_{digest(verts.tobytes() + tris.tobytes() + str(MESH_VERSION).encode())}.ply")
-    if not path.is_file():
-        write_ply(path, verts, tris)                    # atomic; creates the folder
-    return path
+    return cached_path(path, lambda tmp: write_ply(tmp, verts, tris), lambda p: _ply_problem(p, verts, tris))
