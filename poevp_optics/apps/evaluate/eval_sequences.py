@@ -35,7 +35,8 @@ from poevp_optics import __version__
 from poevp_optics.camera.dmd import node_time_weights_s, node_times_s
 from poevp_optics.core.exceptions import SceneError
 from poevp_optics.core.io import atomic_path
-from poevp_optics.core.cache import cache_file, digest, json_digest
+from poevp_optics.core.cache import (CacheCheckError, build_lock, cache_file, digest, discard, json_digest,
+                                     load_verified, note_rebuilt, write_checksum)
 from poevp_optics.core.seeds import render_seeds
 from poevp_optics.render.exposures import RenderedExposure, rel_error, union_box
 from poevp_optics.sources.ldr_highlight import srgb_to_linear
@@ -213,30 +214,47 @@ def _save(path: Path, renders: dict, n: int, k: int) -> None:
                      roi=np.array([[renders[i, j][2] or (0, 0, 0, 0) for j in range(k)] for i in range(n)]))
 
 
-def _load(path: Path, n: int, k: int) -> dict:
-    z = np.load(path)
+def _load(path: Path, n: int, k: int, shape: tuple[int, int]) -> dict:
+    """{(frame, node): (mean, var, roi)} of a cached file, after checking its arrays: mean and var
+    (n, k, H, W, ...) alike, finite, var >= 0; roi (n, k, 4) (CacheCheckError otherwise)."""
+    with np.load(path) as z:
+        mean, var, roi = z["mean"], z["var"], z["roi"]
+    if mean.shape[:4] != (n, k, *shape) or var.shape != mean.shape or roi.shape != (n, k, 4):
+        raise CacheCheckError(f"mean {mean.shape}, var {var.shape}, roi {roi.shape}: not ({n}, {k}, "
+                              f"{shape[0]}, {shape[1]}) images and ({n}, {k}, 4) boxes")
+    if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(var)) and var.min() >= 0):
+        raise CacheCheckError("mean or var not finite, or a negative var")
     out = {}
     for i in range(n):
         for j in range(k):
-            roi = tuple(int(v) for v in z["roi"][i, j])
-            out[i, j] = (z["mean"][i, j], z["var"][i, j], roi if roi[2] > roi[0] else None)
+            box = tuple(int(v) for v in roi[i, j])
+            out[i, j] = (mean[i, j], var[i, j], box if box[2] > box[0] else None)
     return out
 
 
 def render_sequences(spec, seqs: list[SequenceSpec], cal: Calibration, guard_px: int,
                      log=print) -> list[list[RenderedExposure]]:
     """Each sequence's exposures (same text: one renderer for all), rendered once and cached by
-    `content_key` under the cache folder's eval/."""
+    `content_key` under the cache folder's eval/; a cached file that fails its check (core/cache.py:
+    checksum, array shapes) is rendered again, with a note."""
     from poevp_optics.render.renderer import Renderer
 
     acc = spec.accuracy
-    plan, missing = [], []
+    shape = tuple(n + 2 * int(guard_px) for n in spec.render.resolution)
+    plan, missing, loaded, damaged = [], [], {}, {}
     for j, seq in enumerate(seqs):
         times = node_times(spec, seq.frames, nodes_for_speed(seq.speed_px, spec.timing.fps))
         offs = poses(seq, cal, spec.timing.fps, times.ravel())
         path = cache_file("eval", f"{content_key(spec, seq, offs, acc.spp, times.shape[1])}.npz")
         plan.append((seq, times, offs, path))
-        if not path.is_file():
+        if path.is_file():
+            with build_lock(path):
+                try:
+                    loaded[j] = load_verified(path, lambda p, n=times.shape: _load(p, *n, shape))
+                except CacheCheckError as e:
+                    damaged[j] = str(e)
+                    discard(path)
+        if j not in loaded:
             missing.append(j)
     if missing:
         # one global keyframe timeline: pose m of the missing sequences at time m (s)
@@ -252,7 +270,12 @@ def render_sequences(spec, seqs: list[SequenceSpec], cal: Calibration, guard_px:
                     mean, var = r.render_with_error(render_seeds(spec.render.seed, i, k, acc.mc_splits), acc.spp)
                     renders[i, k] = (mean, var.astype(np.float32), r.roi_box())
                     m += 1
-            _save(path, renders, *times.shape)
+            with build_lock(path):
+                _save(path, renders, *times.shape)
+                write_checksum(path)
+            loaded[j] = _load(path, *times.shape, shape)
+            if j in damaged:
+                note_rebuilt(path, damaged[j])
             log(f"poevp evaluate: rendered {seq.text!r} {seq.kind} {seq.speed_px:g} px/frame "
                 f"({times.size} renders)")
-    return [_exposures(spec, _load(path, *times.shape), times) for seq, times, offs, path in plan]
+    return [_exposures(spec, loaded[j], times) for j, (seq, times, offs, path) in enumerate(plan)]

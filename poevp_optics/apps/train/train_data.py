@@ -300,6 +300,40 @@ def data_folder(scene: str, key: str) -> Path:
     return cache_dir("train_data") / f"{resolve_scene_path(scene).parent.name}-{key[:16]}"
 
 
+def _data_problem(data: TrainData, key: str, cfg: DataConfig) -> str | None:
+    """Why a loaded data set is not the one `key` and `cfg` name (its manifest's hash, each
+    split's frames (N, T, H, W) uint8, boxes (N, T, 4) and draws), or None."""
+    if data.manifest.get("content_sha256") != key:
+        return f"manifest.json names data set {str(data.manifest.get('content_sha256'))[:12]}, not {key[:12]}"
+    for s, n in zip(SPLITS, cfg.sequences):
+        frames, boxes = data.splits[s]["frames"], data.splits[s]["boxes"]
+        want = (n, cfg.frames, *cfg.resolution)
+        if frames.dtype != np.uint8 or frames.shape != want:
+            return f"{s}.npz: frames {frames.dtype} {frames.shape}, not uint8 {want}"
+        if boxes.shape != (n, cfg.frames, 4) or len(data.splits[s]["draws"]) != n:
+            return f"{s}.npz: boxes {boxes.shape} and {len(data.splits[s]['draws'])} draws, not ({n}, {cfg.frames}, 4) and {n}"
+    return None
+
+
+def _verified_data(folder: Path, key: str, cfg: DataConfig) -> TrainData:
+    """`load_data(folder)` once the manifest and each split pass their checksums (core/cache.py)
+    and `_data_problem` finds nothing; CacheCheckError with the reason otherwise."""
+    from poevp_optics.core.cache import CacheCheckError, checksum_problem
+
+    for name in ("manifest.json", *(f"{s}.npz" for s in SPLITS)):
+        problem = checksum_problem(folder / name)
+        if problem is not None:
+            raise CacheCheckError(f"{name}: {problem}")
+    try:
+        data = load_data(folder)
+        problem = _data_problem(data, key, cfg)
+    except Exception as e:                       # noqa: BLE001 - whatever a damaged file makes load raise
+        raise CacheCheckError(f"{type(e).__name__}: {' '.join(str(e).split())[:200]}") from e
+    if problem is not None:
+        raise CacheCheckError(problem)
+    return data
+
+
 def load_data(folder: Path) -> TrainData:
     manifest = json.loads((folder / "manifest.json").read_text())
     out = TrainData(folder, manifest)
@@ -314,16 +348,24 @@ def build_data(scene: str, cfg: DataConfig = DataConfig(), *, cluster: ClusterSe
                progress: bool = True, log=print) -> TrainData:
     """Render (or find in the cache) the three splits of `scene` under `cfg`: in this process, or
     on the Dask cluster `cluster` names (apps/sweep/sweep.py ClusterSettings with a scheduler)."""
+    from poevp_optics.core.cache import CacheCheckError, discard, note_rebuilt, write_checksum
     from poevp_optics.core.io import atomic_path, write_json
     from poevp_optics.scene.load import load_scene, resolve_scene_path
 
     key, parts = content_key(scene, cfg)
     folder = data_folder(scene, key)
+    damaged = None
     if (folder / "manifest.json").is_file():
-        data = load_data(folder)
-        log(f"poevp train-data: cached {folder} (sha256 {key[:12]}; rendered in "
-            f"{data.manifest['timing']['render_seconds']:.0f} s)")
-        return data
+        try:
+            data = _verified_data(folder, key, cfg)
+        except CacheCheckError as e:                  # rendered again below, with a note
+            damaged = str(e)
+            for name in ("manifest.json", *(f"{s}.npz" for s in SPLITS)):
+                discard(folder / name)
+        else:
+            log(f"poevp train-data: cached {folder} (sha256 {key[:12]}; rendered in "
+                f"{data.manifest['timing']['render_seconds']:.0f} s)")
+            return data
     t0, c0 = time.perf_counter(), time.process_time()
     base = load_scene(scene, [f"render.resolution={list(cfg.resolution)}"])
     if not base.render.roi_shape:
@@ -349,6 +391,7 @@ def build_data(scene: str, cfg: DataConfig = DataConfig(), *, cluster: ClusterSe
         with atomic_path(folder / f"{s}.npz") as tmp:
             with open(tmp, "wb") as f:
                 np.savez_compressed(f, frames=frames, boxes=boxes)
+        write_checksum(folder / f"{s}.npz")
     texts = {s: sorted({d.text for d in todo[s]}) for s in SPLITS}
     manifest = {"scene": str(resolve_scene_path(scene).resolve()), "content_sha256": key, **parts,
                 "geometry": asdict(geo),
@@ -361,10 +404,13 @@ def build_data(scene: str, cfg: DataConfig = DataConfig(), *, cluster: ClusterSe
                            "where": "dask" if remote else "local",
                            "frames_rendered": sum(cfg.sequences) * cfg.frames}}
     write_json(folder / "manifest.json", manifest)       # last: its presence marks a complete set
+    write_checksum(folder / "manifest.json")
     log(f"poevp train-data: {sum(cfg.sequences)} sequences x {cfg.frames} frames at "
         f"{cfg.resolution[0]}x{cfg.resolution[1]} rendered in {render_s:.0f} s -> {folder}")
     data = load_data(folder)
     data.rendered = True
+    if damaged is not None:
+        note_rebuilt(folder, damaged, kind="folder")
     return data
 
 
