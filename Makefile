@@ -14,8 +14,10 @@ demo: install
 test: install
 	$(PYTEST) -q -ra tests
 
+# Refreshes the committed results (benchmarks/results/, the site's Results pages) on purpose:
+# a benchmark run by hand writes into out/benchmarks/ unless given --results.
 bench: install
-	$(VENV)/bin/python -m benchmarks
+	$(VENV)/bin/python -m benchmarks --results
 
 # The documentation site (docs/, mkdocs.yml) into site/; warnings are errors.
 docs: install

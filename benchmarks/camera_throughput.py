@@ -5,15 +5,17 @@ scene (8-bit IMX253, exact Poisson, delta and Gaussian PSF) is timed (median of 
 kernels) beside the floor measured in the same run: a NumPy copy of the same arrays the chain
 touches (K sub-frames in, one DN frame and one exposure map out).
 
-    python -m benchmarks.camera_throughput
+    .venv/bin/python -m benchmarks.camera_throughput [--results]
 """
 
 from __future__ import annotations
 
+import argparse
 
 import numpy as np
 
-from benchmarks.common import machine_line, markdown_table, save_figure, save_text, timed
+from benchmarks.common import (add_results_flag, machine_line, markdown_table, output_folder, save_figure,
+                               save_text, timed)
 
 
 
@@ -44,7 +46,10 @@ def measure(shape, k, psf):
             cap.seconds["dmd"] * 1e3, cap.seconds["relay"] * 1e3, cap.seconds["sensor"] * 1e3]
 
 
-def main():
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    add_results_flag(ap)
+    dest = output_folder(ap.parse_args(argv).results)
     rows = []
     for shape in [(368, 640), (720, 1280)]:
         for k in (1, 4):
@@ -56,7 +61,7 @@ def main():
             f"Poisson, 8-bit) against a NumPy copy of the same arrays, medians of 7 warm runs, "
             f"one process. Machine: {machine_line()}.\n\n{markdown_table(header, rows)}\n")
     print(text)
-    save_text("camera_throughput.md", text)
+    save_text(dest / "camera_throughput.md", text)
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -66,7 +71,7 @@ def main():
     ax.barh(labels, [r[5] for r in rows])
     ax.set_xlabel("chain time / NumPy copy floor")
     ax.set_title("post-render chain vs copy floor")
-    print("wrote", save_figure(fig, "camera_throughput.png"))
+    print("wrote", save_figure(fig, dest / "camera_throughput.png"))
 
 
 if __name__ == "__main__":

@@ -1,4 +1,9 @@
-"""Shared helpers for benchmark scripts: results folder, Markdown tables, machine line."""
+"""Shared helpers for benchmark scripts: output folder, Markdown tables, machine line.
+
+Where a benchmark writes: `out/benchmarks/` of this checkout by default, so that running one never
+rewrites the committed results; with `--results` (what `make bench` passes) into
+`benchmarks/results/`, the measured numbers the documentation's Results pages show.
+"""
 
 from __future__ import annotations
 
@@ -6,7 +11,25 @@ import os
 import platform
 from pathlib import Path
 
-RESULTS = Path(__file__).resolve().parent / "results"
+ROOT = Path(__file__).resolve().parent.parent
+#: The committed results (the site's Results pages): written only with --results.
+RESULTS = ROOT / "benchmarks" / "results"
+#: A benchmark's default output folder (git-ignored).
+OUT = ROOT / "out" / "benchmarks"
+
+
+def add_results_flag(ap) -> None:
+    """`--results` on a benchmark's argparse parser (see `output_folder`)."""
+    ap.add_argument("--results", action="store_true",
+                    help=f"write into benchmarks/results/ (the committed results, as `make bench` does) "
+                         f"instead of {OUT.relative_to(ROOT)}/")
+
+
+def output_folder(results: bool) -> Path:
+    """benchmarks/results/ with --results, else out/benchmarks/ (created)."""
+    folder = RESULTS if results else OUT
+    folder.mkdir(parents=True, exist_ok=True)
+    return folder
 
 
 def machine_line() -> str:
@@ -28,19 +51,21 @@ def markdown_table(header: list[str], rows: list[list]) -> str:
     return "\n".join(lines)
 
 
-def save_figure(fig, name: str) -> Path:
+def save_figure(fig, path: Path) -> Path:
+    """`fig` written atomically to `path` (format from its suffix)."""
     from poevp_optics.core.io import atomic_path
 
-    path = RESULTS / name
+    path = Path(path)
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=120, bbox_inches="tight", format=path.suffix.lstrip("."))
     return path
 
 
-def save_text(name: str, text: str) -> Path:
+def save_text(path: Path, text: str) -> Path:
+    """`text` written atomically to `path`."""
     from poevp_optics.core.io import atomic_path
 
-    path = RESULTS / name
+    path = Path(path)
     with atomic_path(path) as tmp:
         tmp.write_text(text)
     return path

@@ -1,9 +1,10 @@
 """Closed-loop comparison on the default scene, two held-out sequences and the reversal case.
 
-Runs `poevp compare` (one render per scene; oracle, hold, flow, dmvfn x open, raw, demodulated)
-at the scenes' default settings and collects one summary table.
+Runs `poevp compare` (one render per scene; oracle, hold, flow, dmvfn_lite x open, raw, demodulated)
+at the scenes' default settings and collects one summary table (loop_comparison.md, and each
+scene's comparison in loop/<scene>/, under out/benchmarks/ or, with --results, benchmarks/results/).
 
-    python -m benchmarks.loop_comparison [--scenes highbeam_plate,heldout_swerve,...]
+    .venv/bin/python -m benchmarks.loop_comparison [--scenes highbeam_plate,heldout_swerve,...] [--results]
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ import argparse
 import csv
 from pathlib import Path
 
-from benchmarks.common import RESULTS, machine_line, markdown_table, save_text
+from benchmarks.common import add_results_flag, machine_line, markdown_table, output_folder, save_text
 
 SCENES = ["highbeam_plate", "heldout_swerve", "heldout_receding", "reversal"]
 
@@ -24,13 +25,15 @@ def main(argv=None):
 
     ap = argparse.ArgumentParser()
     ap.add_argument("--scenes", default=",".join(SCENES))
-    ap.add_argument("--predictors", default="oracle,hold,flow,dmvfn")
+    ap.add_argument("--predictors", default="oracle,hold,flow,dmvfn_lite")
     ap.add_argument("--modes", default="open,raw,demodulated")
+    add_results_flag(ap)
     args = ap.parse_args(argv)
+    dest = output_folder(args.results)
     runtime.set_threads(2)
     rows = []
     for scene in args.scenes.split(","):
-        out = RESULTS / "loop" / scene
+        out = dest / "loop" / scene
         with staged_dir(out, kind="compare") as stage:
             for r in compare(f"scenes/{scene}", args.predictors.split(","), args.modes.split(","),
                              stage, progress=False):
@@ -41,7 +44,7 @@ def main(argv=None):
             f"tables and figures in `loop/<scene>/`. Machine: {machine_line()}.\n\n"
             f"{markdown_table(header, [[('-' if v is None else v) for v in r] for r in rows])}\n")
     print(text)
-    save_text("loop_comparison.md", text)
+    save_text(dest / "loop_comparison.md", text)
 
 
 if __name__ == "__main__":

@@ -7,9 +7,9 @@ At 60 fps: 14 ms; an 8-bit mask would need 26.8 ms on a DLPC900 (camera: no illu
 gating), so the mask is 7-bit (14 ms / 127 = 110 us). Bus: 32-bit 200 MHz (paper App. D).
 One render per frame rate; the camera loop runs on it once per (budget, late_mask).
 
-    python -m benchmarks.loop_timing_budget [--budgets-ms 2,4,...] [--frames 12] [--resolution 368x640]
+    .venv/bin/python -m benchmarks.loop_timing_budget [--budgets-ms 2,4,...] [--frames 12] [--resolution 368x640] [--results]
 
-Writes results/loop_timing_budget.md and .png.
+Writes loop_timing_budget.md and .png into out/benchmarks/ (benchmarks/results/ with --results).
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ import time
 
 import numpy as np
 
-from benchmarks.common import machine_line, markdown_table, save_figure, save_text
+from benchmarks.common import add_results_flag, machine_line, markdown_table, output_folder, save_figure, save_text
 from benchmarks.plate_band import loop_frames, render_once, summarise
 
 RATES = {30.0: (0.028, 8), 60.0: (0.014, 7)}
@@ -37,7 +37,9 @@ def main(argv=None):
     ap.add_argument("--frames", type=int, default=12)
     ap.add_argument("--resolution", default="368x640")
     ap.add_argument("--ocr", type=int, default=1)
+    add_results_flag(ap)
     args = ap.parse_args(argv)
+    dest = output_folder(args.results)
     runtime.set_threads(2)
     h, w = args.resolution.split("x")
     rows = []
@@ -69,7 +71,7 @@ def main(argv=None):
             f"Readout and mask transfer on a 32-bit 200 MHz bus. Machine: {machine_line()}.\n\n"
             f"{markdown_table(header, rows)}\n")
     print(text)
-    save_text("loop_timing_budget.md", text)
+    save_text(dest / "loop_timing_budget.md", text)
     from poevp_optics.core.runtime import pyplot
 
     plt = pyplot()
@@ -84,7 +86,7 @@ def main(argv=None):
         ax.set_xlabel("predictor + mask time (ms)")
         ax.legend(fontsize=7)
     fig.tight_layout()
-    save_figure(fig, "loop_timing_budget.png")
+    save_figure(fig, dest / "loop_timing_budget.png")
 
 
 if __name__ == "__main__":

@@ -5,9 +5,10 @@ detection + recognition on the raw 8-bit frame, no crop: analysis/recognition.py
 the encoded plate white (p90 of the plate box / 255, band 40-90 %), the plate's MC error; then the
 scene's DR demand beside the DMD floor and the objective's glare floor, with which binds.
 
-    PYTHONPATH=$PWD python -m benchmarks.night_road_check [--set key=value ...]
+    .venv/bin/python -m benchmarks.night_road_check [--set key=value ...] [--results]
 
-Writes results/night_road.md and results/night_road.png (peak over saturation vs distance).
+Writes night_road.md and night_road.png (peak over saturation vs distance) into out/benchmarks/
+(benchmarks/results/ with --results).
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ import resource
 import tempfile
 import time
 
-from benchmarks.common import RESULTS, machine_line, markdown_table, save_text
+from benchmarks.common import add_results_flag, machine_line, markdown_table, output_folder, save_text
 
 
 def _cpu_s() -> float:
@@ -72,14 +73,16 @@ def main(argv=None):
     ap = argparse.ArgumentParser()
     ap.add_argument("--scene", default="scenes/night_road")
     ap.add_argument("--set", action="append", default=[])
+    add_results_flag(ap)
     args = ap.parse_args(argv)
+    dest = output_folder(args.results)
     runtime.set_threads(2)
     spec, report, kept, wall, cpu = run(args.scene, args.set)
     label = spec.plate.text
     rows = frame_rows(report, kept, label)
     s = summary(rows, spec.mask.band_low, spec.mask.band_high)
     nr = report["night_road"]
-    night_road.plot(RESULTS / "night_road.png", nr, f"{spec.name}: plate peak over saturation vs distance")
+    night_road.plot(dest / "night_road.png", nr, f"{spec.name}: plate peak over saturation vs distance")
     header = ["frame", "", "distance (m)", "observation (deg)", "entrance (deg)", "R_A (cd/lx/m2)",
               "plate peak / saturation", "LDR read", "encoded read", "encoded white p90/255",
               "encoded saturated plate", "attenuator transmission", "plate MC error"]
@@ -105,7 +108,7 @@ def main(argv=None):
             f"## Dynamic range (dB of attenuation)\n\n{markdown_table(['', 'dB'], dr)}\n\n"
             f"Binding: **{nr['binding']}**. {nr['statement']}\n")
     print(text)
-    save_text("night_road.md", text)
+    save_text(dest / "night_road.md", text)
 
 
 if __name__ == "__main__":

@@ -11,23 +11,27 @@
   cold with optiland warm, and loaded from the cache; time of `apply` at 368x640 and 720x1280
   (PSF only; PSF + cos^4 + 3 % glare).
 
-Writes results/objective_psf.md and results/objective_psf_grid.png.
+Writes objective_psf.md and objective_psf_grid.png into out/benchmarks/ (benchmarks/results/ with
+--results).
 
-    python -m benchmarks.objective_psf
+    .venv/bin/python -m benchmarks.objective_psf [--results]
 """
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import math
 import subprocess
 import sys
 import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
 
-from benchmarks.common import machine_line, markdown_table, save_figure, save_text, timed
+from benchmarks.common import (add_results_flag, machine_line, markdown_table, output_folder, save_figure,
+                               save_text, timed)
 from poevp_optics.camera import objective as ob
 
 DEFAULT = ob.ObjectiveParams(psf="prescription")
@@ -71,7 +75,7 @@ def cold_build_seconds(cache_dir: str) -> float:
     return float(out.stdout.strip().splitlines()[-1])
 
 
-def plot(grids):
+def plot(grids, dest: Path):
     import matplotlib
 
     matplotlib.use("Agg")
@@ -93,10 +97,13 @@ def plot(grids):
                 ax.set_title(f"peak {k.max():.3f}", fontsize=7)
         axes[0, col0 + 2].set_title(f"{title}\npeak {grid.kernels[0, 2].max():.3f}", fontsize=8)
     fig.suptitle("Double Gauss PSF grid (5 x 5 nodes over the image, 17 x 17 mirrors each, log10, 6 decades)")
-    return save_figure(fig, "objective_psf_grid.png")
+    return save_figure(fig, dest / "objective_psf_grid.png")
 
 
-def main():
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    add_results_flag(ap)
+    dest = output_folder(ap.parse_args(argv).results)
     lines = ["# Objective stage: Double Gauss PSF over the field, and cost", "", machine_line(), "",
              "IMX253 band at " + ", ".join(f"{w:.0f}" for w in ob.band(DEFAULT)[0]) +
              " nm (equal signal), 7.56 um mirrors, pupil_rays 256, support_energy 0.999.", ""]
@@ -143,10 +150,10 @@ def main():
             trows += [[f"apply {shape[0]}x{shape[1]}: PSF (25 nodes, {2 * grid.radius_px + 1} px kernels)", t1],
                       [f"apply {shape[0]}x{shape[1]}: PSF + cos^4 + 3 % glare ({2 * glare.radius_px + 1} px halo)", t2]]
         lines += ["## Time (s)", "", markdown_table(["what", "seconds"], trows), ""]
-        png = plot([("(a) 25 mm f/6.14, 720x1280", g720), ("(b) 100 mm f/5, 13.9 deg", gd)])
+        png = plot([("(a) 25 mm f/6.14, 720x1280", g720), ("(b) 100 mm f/5, 13.9 deg", gd)], dest)
     lines += [f"Plot: `{png.name}`.", ""]
     text = "\n".join(lines)
-    save_text("objective_psf.md", text)
+    save_text(dest / "objective_psf.md", text)
     print(text)
 
 

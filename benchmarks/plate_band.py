@@ -2,15 +2,15 @@
 white per frame (90th percentile of the plate box in the raw 8-bit capture / 255) against the
 40-90 % band, and whole-frame PP-OCRv4 detection + recognition (no crop from the known box).
 
-    python -m benchmarks.plate_band [--texts "JN F9H28,..."] [--gains 1,10] [--frames 16]
-    python -m benchmarks.plate_band --scene scenes/night_road --scale 4 --frames 21 \
+    .venv/bin/python -m benchmarks.plate_band [--texts "JN F9H28,..."] [--gains 1,10] [--frames 16]
+    .venv/bin/python -m benchmarks.plate_band --scene scenes/night_road --scale 4 --frames 21 \
         --set render.spp=8 --out plate_band_night_road.md
-    python -m benchmarks.plate_band --scene scenes/night_road --frames 21 --gains 1,10 \
+    .venv/bin/python -m benchmarks.plate_band --scene scenes/night_road --frames 21 --gains 1,10 \
         --set "render.resolution=[1080,1920]" --set objective.focal_length_m=0.06906 \
         --set mask.smooth_px=24 --set attenuator.serve_min_mirrors=864 --set render.spp=4 \
         --set render.roi_spp=28 --out plate_band_night_road_1920.md   # night_road's own default
 
-Writes results/plate_band.md (or --out). One render per (gain, text). On a road scene (night_road)
+Writes plate_band.md (or --out NAME) into out/benchmarks/ (benchmarks/results/ with --results). One render per (gain, text). On a road scene (night_road)
 a beam gain g renders with our high beams' intensity_cd x g (the oncoming car's lamps and the tail
 lamps unchanged); elsewhere the render at the scene's beams is scaled by g (exact for all light
 from the beams, which is all the plate gets; the 0.005 cd/m^2 sky glow is scaled too). Gains run in the order given, each over every text,
@@ -33,7 +33,7 @@ import time
 
 import numpy as np
 
-from benchmarks.common import machine_line, markdown_table, save_text
+from benchmarks.common import add_results_flag, machine_line, markdown_table, output_folder, save_text
 
 TEXTS = ["JN F9H28", "KA 7731", "B4 713X", "MU 55RT", "HZ 2048", "TX 96QW"]
 
@@ -177,7 +177,7 @@ def write_results(args, sets: list[str], rows: list[list], per_frame: list, extr
             f"Seconds: wall per row (render + loop + OCR). "
             f"Machine: {machine_line()}.\n\n"
             f"{markdown_table(header, sorted(rows, key=lambda r: r[0]))}\n\n## Per frame\n\n{detail}\n{extra}")
-    save_text(args.out, text)
+    save_text(output_folder(args.results) / args.out, text)
     return text
 
 
@@ -196,6 +196,7 @@ def main(argv=None):
     ap.add_argument("--out", default="plate_band.md")
     ap.add_argument("--save-captures", default=None, help="folder for one .npz per (gain, text): raw 8-bit "
                     "captures, masks, plate boxes (for reading them again without rendering)")
+    add_results_flag(ap)
     args = ap.parse_args(argv)
     runtime.set_threads(2)
     rows, per_frame = [], []

@@ -2,13 +2,14 @@
 default scene's retroreflective plate (night_road, as `make demo` runs it: the causal loop, the
 exposure controller, the variable ND).
 
-    python -m benchmarks.plate_dn_range [--gains 0.1,0.3,1,3,10,16] [--frames 21]
+    .venv/bin/python -m benchmarks.plate_dn_range [--gains 0.1,0.3,1,3,10,16] [--frames 21] [--results]
 
 One render at the scene's beams; a gain g scales all its light by g (the plate is lit only by our
 beams, so its over-exposure scales exactly; the oncoming lamps scale too: a harsher case than our
 beams alone). Per gain and loop frame: the plate's peak over saturation (report), the 10th/50th/
 90th percentiles of the plate box in the raw 8-bit capture (DN), the saturated fraction and the
-attenuator's transmission. Writes results/plate_dn_range.md and .png.
+attenuator's transmission. Writes plate_dn_range.md and .png into out/benchmarks/
+(benchmarks/results/ with --results).
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ import time
 
 import numpy as np
 
-from benchmarks.common import RESULTS, machine_line, markdown_table, save_text
+from benchmarks.common import add_results_flag, machine_line, markdown_table, output_folder, save_text
 
 
 def main(argv=None):
@@ -31,7 +32,9 @@ def main(argv=None):
     ap.add_argument("--scene", default="scenes/night_road")
     ap.add_argument("--gains", default="0.1,0.3,1,3,10,16")
     ap.add_argument("--frames", type=int, default=21)
+    add_results_flag(ap)
     args = ap.parse_args(argv)
+    dest = output_folder(args.results)
     runtime.set_threads(2)
     t0 = time.perf_counter()
     spec, renderer, ex = render_once(args.scene, [f"timing.frames={args.frames}"])
@@ -74,10 +77,10 @@ def main(argv=None):
     ax.set_ylabel("plate DN: p10-p90, median")
     ax.legend(fontsize=7, ncol=2)
     fig.tight_layout()
-    fig.savefig(RESULTS / "plate_dn_range.png", dpi=120)
+    fig.savefig(dest / "plate_dn_range.png", dpi=120)
     plt.close(fig)
     print(text)
-    save_text("plate_dn_range.md", text)
+    save_text(dest / "plate_dn_range.md", text)
 
 
 if __name__ == "__main__":

@@ -14,7 +14,7 @@ plate's rows (its box grown by half its height):
   sat %    plate-box pixels saturated in the encoded capture;
   read     full ALPR (PP-OCRv4 detection + recognition on the frame, paper Eq. 4).
 
-    PYTHONPATH=$PWD python -m benchmarks.predictor_alignment [--speeds 24,32] [--E 9] [--loop-modes open,demodulated]
+    .venv/bin/python -m benchmarks.predictor_alignment [--speeds 24,32] [--E 9] [--loop-modes open,demodulated] [--results]
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ import time
 
 import numpy as np
 
-from benchmarks.common import markdown_table, save_text
+from benchmarks.common import add_results_flag, markdown_table, output_folder, save_text
 
 
 class Recorder:
@@ -165,12 +165,14 @@ def main(argv=None):
     ap = argparse.ArgumentParser()
     ap.add_argument("--speeds", default="24,32")
     ap.add_argument("--E", default="9")
-    ap.add_argument("--predictors", default="hold,flow,dmvfn,oracle")
+    ap.add_argument("--predictors", default="hold,flow,dmvfn_lite,oracle")
     ap.add_argument("--texts", default="KA 7391,MH 2046")
     ap.add_argument("--frames", type=int, default=6)
     ap.add_argument("--loop-modes", default="open,demodulated")
     ap.add_argument("--out", default="predictor_alignment")
+    add_results_flag(ap)
     a = ap.parse_args(argv)
+    dest = output_folder(a.results)
     t0 = time.perf_counter()
     cfg, rows = cell_rows(a, a.loop_modes.split(","), [float(s) for s in a.speeds.split(",")],
                          [float(s) for s in a.E.split(",")], a.predictors.split(","))
@@ -185,7 +187,7 @@ def main(argv=None):
     table = [[m, f"{v:g}", f"{e:g}", text, d, name, r["frame"], f"{r['box_x']:.1f}", f"{r['true_x']:.1f}",
               f"{r['pred_x']:.1f}", f"{r['err']:+.1f}", f"{r['mask_x']:.1f}", f"{r['sat']:.0f}", "yes" if ok else "no"]
              for m, v, e, text, d, name, r, ok in rows]
-    png = plot(rows, f"{a.out}.png")
+    png = plot(rows, dest / f"{a.out}.png")
     text = (f"# Predictor alignment: where each predictor puts the highlight (lateral motion)\n\n"
             f"{__doc__.split(chr(10) + chr(10))[1]}\n\n"
             f"`highbeam_plate` at {cfg.resolution[0]}x{cfg.resolution[1]}, {cfg.spp} spp, the evaluation's "
@@ -196,7 +198,7 @@ def main(argv=None):
             + "\n\n## Per frame\n\n"
             + markdown_table(["loop", "px/frame", "E", "text", "dir", "predictor", "t", "box x", "true x",
                               "pred x", "err px", "mask x", "sat %", "read"], table) + "\n")
-    print(save_text(f"{a.out}.md", text))
+    print(save_text(dest / f"{a.out}.md", text))
 
 
 if __name__ == "__main__":

@@ -5,21 +5,25 @@ and multiply-accumulates (hook-counted, all blocks run). The mask law (target la
 smooth envelope) is timed on the same frames. Paper: VP + mask 16.9 ms on an RTX 3090; a
 DLPC900 shows an 8-bit pattern in >= 4.05 ms.
 
-    python -m benchmarks.predictor_latency
+    .venv/bin/python -m benchmarks.predictor_latency [--results]
 """
 
 from __future__ import annotations
 
+import argparse
 import time
 
 import numpy as np
 
-from benchmarks.common import machine_line, markdown_table, save_text
+from benchmarks.common import add_results_flag, machine_line, markdown_table, output_folder, save_text
 
 H, W = 368, 640
 
 
-def main():
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    add_results_flag(ap)
+    dest = output_folder(ap.parse_args(argv).results)
     import torch
 
     from poevp_optics.core import runtime
@@ -73,7 +77,7 @@ def main():
             f"vary by up to 2x between runs. Machine: {machine_line()}. Targets: flow < 10 ms, "
             f"dmvfn_lite < 25 ms. Paper: 16.9 ms on an RTX 3090.\n\n{markdown_table(header, rows)}\n")
     print(text)
-    save_text("predictor_latency.md", text)
+    save_text(dest / "predictor_latency.md", text)
 
 
 if __name__ == "__main__":

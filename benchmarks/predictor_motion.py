@@ -14,7 +14,7 @@ Per cell (median over headings and frames):
   PSNR           dB over a 96x160 window centred on the true plate (8-bit scale);
   mask IoU       IoU of the saturated regions in that window: the pixels the law dims.
 
-    PYTHONPATH=$PWD python -m benchmarks.predictor_motion [--speeds 4,16,32,48] [--quick]
+    .venv/bin/python -m benchmarks.predictor_motion [--speeds 4,16,32,48] [--kinds ...] [--predictors ...] [--results]
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ import time
 
 import numpy as np
 
-from benchmarks.common import machine_line, markdown_table, save_figure, save_text
+from benchmarks.common import add_results_flag, machine_line, markdown_table, output_folder, save_figure, save_text
 
 PREDICTORS = ("hold", "flow", "dmvfn_lite", "track", "track_net")
 HEADINGS = {"right": 0.0, "down": 90.0, "left": 180.0, "up": 270.0}
@@ -159,7 +159,9 @@ def main(argv=None):
     ap.add_argument("--speeds", default="4,8,16,24,32,48")
     ap.add_argument("--kinds", default=",".join(KINDS))
     ap.add_argument("--predictors", default=",".join(PREDICTORS))
+    add_results_flag(ap)
     a = ap.parse_args(argv)
+    dest = output_folder(a.results)
     runtime.set_threads(2)
     speeds = [int(s) for s in a.speeds.split(",")]
     kinds = a.kinds.split(",")
@@ -171,8 +173,8 @@ def main(argv=None):
             f"Run: {time.perf_counter() - t0:.0f} s; machine: {machine_line()}. Plot: predictor_motion.png.\n\n"
             f"{criteria(rows, preds)}\n{tables(rows, speeds, kinds, preds, seconds)}")
     print(text)
-    save_text("predictor_motion.md", text)
-    plot(rows, speeds, kinds, preds, "predictor_motion.png")
+    save_text(dest / "predictor_motion.md", text)
+    plot(rows, speeds, kinds, preds, dest / "predictor_motion.png")
 
 
 if __name__ == "__main__":

@@ -25,7 +25,7 @@ seconds (all threads; less sensitive to other jobs on a shared machine than wall
    frames, the scene's spp vs `--frame-spp` + `--roi-spp`: CPU s, wall s and the report's plate
    and frame errors.
 
-    python -m benchmarks.render_cost [--full] [--resolutions 184x320,368x640,736x1280,1080x1920]
+    .venv/bin/python -m benchmarks.render_cost [--full] [--resolutions 184x320,368x640,736x1280,1080x1920] [--results]
 """
 
 from __future__ import annotations
@@ -39,7 +39,7 @@ import time
 
 import numpy as np
 
-from benchmarks.common import machine_line, markdown_table, save_figure, save_text
+from benchmarks.common import add_results_flag, machine_line, markdown_table, output_folder, save_figure, save_text
 
 SCENE = "scenes/night_road"
 BASE_COLUMNS = 320
@@ -223,7 +223,9 @@ def main(argv=None):
     ap.add_argument("--frame-spp", type=int, default=4)
     ap.add_argument("--roi-spp", type=int, default=28)
     ap.add_argument("--out", default="render_cost")
+    add_results_flag(ap)
     args = ap.parse_args(argv)
+    dest = output_folder(args.results)
     args.quick = not args.full
     frames = args.frames or (3 if args.quick else 21)
     res_list = [tuple(int(v) for v in r.lower().split("x")) for r in args.resolutions.split(",")]
@@ -238,7 +240,7 @@ def main(argv=None):
 
     lines = [f"# Render cost of {SCENE} (issue 27)", "", f"Machine: {machine_line()}. Process CPU seconds "
              "(all threads; the machine is shared, so wall time is not the measure). "
-             f"`python -m benchmarks.render_cost{' --quick' if args.quick else ''}`: {frames} frames per run, "
+             f"`.venv/bin/python -m benchmarks.render_cost{' --quick' if args.quick else ''}`: {frames} frames per run, "
              f"benchmark {time.time() - t_all:.0f} s wall. Resolutions scale the objective's focal length, "
              "mask.smooth_px and attenuator.serve_min_mirrors with the columns (the field kept).", ""]
     names = list(next(iter(st.values()))["cpu"])
@@ -289,8 +291,8 @@ def main(argv=None):
               "", "The rest of the frame (road, car bodies) renders at the frame's spp: its error is the "
               "'rest' column, kept in the report (stages.render.rel_error_pixel_median).", ""]
     lines += [LIGHT_NOTE]
-    save_text(f"{args.out}.md", "\n".join(lines) + "\n")
-    _plot(per, res_list, args.frame_spp, f"{args.out}.png")
+    save_text(dest / f"{args.out}.md", "\n".join(lines) + "\n")
+    _plot(per, res_list, args.frame_spp, dest / f"{args.out}.png")
     print("\n".join(lines))
 
 

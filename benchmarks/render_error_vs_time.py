@@ -18,7 +18,7 @@ printed. The time to an error is interpolated in log-log between the measured po
 extrapolated from the last two when the error was not reached (marked). Also: every sampler at
 64 spp, and the light selections at 64 spp (variance of the ROI and frame error).
 
-    python -m benchmarks.render_error_vs_time [--scene scenes/highbeam_plate] [--resolution 184x320]
+    .venv/bin/python -m benchmarks.render_error_vs_time [--scene scenes/highbeam_plate] [--resolution 184x320] [--results]
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ import time
 
 import numpy as np
 
-from benchmarks.common import machine_line, markdown_table, save_figure, save_text
+from benchmarks.common import add_results_flag, machine_line, markdown_table, output_folder, save_figure, save_text
 
 CONFIGS = {
     "baseline": {"mode": "spectral", "sampler": "independent", "lights": "uniform", "spps": [4, 16, 64, 256, 1024]},
@@ -188,7 +188,9 @@ def main(argv=None):
     ap.add_argument("--scene", default="scenes/highbeam_plate")
     ap.add_argument("--resolution", default="184x320", help="HxW (368x640 is the scene's; 4x the time)")
     ap.add_argument("--ref-spp", type=int, default=2048)
+    add_results_flag(ap)
     args = ap.parse_args(argv)
+    dest = output_folder(args.results)
     h, w = (int(v) for v in args.resolution.lower().split("x"))
     res = f"[{h},{w}]"
     t_all = time.perf_counter()
@@ -200,8 +202,8 @@ def main(argv=None):
     srows, ratios = summary(results)
     text = report_text(args, res, rows, srows, ratios, samplers, lights, results, time.perf_counter() - t_all)
     print(text)
-    save_text("render_error_vs_time.md", text)
-    plot(results)
+    save_text(dest / "render_error_vs_time.md", text)
+    plot(results, dest)
 
 
 def report_text(args, res, rows, srows, ratios, samplers, lights, results, total_s) -> str:
@@ -238,7 +240,7 @@ def report_text(args, res, rows, srows, ratios, samplers, lights, results, total
         + f"\n\nRelative to uniform: {var_ratio}.\n")
 
 
-def plot(results):
+def plot(results, dest):
     import matplotlib
 
     matplotlib.use("Agg")
@@ -257,7 +259,7 @@ def plot(results):
     ax.set_title("highbeam_plate: plate error vs time (labels: spp)")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
-    print("wrote", save_figure(fig, "render_error_vs_time.png"))
+    print("wrote", save_figure(fig, dest / "render_error_vs_time.png"))
 
 
 if __name__ == "__main__":

@@ -1,13 +1,13 @@
 """Where a run's scene value goes (issue 30): stops, files, climbs back up, and the functions below
 apps/ that receive the whole scene object, for this checkout and (``--before REV``) an older one,
-side by side in one run. Writes results/scene_flow.md.
+side by side in one run. Writes scene_flow.md into out/benchmarks/ (benchmarks/results/ with --results).
 
 Definitions (tests/scene_flow.py): a stop is a call of a poevp_optics function given the scene or
 a part resolved from it (distinct functions, in first-visit order); a climb is a stop in a package
 above the previous stop's in the import table. An older checkout is traced with this checkout's
 tracer and runs (a temporary ``git worktree``), its own package on the path.
 
-    python -m benchmarks.scene_flow --before b481423
+    .venv/bin/python -m benchmarks.scene_flow --before b481423 [--results]
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from benchmarks.common import machine_line, markdown_table, save_text
+from benchmarks.common import add_results_flag, machine_line, markdown_table, output_folder, save_text
 
 ROOT = Path(__file__).resolve().parent.parent
 TRACER = ROOT / "tests" / "scene_flow.py"
@@ -57,7 +57,9 @@ def trace(tree: Path) -> dict:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--before", help="an older commit to trace side by side (e.g. b481423, before issue 30)")
+    add_results_flag(ap)
     args = ap.parse_args()
+    dest = output_folder(args.results)
     trees = {"this checkout": ROOT}
     tmp = None
     if args.before:
@@ -82,7 +84,7 @@ def main() -> None:
             "RenderScene, CameraParams, LoopParams), first-visit order. Climbs: a stop in a package that may "
             "import the previous stop's. Runs: tests/scene_flow.py RUNS.\n")
     print(text)
-    save_text("scene_flow.md", text)
+    save_text(dest / "scene_flow.md", text)
 
 
 if __name__ == "__main__":

@@ -9,11 +9,12 @@
    predictor -> mask law, per frame, per predictor. Target: >= 30 frames/s with `flow`.
 4. Peak memory (resident set) each stage adds, per frame size, measured in a fresh process.
 
-    python -m benchmarks.stage_performance
+    .venv/bin/python -m benchmarks.stage_performance [--results]
 """
 
 from __future__ import annotations
 
+import argparse
 import json
 import subprocess
 import sys
@@ -21,7 +22,8 @@ import time
 
 import numpy as np
 
-from benchmarks.common import machine_line, markdown_table, save_figure, save_text, timed
+from benchmarks.common import (add_results_flag, machine_line, markdown_table, output_folder, save_figure,
+                               save_text, timed)
 
 SIZES = [(368, 640), (720, 1280)]
 
@@ -154,7 +156,10 @@ def memory(stage, shape):
     return json.loads(res.stdout.strip().splitlines()[-1])
 
 
-def main():
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    add_results_flag(ap)
+    dest = output_folder(ap.parse_args(argv).results)
     from poevp_optics.core import runtime
 
     runtime.set_threads(2)
@@ -199,7 +204,7 @@ def main():
               markdown_table(["size", "stage", "added MB", "process before MB"], rows), ""]
     text = "\n".join(lines)
     print(text)
-    save_text("stage_performance.md", text)
+    save_text(dest / "stage_performance.md", text)
     import matplotlib
 
     matplotlib.use("Agg")
@@ -210,7 +215,7 @@ def main():
     ax.axhline(30, color="grey", ls="--", label="target 30 fps")
     ax.set(ylabel="frames per second", title="closed loop without render, 368x640")
     ax.legend()
-    print("wrote", save_figure(fig, "closed_loop_fps.png"))
+    print("wrote", save_figure(fig, dest / "closed_loop_fps.png"))
 
 
 if __name__ == "__main__":

@@ -20,17 +20,18 @@ them; the reference is the uniform rule on those 256 samples (one bit-plane LSB 
 Errors: relative RMS over the plate box. Part C: the run's own estimate (apps.run.temporal_check.temporal_error:
 independent seeds at the scene's spp, the frame's oracle mask) against the true error.
 
-    python -m benchmarks.subframes_error
+    .venv/bin/python -m benchmarks.subframes_error [--results]
 """
 
 from __future__ import annotations
 
+import argparse
 import os
 from pathlib import Path
 
 import numpy as np
 
-from benchmarks.common import machine_line, markdown_table, save_figure, save_text
+from benchmarks.common import add_results_flag, machine_line, markdown_table, output_folder, save_figure, save_text
 
 LEVELS = (1, 14, 128, 255)
 N_DENSE = 256
@@ -236,7 +237,10 @@ def part_c(spec, frame, dense, spps=(128, 512)):
             "estimate_seconds": est["seconds"]}
 
 
-def main():
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    add_results_flag(ap)
+    dest = output_folder(ap.parse_args(argv).results)
     header_k = [f"{k - 1} int." for k in KS]
     rows_a = part_a()
     text = (f"# Encoded temporal error vs K, per mask level, before and after (issue 13)\n\n"
@@ -275,7 +279,7 @@ def main():
                "low levels only at order 1 (part A). What decides the plate's error at practical K is "
                "whether the nodes resolve the window in which the plate's mask level is lit: the PWM "
                "nodes do that for every level at the cost of the DMD's B - 1 inner switching times.\n")
-    save_text("subframes_error.md", text)
+    save_text(dest / "subframes_error.md", text)
     print(text)
     import matplotlib
 
@@ -290,7 +294,7 @@ def main():
         ax.set(xlabel="intervals", ylabel="relative RMS error, plate", title=name)
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=6, ncol=2)
-    print("wrote", save_figure(fig, "subframes_error.png"))
+    print("wrote", save_figure(fig, dest / "subframes_error.png"))
 
 
 if __name__ == "__main__":

@@ -7,17 +7,18 @@ cores). Speed-up = 1-worker wall time / 2-worker wall time; per-point overhead =
 - bare wall) / points, both at 2 cores in use. The first point of each worker process pays the
 imports and Mitsuba's JIT; that is part of the overhead. Target (issue 6): >= 1.7x on 2 cores.
 
-    python -m benchmarks.sweep_scaling
+    .venv/bin/python -m benchmarks.sweep_scaling [--results]
 """
 
 from __future__ import annotations
 
+import argparse
 import shutil
 import tempfile
 import time
 from pathlib import Path
 
-from benchmarks.common import machine_line, markdown_table, save_text
+from benchmarks.common import add_results_flag, machine_line, markdown_table, output_folder, save_text
 
 SCENE = "scenes/highbeam_plate"
 BASE = ["render.resolution=[184,320]", "timing.frames=6", "render.spp=16", "render.subframes=4",
@@ -58,7 +59,10 @@ def swept(workers, threads):
     return wall, float(ps.median()), float(ps.iloc[-1])
 
 
-def main():
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    add_results_flag(ap)
+    dest = output_folder(ap.parse_args(argv).results)
     import itertools
 
     from poevp_optics.apps.sweep.sweep import parse_grid
@@ -81,7 +85,7 @@ def main():
             f"scene load, table rewrite) at 1 worker: {(t_12 - t_bare) / n:.3f} s on "
             f"{t_bare / n:.3f} s of work.\n")
     print(text)
-    save_text("sweep_scaling.md", text)
+    save_text(dest / "sweep_scaling.md", text)
 
 
 if __name__ == "__main__":

@@ -22,7 +22,7 @@ camera with all four effects reads as the physical camera does. Our fusions read
 paper's; we have not isolated why (the paper's ALPR Net and test plates versus PP-OCRv4 and one
 demo plate here), so that gap stays unattributed.
 
-    PYTHONPATH=$PWD python -m benchmarks.table2
+    .venv/bin/python -m benchmarks.table2 [--results]
 """
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.common import machine_line, markdown_table, save_text
+from benchmarks.common import add_results_flag, machine_line, markdown_table, output_folder, save_text
 
 SCENE = Path(__file__).resolve().parent.parent / "scenes" / "ldr_highlight_demo"
 E_LEVELS = (9.0, 29.0, 49.0)
@@ -178,7 +178,9 @@ def main(argv=None):
     ap = argparse.ArgumentParser()
     ap.add_argument("--predictors", default=",".join(PREDICTORS))
     ap.add_argument("--no-physical", action="store_true")
+    add_results_flag(ap)
     a = ap.parse_args(argv)
+    dest = output_folder(a.results)
     runtime.set_threads(2)
     preds = a.predictors.split(",")
     t0 = time.perf_counter()
@@ -188,11 +190,11 @@ def main(argv=None):
         res.update(physical(phys_preds, LAWS[0], ("ldr", "fusion_classic", "fusion_deghost")))
         res.update(physical(phys_preds, "exposure_controller"))
     text = (f"# Paper Table 2 like for like: the paper's simulation beside the physical camera\n\n"
-            f"{__doc__.split(chr(10), 2)[2].split('    PYTHONPATH')[0].strip()}\n\n"
+            f"{__doc__.split(chr(10), 2)[2].split('    .venv/bin/python')[0].strip()}\n\n"
             f"Run: {time.perf_counter() - t0:.0f} s; machine: {machine_line()}. Cells: reads/frames = % "
             f"[Wilson 95 %].\n\n{summary(res)}\n\n{table(res)}\n")
     print(text)
-    save_text("table2.md", text)
+    save_text(dest / "table2.md", text)
 
 
 if __name__ == "__main__":

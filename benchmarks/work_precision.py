@@ -10,15 +10,17 @@
   approximation N(lambda, lambda) rounded and NumPy's generator, at lambda = 0.5, 3, 30, 3e4:
   error = Kolmogorov distance of 1e6 draws to the exact Poisson CDF, time per 1e6 draws.
 
-    python -m benchmarks.work_precision
+    .venv/bin/python -m benchmarks.work_precision [--results]
 """
 
 from __future__ import annotations
 
+import argparse
 
 import numpy as np
 
-from benchmarks.common import machine_line, markdown_table, save_figure, save_text, timed
+from benchmarks.common import (add_results_flag, machine_line, markdown_table, output_folder, save_figure,
+                               save_text, timed)
 
 
 
@@ -98,7 +100,10 @@ def poisson_methods():
     return rows
 
 
-def main():
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    add_results_flag(ap)
+    dest = output_folder(ap.parse_args(argv).results)
     from poevp_optics.core import runtime
 
     runtime.set_threads(2)
@@ -115,7 +120,7 @@ def main():
         "noise floor of 1e6 draws is ~1e-3)\n",
         markdown_table(["lambda", "method", "KS distance", "ms"], po), ""])
     print(text)
-    save_text("work_precision.md", text)
+    save_text(dest / "work_precision.md", text)
     import matplotlib
 
     matplotlib.use("Agg")
@@ -131,7 +136,7 @@ def main():
         axes[1].loglog([r[3] for r in sel], [max(r[2], 1e-5) for r in sel], "o-", label=name)
     axes[1].set(xlabel="ms per 1e6 draws", ylabel="KS distance", title="Poisson samplers (lambda 0.5 ... 3e4)")
     axes[1].legend(fontsize=7)
-    print("wrote", save_figure(fig, "work_precision.png"))
+    print("wrote", save_figure(fig, dest / "work_precision.png"))
 
 
 if __name__ == "__main__":
