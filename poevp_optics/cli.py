@@ -16,7 +16,7 @@ import platform
 import sys
 from pathlib import Path
 
-from poevp_optics.apps.cli_args import add_cluster_options as _add_cluster_options
+from poevp_optics.apps.cli_args import add_cluster_options as _add_cluster_options, tls_options as _tls_options
 from poevp_optics.apps.cli_args import positive_int as _positive_int, seeds_arg as _seeds, threads_arg as _threads
 from poevp_optics import __version__
 from poevp_optics.core import runtime
@@ -30,17 +30,28 @@ class _OneLineParser(argparse.ArgumentParser):
         self.exit(2, f"poevp: error: {' '.join(message.split())}\n")
 
 
-def _resolution_override(text: str) -> str:
+def _resolution_arg(text: str) -> tuple[int, int]:
+    """--resolution HxW: (H, W) as typed (the scene's bounds check the values)."""
     try:
         h, w = (int(v) for v in text.lower().split("x"))
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected HxW, e.g. 368x640, got {text!r}") from None
-    return f"render.resolution=[{h},{w}]"
+    return h, w
+
+
+def _scale_arg(text: str) -> tuple[float, str]:
+    """--scale S: (the scale, as typed)."""
+    from poevp_optics.scene.scale import parse_scale
+
+    try:
+        return parse_scale(text), text.strip()
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
 
 
 class _Override(argparse.Action):
-    """`--set KEY=VALUE` and the shorthands (--frames, --spp, --resolution, --seed) become
-    `section.key=value` overrides in the order given, so the last one given wins."""
+    """`--set KEY=VALUE` and the shorthands (--frames, --spp, --seed) become `section.key=value`
+    overrides in the order given, so the last one given wins."""
 
     def __init__(self, option_strings, dest, key=None, **kwargs):
         self.key = key
@@ -60,14 +71,27 @@ def _add_run_options(p: argparse.ArgumentParser) -> None:
                    key=lambda v: f"timing.frames={v}", help="shorthand for --set timing.frames=N")
     p.add_argument("--spp", dest="overrides", action=_Override, type=int, metavar="N",
                    key=lambda v: f"render.spp={v}", help="shorthand for --set render.spp=N")
-    p.add_argument("--resolution", dest="overrides", action=_Override, type=_resolution_override,
-                   metavar="HxW", key=lambda v: v, help="shorthand for --set render.resolution=[H,W]")
     p.add_argument("--seed", dest="overrides", action=_Override, type=int, metavar="S",
                    key=lambda v: f"render.seed={v}", help="shorthand for --set render.seed=S")
-    p.add_argument("--dmd-mirrors", dest="dmd_mirrors", action="store_true",
-                   help="render at the DMD's own mirror count (night_road: the DLP6500's 1920x1080, 6x the "
-                        "default scale), the sizes in mirrors and the objective's focal length scaled with it; "
-                        "applied after every --set")
+    size = p.add_mutually_exclusive_group()
+    size.add_argument("--scale", type=_scale_arg, metavar="S",
+                      help="the camera at S times the scene's mirrors over the same field (S: 1/6, 0.5, 2): "
+                           "render.resolution x S (whole pixels), objective.focal_length_m x S, every size in "
+                           "mirrors x S (mask.smooth_px, objective.guard_max_px, chart.roi_inset_px) and "
+                           "every area x S^2 (attenuator.serve_min_mirrors); the relay and the sensor's pixels "
+                           "keep theirs. Default: the environment variable POEVP_SCALE where set (and no "
+                           "--resolution, --dmd-mirrors or --set render.resolution is given), else 1. A key "
+                           "also given with --set keeps the --set value")
+    size.add_argument("--resolution", type=_resolution_arg, metavar="HxW",
+                      help="the camera at HxW mirrors over the same field across the width: as --scale "
+                           "W / (the scene's width), so the focal length and the sizes in mirrors follow "
+                           "(another aspect than the scene's changes the field's height); wins over --set "
+                           "render.resolution, which alone changes the pixel count and nothing else")
+    size.add_argument("--dmd-mirrors", dest="dmd_mirrors", action="store_true",
+                      help="render at the DMD's own mirror count (dmd.controller's DMD: the DLP6500's "
+                           "1920x1080, the DLP9000's 2560x1600), the focal length and the sizes in mirrors "
+                           "scaled as --scale does; applied after every --set (it rescales the camera they "
+                           "describe)")
     p.add_argument("--yes", "--force", dest="yes", action="store_true",
                    help="run even when the run-size estimate (CPU time, disk) is above the limits "
                         "(POEVP_MAX_CPU_HOURS, default 4; POEVP_MAX_DISK, default 20G); free space is "
@@ -85,18 +109,67 @@ def _add_job_options(p: argparse.ArgumentParser, out_help: str) -> None:
 
 
 def _overrides(args) -> list[str]:
-    from poevp_optics.core.exceptions import SceneError
-    from poevp_optics.scene.load import accuracy_overrides, parse_override
-    out = list(args.overrides)
-    if getattr(args, "dmd_mirrors", False):
-        from poevp_optics.apps.run.headline import dmd_scale_overrides
-        from poevp_optics.scene.load import load_scene
+    """The run's `section.key=value` overrides: the camera's scale, the --set's and shorthands,
+    the --dmd-mirrors and --accuracy sets (`_overrides_and_scaling`)."""
+    return _overrides_and_scaling(args)[0]
 
-        name, _, sets = dmd_scale_overrides(load_scene(args.scene, out))
-        if not name:
+
+def _camera_scaling(args, sets: list[str]):
+    """The Scaling (scene/scale.py) that --scale, --resolution, --dmd-mirrors or POEVP_SCALE ask
+    for, against the scene with the user's --set applied; None where none applies or it is 1."""
+    from poevp_optics.core.exceptions import SceneError, UserError
+    from poevp_optics.scene.load import load_scene, parse_override
+    from poevp_optics.scene.scale import parse_scale, scaled_resolution, scaling_for
+
+    explicit = {".".join(parse_override(o)[0]) for o in sets}
+    scale, resolution = getattr(args, "scale", None), getattr(args, "resolution", None)
+    if getattr(args, "dmd_mirrors", False):
+        from poevp_optics.apps.run.headline import DMD_MIRRORS
+
+        spec = load_scene(args.scene, sets)
+        known = DMD_MIRRORS.get(spec.dmd.controller) if spec.dmd.enabled else None
+        if known is None:
             raise SceneError(f"{args.scene}: --dmd-mirrors: dmd.controller names no DMD of known mirror count "
                              "(dlpc900_dlp6500, dlpc900_dlp9000) or the DMD is disabled")
-        out += sets
+        return scaling_for(spec, known[1], "--dmd-mirrors")
+    if resolution is not None:           # the flag names the resolution: it wins over --set render.resolution
+        explicit.discard("render.resolution")
+        given = f"--resolution {resolution[0]}x{resolution[1]}"
+    elif scale is not None:
+        given = f"--scale {scale[1]}"
+    else:
+        env = os.environ.get("POEVP_SCALE", "").strip()
+        if not env or "render.resolution" in explicit:
+            return None
+        try:
+            scale = (parse_scale(env), env)
+        except ValueError as e:
+            raise UserError(f"POEVP_SCALE={env}: {e}") from None
+        given = f"POEVP_SCALE={env}"
+    if resolution is None and abs(scale[0] - 1.0) < 1e-12:
+        return None
+    spec = load_scene(args.scene, sets)
+    target = resolution if resolution is not None else scaled_resolution(spec.render.resolution, scale[0])
+    scaling = scaling_for(spec, target, given, explicit)
+    return scaling if scaling.changes or scaling.kept else None
+
+
+def _overrides_and_scaling(args):
+    """(the run's overrides, its Scaling or None). --scale / --resolution / POEVP_SCALE come first,
+    so a key the user also sets with --set keeps the --set value (--resolution's own
+    render.resolution comes last: that flag names it); --dmd-mirrors comes after every --set;
+    --accuracy last."""
+    from poevp_optics.core.exceptions import SceneError
+    from poevp_optics.scene.load import accuracy_overrides, parse_override
+    sets = list(args.overrides)
+    scaling = _camera_scaling(args, sets)
+    if scaling is None:
+        out = sets
+    elif scaling.given == "--dmd-mirrors":
+        out = [*sets, *scaling.sets]
+    else:
+        res = [x for x in scaling.sets if x.startswith("render.resolution=")]
+        out = [*(x for x in scaling.sets if x not in res), *sets, *res]
     preset = getattr(args, "accuracy", "default")
     if preset != "default":
         added = accuracy_overrides(args.scene, out, preset)
@@ -107,28 +180,31 @@ def _overrides(args) -> list[str]:
                 raise SceneError(f"--accuracy {preset} sets {key}, and so does --set {set_keys[key]}: "
                                  "give one of them")
         out += added
-    return out
+    return out, scaling
 
 
 def cmd_render(args) -> int:
-    from poevp_optics.apps.run.headline import dmd_scale_line, mc_error_line, target_line
+    from poevp_optics.apps.run.headline import (dmd_scale_line, init_line, mc_error_line, plural, scale_line,
+                                                target_line)
 
     from poevp_optics.apps.run.runner import run_job
 
-    spec, out, report = run_job("render", args.scene, _overrides(args), out=args.out, threads=args.threads,
+    overrides, scaling = _overrides_and_scaling(args)
+    spec, out, report = run_job("render", args.scene, overrides, out=args.out, threads=args.threads,
                                 yes=args.yes,
                                 progress=not args.quiet)
     r = report["stages"]["render"]
-    print(f"poevp: rendered {report['frames']} frames of {spec.name} at "
+    print(f"poevp: rendered {plural(report['frames'], 'frame')} of {spec.name} at "
           f"{report['resolution'][0]}x{report['resolution'][1]} ({r['path']}, {r['variant']}) in "
           f"{report['total_seconds']:.1f} s; MC rel. error " + mc_error_line(r, spec)
           + target_line(r) + f" -> {out}/report.json"
           + (f", {out}/report.html (open it in a browser)" if (Path(out) / "report.html").is_file() else "")
-          + dmd_scale_line(spec))
+          + scale_line(scaling) + dmd_scale_line(spec, scaling) + init_line(report, spec))
     return 0
 
 
 def cmd_validate(args) -> int:
+    from poevp_optics.apps.run.headline import plural
     from poevp_optics.apps.run.memory import fits_note
     from poevp_optics.apps.run.preflight import check_run
     from poevp_optics.apps.run.runner import check_size
@@ -144,7 +220,7 @@ def cmd_validate(args) -> int:
         what = (f"spp {spec.render.spp}, "
                 f"{'static' if spec.is_static else ('PWM lamps on static geometry: ' + ', '.join(spec.flicker)) if spec.geometry_static else 'moving: ' + ', '.join(spec.motion)}; "
                 f"render path {plan.mode} ({plan.reason})")
-    print(f"poevp: {spec.toml_path} is valid for `poevp {job}`: {spec.timing.frames} frames, "
+    print(f"poevp: {spec.toml_path} is valid for `poevp {job}`: {plural(spec.timing.frames, 'frame')}, "
           f"{spec.render.resolution[0]}x{spec.render.resolution[1]}, {what}; {fits_note(pf.memory)}; "
           f"run size: {size.describe()}")
     return 0
@@ -215,7 +291,7 @@ def cmd_sweep(args) -> int:
                scheduler=args.scheduler, scheduler_file=args.scheduler_file, shared_fs=args.shared_fs,
                retries=args.retries, job=args.job, base_overrides=_overrides(args),
                metric=args.plot, progress=not args.quiet, retry_failed=args.retry_failed,
-               threads=args.threads, yes=args.yes, rebuild=args.rebuild)
+               threads=args.threads, yes=args.yes, rebuild=args.rebuild, **_tls_options(args))
     n_failed = 0
     if df is not None:
         n_ok = int((df["status"] == "ok").sum())

@@ -17,8 +17,10 @@ demodulated loop reads the plate like flow and better on receding/reversal) and
 tests/unit/test_default_loop.py (a 100x highlight moving 8 px/frame unclips by the second loop
 frame; the paper's open loop with `flow` keeps it clipped: the flow-warped prediction of a
 clipped region falls just below 255 and the `target` law no longer reads it as clipped).
-Scenes without a DMD have no loop: nothing is applied. The report lists what was applied
-(`scene.defaults_applied`, "section.key=value").
+Scenes without a DMD have no loop: nothing is applied. A scene whose mask law reads no
+prediction (PREDICTION_FREE_LAWS: `white`, the LDR twin) runs no predictor, so it gets no [loop]
+or [predictor] defaults either. The report lists what was applied (`defaults_applied`,
+"section.key=value").
 """
 
 from __future__ import annotations
@@ -36,21 +38,30 @@ BEST_LOOP: dict[str, tuple[str, dict[str, Any]]] = {
     "predictor": ("name", {"name": "track_net"}),
 }
 
+#: Mask laws (control/masks.py MASK_LAWS) that read no prediction: `white` gives every mirror the
+#: top level whatever the predicted frame holds. Every other law reads the prediction's values.
+PREDICTION_FREE_LAWS = ("white",)
+
 #: [mask] defaults that only a [road] scene takes: the prior follows its high beams (scene/resolve.py prior_first_guess).
 ROAD_ONLY = {"mask": {"prior_beam_cd": 100000.0}}
 
 
 def apply_best_loop(raw: dict) -> tuple[dict, tuple[str, ...]]:
     """(raw with BEST_LOOP filled in where the scene does not choose, the "section.key=value"
-    strings applied). `raw` is not changed; a scene without a DMD gets nothing."""
+    strings applied). `raw` is not changed; a scene without a DMD gets nothing, and a scene whose
+    mask law reads no prediction (PREDICTION_FREE_LAWS) gets no [loop] or [predictor] defaults."""
     dmd = raw.get("dmd", {})
     if not isinstance(dmd, dict) or dmd.get("enabled", True) is False:
         return raw, ()
+    mask = raw.get("mask", {})
+    predicts = not (isinstance(mask, dict) and mask.get("law") in PREDICTION_FREE_LAWS)
     out, applied = copy.deepcopy(raw), []
     for section, (choosing, defaults) in BEST_LOOP.items():
         table = out.get(section, {})
         if not isinstance(table, dict) or choosing in table:
             continue                    # chosen (or not a table: the loader names that error)
+        if section != "mask" and not predicts:
+            continue                    # no predictor runs: no loop to choose
         extra = ROAD_ONLY.get(section, {}) if "road" in raw else {}
         for key, value in {**defaults, **extra}.items():
             if key == "min_level" and dmd.get("bits", 8) == 1:

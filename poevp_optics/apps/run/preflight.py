@@ -11,7 +11,7 @@ things outside the TOML, checked here in one pass before any output folder is to
 | emitters         | no emitter so bright that the render would overflow float32       |
 | variant          | `render.variant` is a Mitsuba mono or spectral variant that can render the scene |
 | relay            | `relay.measured_file` is an odd-sized square image with energy    |
-| loop             | the predictor gets frames: `loop.init_frames` below the frames it runs on |
+| loop             | `compare` and `chart` get loop frames: `loop.init_frames` below the frames they run on (a render may be all initialisation frames) |
 | predictor        | weights load and are finite; `predictor.resolution` is large enough for the network |
 | chart            | `poevp chart` on a static scene with a [chart] section            |
 | source           | a frame source ([source] kind other than mitsuba; replaces the spectra, XML, emitter and variant checks): every frame the run reads has one size, finite values >= 0 (EXR) and the channel; times and boxes CSVs parse; the frames cover every radiance sample's time; the field has render.resolution's aspect |
@@ -269,20 +269,20 @@ def _runs_predictor(spec: SceneSpec, job: str, name: str) -> bool:
 
 def check_loop(spec: SceneSpec, job: str) -> None:
     """A causal predictor gets frames after its all-white initialisation frames (paper Sec. 3).
-    The oracle starts with the same white frames; a short oracle run whose frames are all
-    initialisation frames is legal (a quick look at the LDR camera) and gets a report note."""
+    A render whose frames are all initialisation frames is legal (a single still frame to check a
+    lens, or a quick look at the LDR camera): every mask is white, no predictor runs, and the
+    report says so. `compare` (predictors side by side) and `chart` (a settled mask) need frames
+    after them."""
     init = spec.loop.init_frames
-    if not _runs_predictor(spec, job, spec.predictor.name) and job != "compare":
-        return
     if job == "chart":
-        if init >= spec.chart.max_iterations:
+        if _runs_predictor(spec, job, spec.predictor.name) and init >= spec.chart.max_iterations:
             raise _fail(spec, "loop.init_frames", f"{init} initialisation frames leave none of the "
                         f"{spec.chart.max_iterations} loop frames (chart.max_iterations) to the predictor")
         return
-    if spec.dmd.enabled and init >= spec.timing.frames:
+    if job == "compare" and spec.dmd.enabled and init >= spec.timing.frames:
         raise _fail(spec, "loop.init_frames", f"{init} all-white initialisation frames leave none of "
-                    f"the {spec.timing.frames} frames (timing.frames) to the predictor: every mask "
-                    "would be white (lower loop.init_frames or add frames)")
+                    f"the {spec.timing.frames} frames (timing.frames) to the predictors compared: every "
+                    "mask would be white (lower loop.init_frames or add frames)")
 
 
 def check_predictor(spec: SceneSpec, job: str, name: str) -> None:

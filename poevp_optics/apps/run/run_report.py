@@ -65,8 +65,9 @@ def skipped_stages(spec, camera, causal: bool) -> dict:
     """What this run left out, and why (DESIGN.md: a run leaves out what its scene does not need)."""
     skipped = {}
     if spec.is_static:
-        skipped["render_repeat"] = (f"static scene: rendered once and reused for all "
-                                    f"{spec.timing.frames} frames; sub-frames not needed")
+        n = spec.timing.frames
+        skipped["render_repeat"] = ("static scene: rendered once" + (f" and reused for all {n} frames" if n > 1 else "")
+                                    + "; sub-frames not needed")
     elif spec.geometry_static:
         skipped["render_repeat"] = (f"static geometry with PWM lamps ({', '.join(spec.flicker)}): "
                                     f"{1 + len(spec.flicker)} emitter-group images rendered once")
@@ -152,9 +153,12 @@ def run_metrics(spec, camera, per_frame, law_cmp, causal: bool) -> dict:
 def run_notes(spec, renderer, camera, step, per_frame, metrics, floor) -> list[str]:
     """Report notes: the spectra's coverage, the DMD's attenuation floor, fallbacks, PSF caps."""
     notes = list(renderer.plan.notes)
-    if camera.dmd is not None and all(f.get("init") for f in per_frame):
-        notes.append(f"every frame is one of the loop.init_frames = {spec.loop.init_frames} all-white "
-                     f"initialisation frames: no mask acted; this run shows the LDR camera only")
+    if camera.dmd is not None and per_frame and all(f.get("init") for f in per_frame):
+        n = len(per_frame)
+        what = ("the 1 frame is a white initialisation frame" if n == 1 else
+                f"all {n} frames are white initialisation frames")
+        notes.append(f"{what} (loop.init_frames = {spec.loop.init_frames}): no predictor ran and every mask is "
+                     "white; this run shows the LDR camera only")
     if floor is not None and floor["white_fill_fraction"] > 0.01:
         ldr_sat = metrics["saturated_fraction_roi"]["ldr"]
         enc_sat = metrics["saturated_fraction_roi"]["encoded"]
