@@ -46,16 +46,32 @@ def threads_arg(text: str) -> int:
     return n
 
 
+def tls_options(args) -> dict:
+    """The TLS flags of `add_cluster_options` as keyword arguments (apps/sweep/sweep.py
+    `sweep`, ClusterSettings)."""
+    return {"tls_ca_file": args.tls_ca_file, "tls_cert": args.tls_cert, "tls_key": args.tls_key,
+            "require_tls": args.require_tls}
+
+
 def add_cluster_options(p) -> None:
     """`poevp sweep` on an existing Dask cluster (apps/sweep/cluster.py, apps/sweep/bundle.py)."""
     where = p.add_mutually_exclusive_group()
-    where.add_argument("--scheduler", metavar="ADDRESS", help="tcp://HOST:PORT of an existing Dask scheduler")
+    where.add_argument("--scheduler", metavar="ADDRESS",
+                       help="tls://HOST:PORT (or tcp:// on a trusted network) of an existing Dask scheduler")
     where.add_argument("--scheduler-file", metavar="PATH",
                        help="JSON file naming an existing Dask scheduler (as `dask scheduler "
                             "--scheduler-file` and dask-jobqueue write)")
     p.add_argument("--shared-fs", action="store_true",
                    help="workers read this machine's paths (a shared file system; verified on each "
                         "worker) instead of receiving the scene bundle")
+    tls = p.add_argument_group("TLS to the scheduler (default: Dask's distributed.comm.tls configuration)")
+    tls.add_argument("--tls-ca-file", metavar="PEM", help="CA certificate that signed the scheduler's and "
+                     "workers' certificates")
+    tls.add_argument("--tls-cert", metavar="PEM", help="this client's certificate, signed by that CA")
+    tls.add_argument("--tls-key", metavar="PEM", help="this client's private key (unless --tls-cert holds it)")
+    tls.add_argument("--require-tls", "--require-encryption", dest="require_tls", action="store_true",
+                     help="refuse a plaintext (tcp://) scheduler; also POEVP_REQUIRE_TLS=1 or Dask's "
+                          "distributed.comm.require-encryption")
     p.add_argument("--retries", type=count_arg, default=2, metavar="N",
                    help="run a point whose worker died again up to N times before it is a failed row "
                         "(default 2)")

@@ -4,6 +4,11 @@
   `--retries` alone bounds how often a point whose worker died runs again), or an existing
   scheduler by address (`--scheduler tcp://HOST:PORT`) or by the JSON file that
   `dask scheduler --scheduler-file`, `dask-jobqueue` and `dask-mpi` write (`--scheduler-file`).
+  A `tls://` scheduler is reached with the CA, certificate and key of `--tls-ca-file`,
+  `--tls-cert`, `--tls-key` (else Dask's `distributed.comm.tls.*`), checked before connecting;
+  a plaintext address off this machine warns, and `--require-tls` / `POEVP_REQUIRE_TLS=1` /
+  `distributed.comm.require-encryption` refuse it (tls.py). Under such a setting the
+  LocalCluster talks TLS too, with a certificate held in memory.
 * `check_workers`: every connected worker runs `software_versions` and must report the
   client's versions of the packages in `PACKAGES`; a mismatch is one line naming the worker,
   the package and both versions. Each point checks again on its worker (workers that join
@@ -20,10 +25,14 @@ from __future__ import annotations
 
 import json
 import os
+import sys
 import urllib.error
 import urllib.request
 from pathlib import Path
 
+from poevp_optics.apps.sweep.tls import (ENCRYPTED_SCHEMES, IN_PROCESS_SCHEMES, TlsError, address_transport,
+                                          check_tls_files, client_security, plaintext_warning,
+                                          tls_connect_error, tls_required, tls_sources)
 from poevp_optics.core.exceptions import UserError
 
 #: Packages whose versions must match between client and workers.
@@ -56,33 +65,127 @@ def version_mismatch(client: dict[str, str], worker: dict[str, str]) -> str | No
 
 
 def connect(*, scheduler: str | None = None, scheduler_file: str | os.PathLike | None = None,
-            workers: int | None = None, n_points: int = 1, timeout_s: float = 30.0):
+            workers: int | None = None, n_points: int = 1, timeout_s: float = 30.0,
+            tls_ca_file: str | None = None, tls_cert: str | None = None, tls_key: str | None = None,
+            require_tls: bool = False, warn=None):
     """(client, local cluster or None). A local cluster has min(workers or cores, n_points)
-    worker processes of one thread each. Unreachable schedulers raise ClusterError."""
-    from dask.distributed import Client, LocalCluster
+    worker processes of one thread each. Unreachable schedulers raise ClusterError.
+
+    tls_ca_file / tls_cert / tls_key: PEM files for a tls:// scheduler (else Dask's
+    `distributed.comm.tls.*` configuration); require_tls: refuse plaintext (`require_tls`).
+    Everything is checked before the first packet is sent: the address's transport (a
+    non-loopback plaintext one warns through `warn`, default one line on stderr), the
+    certificate files (`check_tls_files`)."""
+    from distributed import Client, LocalCluster
 
     if scheduler and scheduler_file:
         raise ClusterError("--scheduler and --scheduler-file: give one of them")
+    flags = {"--tls-ca-file": tls_ca_file, "--tls-cert": tls_cert, "--tls-key": tls_key}
+    try:
+        required = tls_required(require_tls)
+    except TlsError as e:
+        raise ClusterError(str(e)) from None
+    if not (scheduler or scheduler_file):
+        check_local_flags(tls_ca_file, tls_cert, tls_key)
+        n = max(1, min(workers or os.cpu_count() or 1, n_points))
+        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0",
+                               silence_logs=40, scheduler_kwargs={"allowed_failures": 0},
+                               **_local_security(required))
+        return Client(cluster, security=cluster.security), cluster
     if scheduler_file:
         path = Path(scheduler_file)
+        where = f"--scheduler-file {scheduler_file}"
         if not path.is_file():
-            raise ClusterError(f"--scheduler-file {scheduler_file}: no such file (dask scheduler "
+            raise ClusterError(f"{where}: no such file (dask scheduler "
                                "--scheduler-file PATH writes it once the scheduler runs)")
-        try:
-            return Client(scheduler_file=str(path), timeout=timeout_s), None
-        except (OSError, TimeoutError, ValueError) as e:
-            raise ClusterError(f"--scheduler-file {scheduler_file}: cannot reach the scheduler it names "
-                               f"({type(e).__name__}: {e})") from None
-    if scheduler:
-        try:
-            return Client(scheduler, timeout=timeout_s), None
-        except (OSError, TimeoutError, ValueError) as e:
-            raise ClusterError(f"--scheduler {scheduler}: cannot reach a Dask scheduler there "
-                               f"({type(e).__name__}: {e})") from None
-    n = max(1, min(workers or os.cpu_count() or 1, n_points))
-    cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0",
-                           silence_logs=40, scheduler_kwargs={"allowed_failures": 0})
-    return Client(cluster), cluster
+        address = scheduler_file_address(path)
+    else:
+        where, address = f"--scheduler {scheduler}", scheduler
+    sources, security = _scheduler_security(where, address, flags, required, warn)
+    try:
+        if scheduler_file:
+            return Client(scheduler_file=str(path), timeout=timeout_s, security=security), None
+        return Client(scheduler, timeout=timeout_s, security=security), None
+    except (OSError, TimeoutError, ValueError) as e:
+        tls_problem = tls_connect_error(e, where, sources) if security is not None else None
+        if tls_problem:
+            raise ClusterError(tls_problem) from None
+        what = "cannot reach the scheduler it names" if scheduler_file else "cannot reach a Dask scheduler there"
+        hint = ""
+        if security is None and "reset by peer" in str(e):    # a TLS listener drops plaintext
+            hint = "; a scheduler started with --tls-* flags listens at a tls:// address"
+        raise ClusterError(f"{where}: {what} ({type(e).__name__}: {e}){hint}") from None
+
+
+def check_local_flags(tls_ca_file: str | None, tls_cert: str | None, tls_key: str | None) -> None:
+    """ClusterError for TLS files given to a sweep that runs a local cluster."""
+    for flag, value in (("--tls-ca-file", tls_ca_file), ("--tls-cert", tls_cert), ("--tls-key", tls_key)):
+        if value:
+            raise ClusterError(f"{flag}: only with --scheduler or --scheduler-file (a local cluster runs "
+                               "on this machine)")
+
+
+def scheduler_file_address(path: Path) -> str:
+    """The scheduler address a `--scheduler-file` JSON names (its "address" key)."""
+    try:
+        address = json.loads(path.read_text()).get("address")
+    except (OSError, ValueError, AttributeError) as e:
+        raise ClusterError(f"--scheduler-file {path}: not a Dask scheduler file ({type(e).__name__}: "
+                           f"{e})") from None
+    if not isinstance(address, str) or not address:
+        raise ClusterError(f"--scheduler-file {path}: names no scheduler address (key \"address\")")
+    return address
+
+
+def _scheduler_security(where: str, address: str, flags: dict, required: str | None, warn):
+    """(TLS sources, distributed.Security or None) for connecting to `address`, decided before
+    any packet is sent (tls.py): a tls:// address needs a CA and a certificate (flags, else
+    Dask's configuration), checked here; a plaintext one is refused when `required` names the
+    setting that refuses it or when TLS flags were given, and warns when it leaves this machine."""
+    try:
+        scheme, _host = address_transport(address)
+    except (ValueError, TypeError) as e:
+        raise ClusterError(f"{where}: not a scheduler address (tls://HOST:PORT; {e})") from None
+    try:
+        if scheme in ENCRYPTED_SCHEMES:
+            sources = tls_sources(*flags.values())
+            if "--tls-ca-file" not in sources or "--tls-cert" not in sources:
+                raise ClusterError(f"{where}: TLS needs --tls-ca-file and --tls-cert (and --tls-key unless "
+                                   "the certificate file holds the key), or distributed.comm.tls.ca-file "
+                                   "and distributed.comm.tls.client.cert in the Dask configuration")
+            check_tls_files(sources)
+            return sources, client_security(sources)
+    except TlsError as e:
+        raise ClusterError(str(e)) from None
+    if scheme in IN_PROCESS_SCHEMES:
+        return {}, None
+    given = [f for f, v in flags.items() if v]
+    if given:
+        raise ClusterError(f"{where}: a plaintext address, but {given[0]} is given; the scheduler's TLS "
+                           f"address is tls://HOST:PORT")
+    if required:
+        raise ClusterError(f"{where}: plaintext connection refused ({required}); connect to the "
+                           "scheduler's tls:// address with --tls-ca-file, --tls-cert and --tls-key")
+    line = plaintext_warning(where, address)
+    if line:
+        (warn or (lambda m: print(m, file=sys.stderr)))(line)
+    return {}, None
+
+
+def _local_security(required: str | None) -> dict:
+    """LocalCluster keyword arguments: none, or under a setting that refuses plaintext
+    (`tls_required`) TLS with a certificate made for this cluster alone and held in memory
+    (`Security.temporary`, which needs the `cryptography` package)."""
+    if not required:
+        return {}
+    from distributed import Security
+
+    try:
+        return {"security": Security.temporary(), "protocol": "tls://"}
+    except ImportError:
+        raise ClusterError(f"{required}: the local cluster would talk plaintext on this machine's "
+                           "loopback, which its other users reach; TLS for it needs the cryptography "
+                           "package (pip install cryptography), or give --scheduler tls://HOST:PORT") from None
 
 
 def check_workers(client, versions: dict[str, str]) -> int:

@@ -23,7 +23,7 @@ hash of the point's effective scene table, not of the override text.
 
 Execution: Dask distributed (https://distributed.dask.org): an embedded `LocalCluster` of
 worker processes, one thread each, with DrJit/torch/OpenCV threads = cores // workers, or an
-existing cluster (`--scheduler tcp://HOST:PORT` or `--scheduler-file PATH`, cluster.py). The
+existing cluster (`--scheduler tls://HOST:PORT` or `--scheduler-file PATH`, cluster.py). The
 client resolves every path before submitting; a point carries its inputs (bundle.py): on a
 cluster a scene bundle (the files the points read, content-hashed, scattered once to the
 workers and unpacked into each point's temporary folder), or with `--shared-fs` (and on a
@@ -56,8 +56,8 @@ import numpy as np
 from poevp_optics.apps.sweep.bundle import (InputMismatch, InputPlan, InputRef, check_same_inputs, make_bundle,
                                      make_plan, map_paths, materialize, pack_folder, point_workdir,
                                      scene_inputs, unpack_archive, with_hashes)
-from poevp_optics.apps.sweep.cluster import (ClusterError, check_workers, connect, dashboard_link, software_versions,
-                                      version_mismatch)
+from poevp_optics.apps.sweep.cluster import (ClusterError, check_local_flags, check_workers, connect, dashboard_link,
+                                      software_versions, version_mismatch)
 from poevp_optics.apps.run.runner import JOBS, sweep_jobs
 from poevp_optics.apps.sweep.sweep_grid import (GRID_HELP, SEED_KEYS, canonical, parse_grid, point_key,  # noqa: F401
                                          point_overrides, toml_literal)
@@ -225,7 +225,9 @@ class ClusterSettings:
     shared_fs: the workers read the client's paths (verified) instead of a scene bundle; a
     LocalCluster always does. retries: how often a point whose worker died runs again
     elsewhere before it is a failed row. threads: DrJit/torch/OpenCV threads per point
-    (default: cores // workers on a LocalCluster, 1 on a cluster)."""
+    (default: cores // workers on a LocalCluster, 1 on a cluster). tls_ca_file, tls_cert,
+    tls_key: PEM file paths for a tls:// scheduler (None: Dask's configuration); require_tls:
+    refuse a plaintext scheduler (cluster.py `connect`)."""
 
     workers: int | None = None
     scheduler: str | None = None
@@ -233,6 +235,10 @@ class ClusterSettings:
     shared_fs: bool = False
     retries: int = 2
     threads: int | None = None
+    tls_ca_file: str | None = None
+    tls_cert: str | None = None
+    tls_key: str | None = None
+    require_tls: bool = False
 
     @property
     def local(self) -> bool:
@@ -253,11 +259,14 @@ def sweep(scene: str, grid_args: list[str], *, out: Path, seeds: int = 1, worker
           scheduler: str | None = None, scheduler_file: str | None = None, shared_fs: bool = False,
           retries: int = 2, job: str = "render", base_overrides: list[str] = (),
           metric: str | None = None, progress: bool = True, retry_failed: bool = False,
-          threads: int | None = None, log=print, yes: bool = False, rebuild: bool = False):
+          threads: int | None = None, log=print, yes: bool = False, rebuild: bool = False,
+          tls_ca_file: str | None = None, tls_cert: str | None = None, tls_key: str | None = None,
+          require_tls: bool = False):
     """Run the grid; returns the results DataFrame. See the module docstring.
 
     scheduler / scheduler_file: an existing Dask scheduler (else a LocalCluster of `workers`).
     shared_fs: workers read the client's paths (verified) instead of a scene bundle.
+    tls_ca_file / tls_cert / tls_key / require_tls: TLS to the scheduler (ClusterSettings).
     retries: runs again of a point whose worker died, >= 0 (default 2). yes: run above the
     run-size limits (apps/run/run_size.py). rebuild: a results table or sweep.json that does not
     read is rebuilt from the points' own report.json files instead of refused."""
@@ -265,12 +274,14 @@ def sweep(scene: str, grid_args: list[str], *, out: Path, seeds: int = 1, worker
 
     _check_flags(job, seeds, retries)
     cl = ClusterSettings(workers, scheduler, str(scheduler_file) if scheduler_file else None, shared_fs,
-                         retries, threads)
+                         retries, threads, tls_ca_file, tls_cert, tls_key, require_tls)
     if scheduler and scheduler_file:
         raise ClusterError("--scheduler and --scheduler-file: give one of them")
     if shared_fs and cl.local:
         raise ClusterError("--shared-fs: only with --scheduler or --scheduler-file (a local cluster "
                            "reads this machine's files in place)")
+    if cl.local:
+        check_local_flags(tls_ca_file, tls_cert, tls_key)
     grid = sorted((parse_grid(g) for g in grid_args), key=lambda kv: kv[0])
     keys = [k for k, _ in grid]
     if len(set(keys)) != len(keys):
@@ -345,7 +356,9 @@ class _Dask:
             return self.client
         cl = self.cl
         self.client, self.cluster = connect(scheduler=cl.scheduler, scheduler_file=cl.scheduler_file,
-                                            workers=cl.workers, n_points=self.n_points)
+                                            workers=cl.workers, n_points=self.n_points,
+                                            tls_ca_file=cl.tls_ca_file, tls_cert=cl.tls_cert,
+                                            tls_key=cl.tls_key, require_tls=cl.require_tls)
         link = dashboard_link(self.client)
         if link:
             self.log(f"poevp sweep: Dask dashboard {link}")

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from poevp_optics.apps.cli_args import add_cluster_options, positive_int
+from poevp_optics.apps.cli_args import add_cluster_options, positive_int, tls_options
 from poevp_optics.core import runtime
 from poevp_optics.core.exceptions import UserError
 
@@ -48,7 +48,8 @@ def command_line(cmd: str, args) -> str:
 def data_cluster(args):
     from poevp_optics.apps.sweep.sweep import ClusterSettings
 
-    return ClusterSettings(None, args.scheduler, args.scheduler_file, args.shared_fs, args.retries, args.threads)
+    return ClusterSettings(None, args.scheduler, args.scheduler_file, args.shared_fs, args.retries, args.threads,
+                           **tls_options(args))
 
 
 def cmd_train_data(args) -> int:
