@@ -297,7 +297,14 @@ class Renderer:
 
         try:
             with quiet_native_stderr() as printed:
-                self.mi_scene = mi.load_file(str(scene.xml_path), **self.plan.xml_params)
+                # optimize=False: Mitsuba's load-time merging of shapes that share a BSDF puts
+                # the merged shapes' area emitters in the scene's emitter list in an order that
+                # changes from one load to the next (4 of 30 loads of night_road in one process),
+                # and the emitter sampler draws by that order, so the same seed rendered other
+                # samples (~3 % of pixels, up to 8x apart) and the pilot summed its moments in
+                # another order (light weights 1e-10 apart). Unmerged, the list is the XML's
+                # order on every load.
+                self.mi_scene = mi.load_file(str(scene.xml_path), optimize=False, **self.plan.xml_params)
         except Exception as e:  # noqa: BLE001 - Mitsuba raises RuntimeError with a long trace
             raise SceneError(mitsuba_load_error(str(e) or type(e).__name__, scene, printed)) from None
         if "".join(printed).strip():   # Mitsuba's log of a scene that loads: a warning, not loose text
