@@ -95,15 +95,20 @@ def test_night_road_run_reports_the_plate_over_saturation_and_the_floors(tmp_pat
     all-white init frames); the DMD floor is level 1's exposure: 1/255 + (254/255)/CR."""
     from poevp_optics.apps.run.render_run import run_render
 
-    # the scene's issue-17 report-only set-up (2 fps, 20 m/s, oracle target law, delta relay):
-    # `make demo` runs the causal loop at 10 fps, tested in tests/regression/test_default_scene.py
-    spec = load_scene(SCENES / "night_road", [
-        "timing.frames=3", "timing.fps=2.0", "timing.exposure_s=0.03", "timing.dmd_window_s=0.03",
-        "motion.plate.velocity_m_per_s=[0.0,0.0,-20.0]", "motion.oncoming_body.velocity_m_per_s=[0.0,0.0,-10.0]",
-        "predictor.name='oracle'", "loop.mode='open'", "mask.law='target'", "mask.target=0.5",
-        "mask.smooth_px=2.0", "relay.psf='delta'", "dmd.controller='ideal'",
-        "objective.psf='delta'", "objective.vignetting='none'", "render.resolution=[184,320]",
-        "objective.focal_length_m=0.01151", "attenuator.serve_min_mirrors=24", "render.roi_spp=0"])
+    from poevp_optics.cli import _overrides, build_parser
+
+    # the scene's issue-17 report-only set-up (2 fps, 20 m/s, oracle target law, delta relay) at
+    # 1/6 of its mirrors (`--scale 1/6`: 180x320, the same field): `make demo` runs the causal
+    # loop at 10 fps, tested in tests/regression/test_default_scene.py
+    setup = ["timing.frames=3", "timing.fps=2.0", "timing.exposure_s=0.03", "timing.dmd_window_s=0.03",
+             "motion.plate.velocity_m_per_s=[0.0,0.0,-20.0]", "motion.oncoming_body.velocity_m_per_s=[0.0,0.0,-10.0]",
+             "predictor.name='oracle'", "loop.mode='open'", "mask.law='target'", "mask.target=0.5",
+             "mask.smooth_px=2.0", "relay.psf='delta'", "dmd.controller='ideal'",
+             "objective.psf='delta'", "objective.vignetting='none'", "render.roi_spp=0"]
+    args = build_parser().parse_args(["render", str(SCENES / "night_road"), "--scale", "1/6",
+                                      *[a for s in setup for a in ("--set", s)]])
+    spec = load_scene(SCENES / "night_road", _overrides(args))
+    assert spec.render.resolution == (180, 320) and spec.mask.smooth_px == 2.0
     out = tmp_path / "nr"
     out.mkdir()
     r = run_render(spec, out, progress=False)

@@ -25,16 +25,16 @@ def _demo_scene() -> str:
     return found.group(1)
 
 
-#: night_road at 1/6 of the DLP6500's mirrors (what `--dmd-mirrors` scales up: the same field, the
-#: objective's focal length and the sizes in mirrors / 6, areas / 36): the loop's behaviour at a
-#: test's cost; the scene's own 1920x1080 run is `make demo` (benchmarks/results/render_cost.md)
-SIXTH = ("render.resolution=[180,320]", "objective.focal_length_m=0.01151", "mask.smooth_px=4.0",
-         "attenuator.serve_min_mirrors=24", "render.spp=16", "render.roi_spp=0")
+#: night_road at 1/6 of the DLP6500's mirrors (`--scale 1/6`: the same field, the objective's focal
+#: length and the sizes in mirrors / 6, areas / 36; scene/scale.py), without the plate's extra
+#: samples: the loop's behaviour at a test's cost; the scene's own 1920x1080 run is `make demo`
+#: (benchmarks/results/render_cost.md)
+SIXTH = ("--scale", "1/6", "--set", "render.roi_spp=0")
 
 
-def _run(tmp_path, scene, *sets):
+def _run(tmp_path, scene, *sets, flags=()):
     out = tmp_path / scene
-    args = ["render", str(SCENES / scene), "--out", str(out), "--quiet"]
+    args = ["render", str(SCENES / scene), "--out", str(out), "--quiet", *flags]
     for s in sets:
         args += ["--set", s]
     assert main(args) == 0
@@ -85,7 +85,7 @@ def test_default_scene_is_night_road_and_runs_the_causal_loop(tmp_path):
     its report carries the per-frame plate geometry and the DR statement."""
     scene = _demo_scene()
     assert scene == "night_road"
-    r, out = _run(tmp_path, scene, *SIXTH, "timing.frames=4", "render.spp=2")
+    r, out = _run(tmp_path, scene, "timing.frames=4", "render.spp=2", flags=SIXTH)
     m = r["metrics"]
     _assert_causal_loop(r, "track_net")
     assert "relay" not in r["skipped_stages"] and "objective" not in r["skipped_stages"]
@@ -115,7 +115,8 @@ def test_default_scene_at_ten_times_the_beams_dims_the_first_loop_frame_with_the
     beams to 220x, so on the first loop frame the variable ND dims the frame to g = aim / t_1 /
     (220 x saturation), electrons from the report's sensor, and the plate lands in the 40-90 %
     band with nothing saturated."""
-    r, _ = _run(tmp_path, _demo_scene(), *SIXTH, "timing.frames=4", "render.spp=4", "spectra.highbeam.intensity_cd=1e6")
+    r, _ = _run(tmp_path, _demo_scene(), "timing.frames=4", "render.spp=4", "spectra.highbeam.intensity_cd=1e6",
+                flags=SIXTH)
     assert r["mask"]["first_guess"] == 220.0 and r["mask"]["prior_beam_cd"] == 1e5
     f2, f3 = r["per_frame"][2], r["per_frame"][3]
     assert f2["plate"]["peak_over_saturation"] > 150.0
@@ -136,8 +137,8 @@ def test_default_scene_at_ten_times_the_beams_with_a_fixed_prior_clips_once_then
     """The same with the prior held at 22x (mask.prior_beam_cd = 0): the first loop frame clips;
     the bracket (clip_step 5 x the lower bound) then asks for more than the mask can give, so the
     variable ND dims the next frame (g < 1) and the plate lands in the band."""
-    r, _ = _run(tmp_path, _demo_scene(), *SIXTH, "timing.frames=4", "render.spp=4",
-                "spectra.highbeam.intensity_cd=1e6", "mask.prior_beam_cd=0")
+    r, _ = _run(tmp_path, _demo_scene(), "timing.frames=4", "render.spp=4",
+                "spectra.highbeam.intensity_cd=1e6", "mask.prior_beam_cd=0", flags=SIXTH)
     assert r["mask"]["first_guess"] == 22.0 and r["mask"]["prior_beam_cd"] is None
     f2, f3 = r["per_frame"][2], r["per_frame"][3]
     assert f2["attenuator"]["transmission"] == 1.0 and f2["saturated_fraction_roi"]["encoded"] > 0.3
