@@ -342,7 +342,7 @@ def _reason(e: BaseException | str) -> str:
     'tlsv1 alert unknown ca'; OpenSSL's reason code when nothing else is left."""
     text = " ".join(str(e).split())
     m = re.search(r"([^()\[\]]+?) \(_ssl\.c:\d+\)", text)
-    return (m.group(1).rsplit(": ", 1)[-1].strip() if m else text) or getattr(e, "reason", None) or "TLS error"
+    return (m.group(1) if m else text).rsplit(": ", 1)[-1].strip() or getattr(e, "reason", None) or "TLS error"
 
 
 def client_security(sources: dict[str, tuple[str, str]]):
@@ -382,7 +382,8 @@ def tls_connect_error(exc: BaseException, where: str, sources: dict[str, tuple[s
         return f"{where}: the scheduler refused {cert} ({_reason(text)}): it trusts another CA than {ca}"
     if "ALERT" in upper and "CERTIFICATE" in upper:
         return f"{where}: the scheduler refused {cert} ({_reason(text)})"
-    if isinstance(e, ssl.SSLEOFError) or "EOF" in upper:  # the alert lost when the peer's close won the race
+    # the scheduler's alert lost when its close overtook it: an EOF, or a reset (data of ours unread)
+    if isinstance(e, ssl.SSLEOFError) or "EOF" in upper or "RESET BY PEER" in upper:
         return (f"{where}: the scheduler closed the connection during TLS set-up ({_reason(text)}): it "
                 f"refused {cert} (a CA it does not trust?) or does not speak TLS on that port")
     if e is not None:
