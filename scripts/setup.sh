@@ -31,5 +31,7 @@ fi
 if ! .venv/bin/python -c "import torch, sys; sys.exit(0 if torch.__version__.startswith('2.13.0') else 1)" 2>/dev/null; then
     .venv/bin/python -m pip install -q "torch==2.13.0"
 fi
-.venv/bin/python -m pip install -q -e ".[test]"
+# setuptools' editable build says "Editable installation ... be careful with folders named like your
+# package" (an InformationOnly, a UserWarning) on every install: not ours to act on, so not printed.
+PYTHONWARNINGS="ignore::UserWarning" .venv/bin/python -m pip install -q -e ".[test]"
 .venv/bin/poevp info --short

@@ -1,4 +1,4 @@
-"""`report.html`: the run report a person looks at, written beside `report.json` (issue 29).
+"""`report.html`: the run report a person looks at, written beside `report.json`.
 
 One self-contained file (no network: inline CSS and JavaScript, images as base64 PNG data
 URIs): a frame player (slider, play button) of scene / LDR twin / mask / encoded capture /
@@ -164,7 +164,9 @@ def _caption(rec: dict) -> str:
 
 
 def _fmt(v) -> str:
-    if isinstance(v, bool) or v is None:
+    if v is None:                       # a term without a target or time: an empty cell, not "None"
+        return "-"
+    if isinstance(v, bool):
         return html.escape(str(v))
     if isinstance(v, float):
         return f"{v:.4g}"
@@ -318,7 +320,7 @@ function show(k){i=k;var f=D.frames[k];
 s.max=n-1;s.addEventListener('input',function(){show(parseInt(s.value,10));});
 btn.addEventListener('click',function(){if(timer){clearInterval(timer);timer=null;btn.textContent='play';}
  else{timer=setInterval(function(){show((i+1)%n);},D.interval_ms);btn.textContent='pause';}});
-var h=/frame=(\d+)/.exec(location.hash);show(h?Math.min(n-1,parseInt(h[1],10)):0);var m=document.createElement('div');m.id='js-status';m.textContent='"""+MARKER+""" '+n+' frames';
+var h=/frame=(\\d+)/.exec(location.hash);show(h?Math.min(n-1,parseInt(h[1],10)):0);var m=document.createElement('div');m.id='js-status';m.textContent='"""+MARKER+""" '+n+' frames';
 document.getElementById('status').appendChild(m);})();"""
 
 
