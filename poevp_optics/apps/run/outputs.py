@@ -21,20 +21,25 @@ def mask_png(levels: np.ndarray, top: int) -> np.ndarray:
 
 
 def contact_sheet(rows: list[list[np.ndarray]], labels: list[str]) -> np.ndarray:
-    """Tile uint8 grey images (rows of frames x columns of kinds) with column labels."""
+    """Tile uint8 grey images (rows of frames x columns of kinds) with column labels. Frames wider
+    than 320 px are shrunk to 320; frames narrower than their column's longest label are enlarged
+    (nearest neighbour: the pixels stay visible as pixels) so no two labels overlap."""
     import cv2
 
+    font, size, gap = cv2.FONT_HERSHEY_SIMPLEX, 0.42, 4
     h, w = rows[0][0].shape
-    scale = min(1.0, 320.0 / w)
+    label_w = max(cv2.getTextSize(lab, font, size, 1)[0][0] for lab in labels) + gap
+    scale = min(1.0, 320.0 / w) if w >= label_w else label_w / w
     th, tw = int(round(h * scale)), int(round(w * scale))
     band = 18
-    sheet = np.full((band + len(rows) * (th + 4), len(labels) * (tw + 4)), 255, np.uint8)
+    sheet = np.full((band + len(rows) * (th + gap), len(labels) * (tw + gap)), 255, np.uint8)
     for c, lab in enumerate(labels):
-        cv2.putText(sheet, lab, (c * (tw + 4) + 4, 13), cv2.FONT_HERSHEY_SIMPLEX, 0.42, 0, 1, cv2.LINE_AA)
+        cv2.putText(sheet, lab, (c * (tw + gap) + 4, 13), font, size, 0, 1, cv2.LINE_AA)
+    interp = cv2.INTER_AREA if scale <= 1.0 else cv2.INTER_NEAREST
     for r, row in enumerate(rows):
         for c, img in enumerate(row):
-            y, x = band + r * (th + 4), c * (tw + 4)
-            sheet[y:y + th, x:x + tw] = cv2.resize(img, (tw, th), interpolation=cv2.INTER_AREA)
+            y, x = band + r * (th + gap), c * (tw + gap)
+            sheet[y:y + th, x:x + tw] = cv2.resize(img, (tw, th), interpolation=interp)
     return sheet
 
 
