@@ -34,3 +34,8 @@ def write_report(out_dir: Path, report: dict) -> Path:
     path = Path(out_dir) / "report.json"
     write_json(path, jsonable(report))
     return path
+
+
+def counted(n: int, noun: str, plural: str | None = None) -> str:
+    """'1 frame', '3 frames' (`plural`: an irregular plural, e.g. 'sequences x')."""
+    return f"{n} {noun if n == 1 else (plural or noun + 's')}"

@@ -20,6 +20,7 @@ import numpy as np
 from poevp_optics.analysis.statistics import lag_frames, wilson_interval
 from poevp_optics.core.io import atomic_path, write_json
 from poevp_optics.core.paths import REPO_ROOT
+from poevp_optics.core.report import counted
 
 CAUSAL = ("hold", "flow", "dmvfn", "dmvfn_lite", "track", "track_net")
 #: Paper Table 2 (accuracy %, ms per frame); E-averaged, its own data and an RTX 3090.
@@ -226,8 +227,8 @@ def _e_text(cfg) -> str:
 
 def _intro(cfg, rows, seconds, law: str = "") -> str:
     n_seq = len({(r["text"], r["kind"], r["speed_px"]) for r in rows})
-    return (_e_text(cfg) + (f"Mask law `{law}` (the scene's). " if law else "") + f"{'Quick' if cfg.quick else 'Default'} set: scene `{scene_name(cfg.scene)}`, {len(cfg.texts)} texts "
-            f"({', '.join(cfg.texts)}), {n_seq} rendered sequences at {cfg.resolution[0]}x{cfg.resolution[1]}, "
+    return (_e_text(cfg) + (f"Mask law `{law}` (the scene's). " if law else "") + f"{'Quick' if cfg.quick else 'Default'} set: scene `{scene_name(cfg.scene)}`, {counted(len(cfg.texts), 'text')} "
+            f"({', '.join(cfg.texts)}), {counted(n_seq, 'rendered sequence')} at {cfg.resolution[0]}x{cfg.resolution[1]}, "
             f"{cfg.spp} spp, 2 ms exposure; loop mode `{cfg.loop_mode}`; frames < 2 (the loop's white start) "
             f"not scored. Each cell: **full ALPR % [Wilson 95 %] / recognition-only %** (PP-OCRv4 detection + "
             f"recognition on the {'whole frame' if cfg.search == 'frame' else 'vehicle window'}; recognition "
