@@ -64,7 +64,8 @@ def add_evaluate_parser(sub, add_job_options) -> None:
     """`poevp evaluate`'s flags (apps/evaluate/evaluate.py EvalConfig holds the defaults)."""
     p = sub.add_parser("evaluate", help="plate recognition (full ALPR) over speed, E and motion: LDR vs fusion vs POE-VP")
     p.add_argument("scene", nargs="?", help="a scene with a plate (render.roi_shape); default highbeam_plate")
-    p.add_argument("--quick", action="store_true", help="CI size: 1 text, 2 speeds, E = 49 (about a minute)")
+    p.add_argument("--quick", action="store_true", help="CI size: 1 text, 4 and 24 px/frame at E = 9, lateral and reversal, "
+                   "predictors hold, flow, oracle (about a minute)")
     p.add_argument("--texts", help="comma-separated plate texts (default: 4 held-out texts)")
     p.add_argument("--texts-file", help="plate texts, one a line")
     p.add_argument("--speeds", help="lateral speeds, px/frame, comma-separated (default 4,8,16,20,24,28,32,40,48)")

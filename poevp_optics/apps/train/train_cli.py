@@ -68,8 +68,6 @@ def cmd_train_data(args) -> int:
 
 
 def cmd_train(args) -> int:
-    from poevp_optics.control.predictors.dmvfn import default_weights
-
     runtime.set_threads(args.threads)
     if args.data_only:
         if not args.scene:
@@ -103,7 +101,7 @@ def cmd_train(args) -> int:
         return 0
     from poevp_optics.apps.train.train import train
 
-    weights = Path(args.weights_out) if args.weights_out else default_weights(args.name)
+    weights = Path(args.weights_out) if args.weights_out else Path("out/predictor") / f"{args.name}.safetensors"
     frames_data, source = None, None
     if args.scene:
         from poevp_optics.apps.train.train_data import build_data
@@ -111,10 +109,11 @@ def cmd_train(args) -> int:
         data = build_data(args.scene, data_config(args), cluster=data_cluster(args), progress=not args.quiet)
         frames_data = (data.splits["train"]["frames"], data.splits["val"]["frames"])
         source = f"{data.manifest['scene']} (apps/train/train_data.py, sha256 {data.sha256})"
+    procedural = {"resolution": data_config(args).resolution} if args.resolution else {}
     rec = train(args.name, minutes=args.minutes, sequences=int(str(args.sequences or 48).split(",")[0]),
                 frames=args.frames or 6, val_sequences=args.val_sequences, batch=args.batch or 4,
                 lr=args.lr or 2e-3, seed=args.seed, out=Path(args.out), weights_out=weights,
-                max_steps=args.max_steps, frames_data=frames_data, device=args.device, source=source)
+                max_steps=args.max_steps, frames_data=frames_data, device=args.device, source=source, **procedural)
     v = rec["validation"]
     print(f"poevp: trained {args.name} for {rec['steps']} steps ({rec['train_seconds']:.0f} s); "
           f"validation highlight IoU {v['model']['highlight_iou']:.3f} (hold {v['hold']['highlight_iou']:.3f}, "
@@ -127,7 +126,7 @@ def add_train_data_options(p) -> None:
     p.add_argument("--sequences", help="N train sequences (val, test N/4 each) or TRAIN,VAL,TEST "
                    "(default 96,24,24 for a scene: about 4 min of rendering for highbeam_plate, 8 for night_road on 2 cores; dmvfn without SCENE: 48)")
     p.add_argument("--frames", type=positive_int, help="frames per sequence (default 8; dmvfn without SCENE 6)")
-    p.add_argument("--resolution", help="HxW training resolution (default 184x320)")
+    p.add_argument("--resolution", help="HxW training resolution (default 184x320; dmvfn without SCENE 368x640)")
     p.add_argument("--spp", type=positive_int, help="samples per pixel (default 4)")
     p.add_argument("--data-seed", type=int, default=0, help="the data's seed streams")
     p.add_argument("--threads", type=positive_int)
@@ -146,10 +145,12 @@ def add_train_parsers(sub) -> None:
     p.add_argument("--batch", type=positive_int, help="default 128 (track_net), 4 (dmvfn)")
     p.add_argument("--lr", type=float, help="default 3e-3 (track_net), 2e-3 (dmvfn)")
     p.add_argument("--seed", type=int, default=0, help="weights' init and batches")
-    p.add_argument("--max-steps", type=positive_int, help="track_net: steps (default 3000)")
+    p.add_argument("--max-steps", type=positive_int, help="training steps (track_net: default 3000; dmvfn: "
+                   "stops at N steps or after --minutes, whichever comes first)")
     p.add_argument("--out", default="out/train", help="checkpoints (resumable); track_net's weights")
     p.add_argument("--weights-out", help="default: out/train/track_net_<scene>.safetensors (track_net), "
-                   "assets/predictor/<name>.safetensors (dmvfn)")
+                   "out/predictor/<name>.safetensors (dmvfn); a scene loads other weights than the shipped "
+                   "assets/predictor/ ones with [predictor] weights = PATH")
     p.add_argument("--resume", action="store_true", help="continue from the checkpoint in --out (same run only)")
     p.add_argument("--checkpoint-every", type=positive_int, default=500, help="track_net: steps between checkpoints")
     p.add_argument("--device", default="auto", choices=("cpu", "cuda", "auto"),

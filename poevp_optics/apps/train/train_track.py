@@ -22,7 +22,9 @@ deterministic (seeded init and batches). The record (command, data hash, split, 
 test metrics beside `flow`'s constant velocity and `track`'s closed form) goes into the weights'
 metadata and a JSON beside them.
 
-    python -m poevp_optics.apps.train.train_track --out assets/predictor/track_net.safetensors
+    .venv/bin/python -m poevp_optics.apps.train.train_track --out out/predictor/track_net.safetensors
+
+The shipped assets/predictor/track_net.safetensors was written so (with `--out` naming that file).
 """
 
 from __future__ import annotations
@@ -419,7 +421,8 @@ def train_track_net_scene(scene: str, data_cfg=None, *, steps: int = 3000, batch
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--out", type=Path, default=None, help="weights file (.safetensors); a .json record beside it")
+    ap.add_argument("--out", type=Path, default=Path("out/predictor/track_net.safetensors"),
+                    help="weights file (.safetensors; default %(default)s); a .json record beside it")
     ap.add_argument("--train-sequences", type=int, default=1200)
     ap.add_argument("--val-sequences", type=int, default=200)
     ap.add_argument("--test-sequences", type=int, default=300)
