@@ -1,6 +1,6 @@
 """The objective's on-disk cache of PSF grids and relative-illumination tables
-($POEVP_CACHE_DIR/objective; core/cache.py's load-or-build with atomic writes): the content key and
-the folder."""
+($POEVP_CACHE_DIR/objective; core/cache.py's verified load-or-build: atomic writes, a checksum
+file beside each, a damaged file rebuilt): the content key and the folder."""
 
 from __future__ import annotations
 
