@@ -19,11 +19,12 @@ Verification: every cache file is written atomically (core.io.atomic_path), then
 file `<file>.sha256` beside it, also atomically: one line `poevp-cache-sha256-v1 <SHA-256 of the
 file's bytes> <byte count> <file name>`. On load a file passes when its checksum file exists and
 matches, it loads, and its user's check (expected keys, dtypes, shapes, values) finds nothing
-wrong. A file that fails (cut short, emptied, overwritten, another file in its place, written
-before files were checked, or by a build cut off before its checksum) is removed and rebuilt,
-and one note says so on stderr: `poevp: cache file <path> failed its check (<reason>); rebuilt`.
-A rebuild runs under a lock beside the file (`.<name>.lock`, flock, removed after), so processes
-sharing a cache build each file once and never remove one another's good files.
+wrong. A file that fails (cut short, emptied, overwritten, another file in its place) is removed
+and rebuilt, and one note says so on stderr: `poevp: cache file <path> failed its check
+(<reason>); rebuilt`. A file with no checksum file (written before cache files carried one, or a
+build cut off between the two) is rebuilt once without a note: nothing was damaged. A rebuild
+runs under a lock beside the file (`.<name>.lock`, flock, removed after), so processes sharing a
+cache build each file once and never remove one another's good files.
 """
 
 from __future__ import annotations
@@ -46,6 +47,15 @@ CHECKSUM_TAG = "poevp-cache-sha256-v1"
 
 class CacheCheckError(Exception):
     """A cache file failed its check; the message is the reason (one line)."""
+
+
+class UncheckedFile(CacheCheckError):
+    """A cache file with no checksum file beside it (written before cache files carried one, or a
+    build cut off between the two): rebuilt without a note, nothing was damaged."""
+
+
+#: checksum_problem's reason for a file with no checksum file.
+NO_CHECKSUM = "no checksum file beside it"
 
 
 def digest(data: bytes | str, *, algo: str = "sha1", length: int = 16) -> str:
@@ -99,7 +109,7 @@ def checksum_problem(path: str | os.PathLike) -> str | None:
     try:
         fields = side.read_text().split()
     except FileNotFoundError:
-        return "no checksum file beside it"
+        return NO_CHECKSUM
     except (OSError, UnicodeDecodeError):
         return f"unreadable checksum file {side.name}"
     if len(fields) != 4 or fields[0] != CHECKSUM_TAG or fields[3] != path.name or not fields[2].isdigit():
@@ -139,7 +149,7 @@ def load_verified(path: str | os.PathLike, load: Callable[[Path], T],
     path = Path(path)
     problem = checksum_problem(path)
     if problem is not None:
-        raise CacheCheckError(problem)
+        raise (UncheckedFile if problem == NO_CHECKSUM else CacheCheckError)(problem)
     try:
         value = load(path)
         problem = check(value) if check is not None else None
@@ -193,7 +203,8 @@ def cached(path: str | os.PathLike, build: Callable[[], T], *, load: Callable[[P
     """The verified value of the cache file `path`: `load(path)` when it passes its checksum and
     `check(value)` (None, or the reason it fails), else `build()`, saved with `save(tmp, value)`
     atomically and its checksum file written. A file that was there and failed is removed before
-    the rebuild and noted on stderr (`note_rebuilt`)."""
+    the rebuild and noted on stderr (`note_rebuilt`); one with no checksum file is rebuilt
+    without a note (`UncheckedFile`)."""
     path = Path(path)
     if path.is_file():
         with contextlib.suppress(CacheCheckError):
@@ -203,6 +214,8 @@ def cached(path: str | os.PathLike, build: Callable[[], T], *, load: Callable[[P
         if path.is_file():                        # again, under the lock: another process may have built it
             try:
                 return load_verified(path, load, check)
+            except UncheckedFile:
+                pass
             except CacheCheckError as e:
                 reason = str(e)
         discard(path)

@@ -40,8 +40,11 @@ def test_cached_builds_once_then_loads(tmp_path):
 
 
 def test_an_unreadable_file_is_rebuilt_with_a_note(tmp_path, capsys):
+    from poevp_optics.core.cache import write_checksum
+
     path = tmp_path / "x.npy"
     path.write_bytes(b"not an npy file")
+    write_checksum(path)                          # its checksum matches: only the load fails
 
     out = cached(path, lambda: np.ones(2), load=np.load, save=_save_npy)
     np.testing.assert_array_equal(out, np.ones(2))

@@ -40,7 +40,7 @@ def _random_bytes(path: Path) -> None:
 
 
 def _drop_checksum(path: Path) -> None:
-    """A file written before cache files carried checksums."""
+    """A file written before cache files carried checksums: rebuilt once, with no note."""
     cc.checksum_path(path).unlink()
 
 
@@ -62,9 +62,12 @@ def _note_lines(err: str, path: Path) -> list[str]:
             if ln.startswith(f"poevp: cache file {path} failed its check (") and ln.endswith("); rebuilt")]
 
 
-def _assert_healed(capsys, path: Path, clean: bytes, builds: list, n_builds: int) -> None:
-    """One note naming `path`, one more build, and the file as clean again with a valid checksum."""
-    assert len(_note_lines(capsys.readouterr().err, path)) == 1
+def _assert_healed(capsys, path: Path, clean: bytes, builds: list, n_builds: int, damage: str = "") -> None:
+    """One note naming `path` (none for a file that had no checksum file: nothing was damaged), one
+    more build, and the file as clean again with a valid checksum."""
+    err = capsys.readouterr().err
+    assert len(_note_lines(err, path)) == (0 if damage == "no_checksum" else 1), err
+    assert "failed its check" not in err or damage != "no_checksum", err
     assert len(builds) == n_builds
     assert path.read_bytes() == clean and cc.checksum_problem(path) is None
     assert not list(path.parent.glob(".*.lock")) and not list(path.parent.glob("*.tmp*"))
@@ -99,7 +102,7 @@ def test_cached_rebuilds_a_damaged_file_with_a_note(tmp_path, capsys, damage):
     CORE_DAMAGES[damage](path)
     out = cc.cached(path, build, load=np.load, save=_save_npy, check=_npy_check)
     np.testing.assert_array_equal(out, np.arange(5.0))
-    _assert_healed(capsys, path, clean, builds, 2)
+    _assert_healed(capsys, path, clean, builds, 2, damage)
     cc.cached(path, build, load=np.load, save=_save_npy, check=_npy_check)      # healed: read, not built
     assert len(builds) == 2 and not capsys.readouterr().err
 
@@ -217,7 +220,7 @@ def test_psf_grid_heals(tmp_path, capsys, objective, damage):
     n = len(builds["psf"])                            # (the other image's grid was built by the damage)
     g = _psf(params, shape, tmp_path)
     assert builds["psf"][-1] == shape
-    _assert_healed(capsys, path, clean, builds["psf"], n + 1)
+    _assert_healed(capsys, path, clean, builds["psf"], n + 1, damage)
     assert g.image_shape == g0.image_shape and np.array_equal(g.kernels, g0.kernels)
 
 
@@ -240,7 +243,7 @@ def test_ri_table_heals(tmp_path, capsys, objective, damage):
     other = _resigned(lambda p: save_npz(p, {"theta_rad": np.linspace(0, 0.5, 129), "ri": np.ones(129)}))
     (BYTE_DAMAGES | {"table_of_another_field": other})[damage](path)
     ri = vignetting._ri_prescription(params, shape, tmp_path)
-    _assert_healed(capsys, path, clean, builds["ri"], 2)
+    _assert_healed(capsys, path, clean, builds["ri"], 2, damage)
     np.testing.assert_array_equal(ri, ri0)
     vignetting._ri_prescription(params, shape, tmp_path)
     assert len(builds["ri"]) == 2
@@ -283,7 +286,7 @@ def test_car_mesh_heals_before_mitsuba_reads_it(road, capsys, damage):
     (BYTE_DAMAGES | extra)[damage](path)
     n = len(writes)                                   # (a damage may write a PLY itself)
     assert rd.cached_car_mesh() == path
-    _assert_healed(capsys, path, clean, writes, n + 1)
+    _assert_healed(capsys, path, clean, writes, n + 1, damage)
     import mitsuba as mi                              # the healed file as Mitsuba reads it: the car mesh
 
     from poevp_optics.core import runtime
@@ -319,7 +322,7 @@ def test_plate_texture_heals_before_mitsuba_reads_it(tmp_path, monkeypatch, caps
              "png_of_another_text": _resigned(lambda p: write_png(p, plates.plate_texture("XY 99 ZZ", *PLATE[1:])))}
     (BYTE_DAMAGES | extra)[damage](path)
     assert plates.cached_plate_path(*PLATE) == path
-    _assert_healed(capsys, path, clean, writes, 2)
+    _assert_healed(capsys, path, clean, writes, 2, damage)
     img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     assert img.shape == (PLATE[2], PLATE[1]) and np.array_equal(img, plates.plate_texture(*PLATE))
     plates.cached_plate_path(*PLATE)
@@ -376,13 +379,13 @@ def test_train_data_folder_heals(tmp_path, monkeypatch, capsys):
         m["content_sha256"] = "0" * 64
         p.write_text(json.dumps(m))
 
-    for damage, target in ((_truncate, "val.npz"), (_drop_checksum, "manifest.json"),
-                           (_resigned(other_manifest), "manifest.json")):
-        damage(d0.folder / target)
+    note = f"poevp: cache folder {d0.folder} failed its check ("
+    for damage, said in ((_truncate, "val.npz: "), (_resigned(other_manifest), "manifest.json names data set 000000"),
+                         (_drop_checksum, None)):
+        damage(d0.folder / ("val.npz" if damage is _truncate else "manifest.json"))
         d = td.build_data(scene, cfg, progress=False, log=lambda *_: None)
         err = capsys.readouterr().err
-        assert f"poevp: cache folder {d0.folder} failed its check ({target}" in err or \
-            f"poevp: cache folder {d0.folder} failed its check (manifest.json names" in err, err
+        assert (note + said in err) if said else "failed its check" not in err, err
         assert d.rendered and all((d.folder / f"{s}.npz").read_bytes() == clean[s] for s in td.SPLITS)
         for s in td.SPLITS:
             np.testing.assert_array_equal(d.splits[s]["frames"], d0.splits[s]["frames"])

@@ -35,8 +35,8 @@ from poevp_optics import __version__
 from poevp_optics.camera.dmd import node_time_weights_s, node_times_s
 from poevp_optics.core.exceptions import SceneError
 from poevp_optics.core.io import atomic_path
-from poevp_optics.core.cache import (CacheCheckError, build_lock, cache_file, digest, discard, json_digest,
-                                     load_verified, note_rebuilt, write_checksum)
+from poevp_optics.core.cache import (CacheCheckError, UncheckedFile, build_lock, cache_file, digest, discard,
+                                     json_digest, load_verified, note_rebuilt, write_checksum)
 from poevp_optics.core.seeds import render_seeds
 from poevp_optics.render.exposures import RenderedExposure, rel_error, union_box
 from poevp_optics.sources.ldr_highlight import srgb_to_linear
@@ -236,7 +236,7 @@ def render_sequences(spec, seqs: list[SequenceSpec], cal: Calibration, guard_px:
                      log=print) -> list[list[RenderedExposure]]:
     """Each sequence's exposures (same text: one renderer for all), rendered once and cached by
     `content_key` under the cache folder's eval/; a cached file that fails its check (core/cache.py:
-    checksum, array shapes) is rendered again, with a note."""
+    checksum, array shapes) is rendered again, with a note (none for one without a checksum file)."""
     from poevp_optics.render.renderer import Renderer
 
     acc = spec.accuracy
@@ -252,7 +252,8 @@ def render_sequences(spec, seqs: list[SequenceSpec], cal: Calibration, guard_px:
                 try:
                     loaded[j] = load_verified(path, lambda p, n=times.shape: _load(p, *n, shape))
                 except CacheCheckError as e:
-                    damaged[j] = str(e)
+                    if not isinstance(e, UncheckedFile):
+                        damaged[j] = str(e)
                     discard(path)
         if j not in loaded:
             missing.append(j)

@@ -318,12 +318,12 @@ def _data_problem(data: TrainData, key: str, cfg: DataConfig) -> str | None:
 def _verified_data(folder: Path, key: str, cfg: DataConfig) -> TrainData:
     """`load_data(folder)` once the manifest and each split pass their checksums (core/cache.py)
     and `_data_problem` finds nothing; CacheCheckError with the reason otherwise."""
-    from poevp_optics.core.cache import CacheCheckError, checksum_problem
+    from poevp_optics.core.cache import NO_CHECKSUM, CacheCheckError, UncheckedFile, checksum_problem
 
     for name in ("manifest.json", *(f"{s}.npz" for s in SPLITS)):
         problem = checksum_problem(folder / name)
         if problem is not None:
-            raise CacheCheckError(f"{name}: {problem}")
+            raise (UncheckedFile if problem == NO_CHECKSUM else CacheCheckError)(f"{name}: {problem}")
     try:
         data = load_data(folder)
         problem = _data_problem(data, key, cfg)
@@ -348,7 +348,7 @@ def build_data(scene: str, cfg: DataConfig = DataConfig(), *, cluster: ClusterSe
                progress: bool = True, log=print) -> TrainData:
     """Render (or find in the cache) the three splits of `scene` under `cfg`: in this process, or
     on the Dask cluster `cluster` names (apps/sweep/sweep.py ClusterSettings with a scheduler)."""
-    from poevp_optics.core.cache import CacheCheckError, discard, note_rebuilt, write_checksum
+    from poevp_optics.core.cache import CacheCheckError, UncheckedFile, discard, note_rebuilt, write_checksum
     from poevp_optics.core.io import atomic_path, write_json
     from poevp_optics.scene.load import load_scene, resolve_scene_path
 
@@ -359,7 +359,7 @@ def build_data(scene: str, cfg: DataConfig = DataConfig(), *, cluster: ClusterSe
         try:
             data = _verified_data(folder, key, cfg)
         except CacheCheckError as e:                  # rendered again below, with a note
-            damaged = str(e)
+            damaged = None if isinstance(e, UncheckedFile) else str(e)
             for name in ("manifest.json", *(f"{s}.npz" for s in SPLITS)):
                 discard(folder / name)
         else:
