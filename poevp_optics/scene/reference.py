@@ -445,7 +445,7 @@ def markdown() -> str:
 
 def _best_loop_md(sec: str) -> list[str]:
     """The note on a loop section whose defaults depend on its choosing key (scene/defaults.py)."""
-    from poevp_optics.scene.defaults import BEST_LOOP, ROAD_ONLY
+    from poevp_optics.scene.defaults import BEST_LOOP, PREDICTION_FREE_LAWS, ROAD_ONLY
 
     if sec not in BEST_LOOP:
         return []
@@ -454,6 +454,9 @@ def _best_loop_md(sec: str) -> list[str]:
     road = ROAD_ONLY.get(sec)
     extra = (" On a `[road]` scene also " + ", ".join(f"`{k} = {toml_value(v)}`" for k, v in road.items()) + "."
              if road else "")
+    if sec != "mask":
+        extra += (" A scene whose mask law reads no prediction (" + ", ".join(f"`{x}`" for x in PREDICTION_FREE_LAWS)
+                  + ") runs no predictor and gets none of these.")
     return ["", f"**Default loop.** A scene with a DMD that does not set `{sec}.{choosing}` gets the project's "
                 f"best causal loop for every key of this section it leaves out: {vals}.{extra} A scene that "
                 f"sets `{choosing}` gets the defaults in the table below; the run's report lists what was "
