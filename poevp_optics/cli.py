@@ -121,7 +121,12 @@ def _camera_scaling(args, sets: list[str]):
     from poevp_optics.scene.load import load_scene, parse_override
     from poevp_optics.scene.scale import parse_scale, scaled_resolution, scaling_for
 
-    explicit = {".".join(parse_override(o)[0]) for o in sets}
+    explicit = set()
+    for o in sets:                       # a malformed one is named, with the file, by load_scene
+        try:
+            explicit.add(".".join(parse_override(o)[0]))
+        except SceneError:
+            pass
     scale, resolution = getattr(args, "scale", None), getattr(args, "resolution", None)
     if getattr(args, "dmd_mirrors", False):
         from poevp_optics.apps.run.headline import DMD_MIRRORS

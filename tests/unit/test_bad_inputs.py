@@ -204,7 +204,7 @@ CASES = [
          ("{toml}", "timing.dmd_window_offset_s")),
     Case("contrast_ratio_1", ("render", "{scene}", "--out", "{out}", SET, "dmd.contrast_ratio=1"),
          ("{toml}", "dmd.contrast_ratio", "no mask could dim")),
-    Case("init_frames_ge_frames", ("render", "{scene}", "--out", "{out}", SET, "predictor.name='hold'",
+    Case("init_frames_ge_frames", ("compare", "{scene}", "--out", "{out}", SET, "predictor.name='hold'",
                                    SET, "loop.init_frames=3"), ("{toml}", "loop.init_frames")),
     Case("mask_min_level_above_dmd_top", ("render", "{scene}", "--out", "{out}", SET, "mask.min_level=300"),
          ("{toml}", "mask.min_level", "255")),
