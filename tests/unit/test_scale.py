@@ -166,3 +166,19 @@ def test_night_road_at_one_sixth_scale_keeps_the_plate_in_band(tmp_path, no_env)
     assert white["band"] == [0.4, 0.9] and len(white["per_frame"]) == 4
     assert all(0.4 <= w <= 0.9 for w in white["per_frame"]), white["per_frame"]
     assert white["in_band_fraction"] == 1.0
+
+
+def test_every_scaled_key_is_a_scene_key_and_a_scaled_value_stays_in_its_bounds(no_env):
+    """scene/scale.py's table names keys the loader accepts; a camera 256x the smoke scene's
+    width would ask mask.smooth_px = 4 x 256 = 1024 mirrors, above its bound 1000: it keeps the
+    bound, so the run is refused for what it is (its memory), not for a key the user never set."""
+    import dataclasses
+
+    from poevp_optics.scene.scale import SCALED_KEYS
+    from poevp_optics.scene.spec import SECTIONS
+
+    for key in SCALED_KEYS:
+        section, name = key.split(".")
+        assert name in {f.name for f in dataclasses.fields(SECTIONS[section])}, key
+    big = _sets(SCENES / "smoke", "--resolution", "12288x16384")
+    assert big["render.resolution"] == [12288, 16384] and big["mask.smooth_px"] == 1000.0
