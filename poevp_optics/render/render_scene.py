@@ -9,8 +9,9 @@ switching times (`clock`, core/timing.py) and the run's `Accuracy`.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
+from types import MappingProxyType
 from typing import TYPE_CHECKING, Mapping
 
 import numpy as np
@@ -26,7 +27,10 @@ if TYPE_CHECKING:
     from poevp_optics.sources.kinds import SourceSpec
     from poevp_optics.sources.motion import MotionSpec
     from poevp_optics.sources.plates import PlateSpec
+    from poevp_optics.render.materials.road_marking import MarkingSpec
     from poevp_optics.sources.road import RoadSpec
+    from poevp_optics.sources.vehicles import VehicleSpec
+    from poevp_optics.sources.weather import WeatherSpec
 
 
 @dataclass(frozen=True)
@@ -50,6 +54,9 @@ class RenderScene:
     source: "SourceSpec"
     sensor_qe: str                   # the QE curve (core/spectra.py name) the render weights by
     accuracy: Accuracy
+    weather: "WeatherSpec | None" = None     # [weather] (sources/weather.py); None: none given
+    marking: Mapping[str, "MarkingSpec"] = field(default_factory=lambda: MappingProxyType({}))  # [marking.<param>]
+    vehicle: Mapping[str, "VehicleSpec"] = field(default_factory=lambda: MappingProxyType({}))  # [vehicle.<id>]
 
     @property
     def geometry_static(self) -> bool:

@@ -224,6 +224,9 @@ def plan_spectra(scene, force_mode: str | None = None) -> SpectralPlan:
             raise SceneError(f"{scene.toml_path}: road: the XML {scene.xml_path.name} declares no "
                              f"<default name=\"{missing[0]}\"> ({len(missing)} of the [road] parameters missing)")
         params.update(road)
+    from poevp_optics.sources.world import world_xml_params   # [weather], [vehicle.<id>]
+
+    params.update(world_xml_params(scene, facts.defaults))
     notes = tuple(n for n in (spectra.coverage_note(name, scene.spectra[name].source, response)
                               for name in emissive) if n)
     return SpectralPlan(mode, reason, params, response, notes)
@@ -359,6 +362,7 @@ class Renderer:
         if get("x_fov") is None:
             raise SceneError(f"{self.scene.xml_path}: sensor {cam_id!r} must be a perspective camera")
         to_world = mi.ScalarTransform4f(np.array(p[f"{cam_id}.to_world"].matrix).reshape(4, 4))
+        medium = cams[0].get_medium()     # a camera inside fog (sources/weather.py) keeps its medium
         h0, w0 = self.scene.render.resolution
         g = self.guard_px
         h, w = h0 + 2 * g, w0 + 2 * g
@@ -379,7 +383,8 @@ class Renderer:
             # offsets are in units of the film size: keep them fixed in pixels
             "principal_point_offset_x": get("principal_point_offset_x", 0.0) * w0 / w,
             "principal_point_offset_y": get("principal_point_offset_y", 0.0) * h0 / h,
-            "film": film, "sampler": SAMPLERS[self.scene.render.sampler].mitsuba_dict(1)})
+            "film": film, "sampler": SAMPLERS[self.scene.render.sampler].mitsuba_dict(1),
+            **({"medium": medium} if medium is not None else {})})
 
     # ------------------------------------------------------------------ posing
     def set_time(self, t_s: float) -> None:

@@ -332,7 +332,7 @@ def class_keys(cls, section: str, generic: str) -> list[KeyInfo]:
     return out
 
 
-TABLE_IDS = {"motion": "<id>", "spectra": "<param>", "flicker": "<param>", "sheeting": "<param>"}
+TABLE_IDS = {"motion": "<id>", "spectra": "<param>", "flicker": "<param>", "sheeting": "<param>", "marking": "<param>"}
 
 
 def sections() -> list[tuple[str, type, bool]]:

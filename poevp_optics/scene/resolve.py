@@ -87,7 +87,8 @@ def resolve(spec) -> ResolvedScene:
         name=spec.name, toml_path=spec.toml_path, xml_path=spec.xml_path, origin=spec.origin,
         render=spec.render, timing=spec.timing, clock=exposure_clock(spec), motion=spec.motion,
         spectra=spec.spectra, flicker=spec.flicker, sheeting=spec.sheeting, plate=spec.plate, road=spec.road,
-        has_road=has_road, source=spec.source, sensor_qe=resolve_sensor(spec.sensor).qe, accuracy=accuracy)
+        has_road=has_road, source=spec.source, sensor_qe=resolve_sensor(spec.sensor).qe, accuracy=accuracy,
+        weather=spec.weather if "weather" in spec.raw else None, marking=spec.marking, vehicle=spec.vehicle)
     camera = CameraParams(spec.sensor, spec.dmd, spec.relay, spec.objective, spec.timing,
                           tuple(spec.render.resolution), accuracy, base_dir=spec.toml_path.parent,
                           flicker=spec.flicker)

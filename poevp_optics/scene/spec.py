@@ -11,6 +11,9 @@
 | [source]             | SourceSpec       | sources/kinds.py (kinds: mitsuba_source.py, exr_sequence.py, ldr_highlight.py) |
 | [road]               | RoadSpec         | sources/road.py (night-road geometry; only road scenes) |
 | [sheeting.<param>]   | SheetingSpec     | render/materials/retroreflective.py |
+| [marking.<param>]    | MarkingSpec      | render/materials/road_marking.py (EN 1436 lane markings) |
+| [weather]            | WeatherSpec      | sources/weather.py (fog, wet road) |
+| [vehicle.<id>]       | VehicleSpec      | sources/vehicles.py (parametric vehicle meshes and plates) |
 | [objective]          | ObjectiveSpec    | camera/objective/   |
 | [attenuator]         | AttenuatorSpec   | camera/attenuator.py (global variable ND before the DMD) |
 | [dmd]                | DMDSpec          | camera/dmd.py (registration: camera/registration.py) |
@@ -30,8 +33,9 @@ accuracy settings as one core.accuracy.Accuracy and the values derived from othe
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cached_property
+from types import MappingProxyType
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Mapping
 
@@ -50,6 +54,7 @@ from poevp_optics.control.timing_budget import BudgetSpec
 from poevp_optics.core.accuracy import Accuracy
 from poevp_optics.core.timing import TimingSpec
 from poevp_optics.render.materials.retroreflective import SheetingSpec
+from poevp_optics.render.materials.road_marking import MarkingSpec
 from poevp_optics.render.renderer import RenderSpec
 from poevp_optics.scene.outputs import OutputsSpec
 from poevp_optics.sources.flicker import FlickerSpec
@@ -58,6 +63,8 @@ from poevp_optics.sources.motion import MotionSpec
 from poevp_optics.sources.plates import PlateSpec
 from poevp_optics.sources.road import RoadSpec
 from poevp_optics.sources.spectra import SpectrumSpec
+from poevp_optics.sources.vehicles import VehicleSpec
+from poevp_optics.sources.weather import WeatherSpec
 
 if TYPE_CHECKING:
     from poevp_optics.scene.resolve import ResolvedScene
@@ -92,6 +99,9 @@ class SceneSpec:
     source: SourceSpec
     attenuator: AttenuatorSpec
     raw: Mapping[str, Any]
+    weather: WeatherSpec = WeatherSpec()
+    marking: Mapping[str, MarkingSpec] = field(default_factory=lambda: MappingProxyType({}))
+    vehicle: Mapping[str, VehicleSpec] = field(default_factory=lambda: MappingProxyType({}))
     origin: str = ""               # the file and the --set overrides it was read with (messages)
     defaults_applied: tuple[str, ...] = ()  # "section.key=value" of the best loop the scene did not choose (defaults.py)
 
@@ -146,8 +156,8 @@ SECTIONS = {
     "render": RenderSpec, "timing": TimingSpec, "dmd": DMDSpec, "objective": ObjectiveSpec,
     "relay": RelaySpec, "sensor": SensorSpec, "mask": MaskSpec, "predictor": PredictorSpec,
     "loop": LoopSpec, "budget": BudgetSpec, "outputs": OutputsSpec, "plate": PlateSpec, "chart": ChartSpec,
-    "source": SourceSpec, "road": RoadSpec, "attenuator": AttenuatorSpec,
+    "source": SourceSpec, "road": RoadSpec, "attenuator": AttenuatorSpec, "weather": WeatherSpec,
 }
 TABLE_SECTIONS = {"motion": MotionSpec, "spectra": SpectrumSpec, "flicker": FlickerSpec,
-                  "sheeting": SheetingSpec}
+                  "sheeting": SheetingSpec, "marking": MarkingSpec, "vehicle": VehicleSpec}
 TOP_KEYS = {"description"}

@@ -368,3 +368,22 @@ def check_attenuator(ctx, sec: dict):
         raise ctx.fail("attenuator.settle_s", f"impossible timing: {a.settle_s * 1e3:.3g} ms to settle, but "
                        f"only {gap * 1e3:.3g} ms between two exposures (1/fps - exposure_s): every "
                        f"setting would arrive late")
+
+
+def check_world(ctx, marking, vehicle) -> None:
+    """[marking.<param>] sources parse (render/materials/road_marking.py); each [vehicle.<id>]'s
+    shape is buildable (sources/vehicles.py: parts fit the body, the plate its recess)."""
+    from poevp_optics.render.materials.retroreflective import SheetingError
+    from poevp_optics.render.materials.road_marking import parse_marking
+    from poevp_optics.sources.vehicles import VehicleShapeError, shape_of
+
+    for ident, m in marking.items():
+        try:
+            parse_marking(m.source)
+        except SheetingError as e:
+            raise ctx.fail(f"marking.{ident}.source", str(e)) from None
+    for ident, v in vehicle.items():
+        try:
+            shape_of(v)
+        except VehicleShapeError as e:
+            raise ctx.fail(f"vehicle.{ident}.{e.key}", str(e)) from None

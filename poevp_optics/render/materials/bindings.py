@@ -3,6 +3,7 @@
 * `[spectra.X] distribution = "file:..."` binds `$X_distribution` (an absolute path) for the
   `photometric` emitters whose `intensity` is `$X`.
 * `[sheeting.Y]` binds `$Y` (the `sheeting` string of `retroreflective` BSDFs).
+* `[marking.Z]` binds `$Z` (the `marking` string of `road_marking` BSDFs).
 
 The XML is checked against the TOML in both directions; each error is one line naming the file
 and the key.
@@ -44,6 +45,12 @@ def plugin_xml_params(scene, defaults: frozenset[str]) -> dict[str, str]:
                              f"<default name=\"{name}\"> (use it as <string name=\"sheeting\" "
                              f"value=\"${name}\"/> in a retroreflective BSDF)")
         params[name] = sheeting_string(entry, file.parent)
+    for name in getattr(scene, "marking", {}):
+        if name not in defaults:
+            raise SceneError(f"{file}: marking.{name}: the XML {xml.name} declares no "
+                             f"<default name=\"{name}\"> (use it as <string name=\"marking\" "
+                             f"value=\"${name}\"/> in a road_marking BSDF)")
+        params[name] = scene.marking[name].source
     for em in root.iter("emitter"):
         if em.get("type") != "photometric":
             continue

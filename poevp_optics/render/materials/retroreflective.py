@@ -381,7 +381,12 @@ class _RetroreflectiveBSDFMethods:
         mi.BSDF.__init__(self, props)
         if "sheeting" not in props.keys():
             raise SheetingError("retroreflective BSDF: the 'sheeting' property is required")
-        self.table = parse_sheeting(str(props["sheeting"]))
+        self._init_law(parse_sheeting(str(props["sheeting"])), props)
+
+    def _init_law(self, table, props):
+        """Set up the lobe of `table` with the `reflectance` and `retro_tint` of `props` (also
+        used by materials/road_marking.py, whose tables come from EN 1436 classes)."""
+        self.table = table
         self.law = retro_law(self.table)
         self.reflectance = props.get_texture("reflectance", 0.0)
         self.retro_tint = props.get_texture("retro_tint", 1.0)

@@ -1,0 +1,39 @@
+"""The XML parameters of the road-world sections: [weather] (sources/weather.py) and
+[vehicle.<id>] (sources/vehicles.py), checked against the XML's declared parameters.
+
+[weather] binds the `$weather_*` parameters the XML declares, and requires the fog ones when
+fog_visibility_m > 0 and the water ones when wetness > 0. Each [vehicle.<id>] requires all of
+its `$vehicle_<id>_*` parameters but the plate texture, which is bound when plate_text is set.
+Each missing one is one line naming the file and the key.
+"""
+
+from __future__ import annotations
+
+from poevp_optics.core.exceptions import SceneError
+
+
+def world_xml_params(scene, defaults: frozenset[str]) -> dict[str, str]:
+    """`$weather_*` and `$vehicle_<id>_*` values for the scene's XML (module docstring)."""
+    file, xml = scene.toml_path, scene.xml_path
+    params: dict[str, str] = {}
+    weather = getattr(scene, "weather", None)
+    if weather is not None:
+        from poevp_optics.sources import weather as w
+
+        for name, key in w.required_params(weather).items():
+            if name not in defaults:
+                raise SceneError(f"{file}: {key}: the XML {xml.name} declares no <default name=\"{name}\">")
+        params.update({k: v for k, v in w.xml_params(weather).items() if k in defaults})
+    for ident, spec in getattr(scene, "vehicle", {}).items():
+        from poevp_optics.sources.vehicles import xml_params as vehicle_params
+
+        values = vehicle_params(ident, spec)
+        for name in sorted(values):
+            if name not in defaults and not name.endswith("_plate_texture"):
+                raise SceneError(f"{file}: vehicle.{ident}: the XML {xml.name} declares no "
+                                 f"<default name=\"{name}\">")
+        if spec.plate_text and f"vehicle_{ident}_plate_texture" not in defaults:
+            raise SceneError(f"{file}: vehicle.{ident}.plate_text: the XML {xml.name} declares no "
+                             f"<default name=\"vehicle_{ident}_plate_texture\">")
+        params.update({k: v for k, v in values.items() if k in defaults})
+    return params
