@@ -76,9 +76,10 @@ def extinction_per_m(visibility_m: float, contrast_threshold: float = 0.05) -> f
     return math.log(1.0 / contrast_threshold) / visibility_m
 
 
-#: XML parameters of [weather]: fog ones, water ones.
+#: XML parameters of [weather]: fog ones, water ones (the ripples' `weather_water_alpha` is bound
+#: where declared: a smooth `plastic` film has none).
 FOG_PARAMS = ("weather_fog_sigma_t", "weather_fog_albedo", "weather_fog_g")
-WATER_PARAMS = ("weather_wetness", "weather_water_alpha", "weather_water_ior", "weather_air_ior")
+WATER_PARAMS = ("weather_wetness", "weather_water_ior", "weather_air_ior")
 
 
 def xml_params(weather: WeatherSpec) -> dict[str, str]:
