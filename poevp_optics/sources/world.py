@@ -2,9 +2,10 @@
 [vehicle.<id>] (sources/vehicles.py), checked against the XML's declared parameters.
 
 [weather] binds the `$weather_*` parameters the XML declares, and requires the fog ones when
-fog_visibility_m > 0 and the water ones when wetness > 0. Each [vehicle.<id>] requires all of
-its `$vehicle_<id>_*` parameters but the plate texture, which is bound when plate_text is set.
-Each missing one is one line naming the file and the key.
+fog_visibility_m > 0 and the water ones when wetness > 0. Each [vehicle.<id>] requires its parts'
+meshes and `$vehicle_<id>_matrix`, and with a plate_text its plate's matrix and texture; the
+headlamps' emitter matrices (and a plate's matrix without a text) are bound where declared. Each
+missing one is one line naming the file and the key.
 """
 
 from __future__ import annotations
@@ -28,12 +29,15 @@ def world_xml_params(scene, defaults: frozenset[str]) -> dict[str, str]:
         from poevp_optics.sources.vehicles import xml_params as vehicle_params
 
         values = vehicle_params(ident, spec)
+        pre = f"vehicle_{ident}"
         for name in sorted(values):
-            if name not in defaults and not name.endswith("_plate_texture"):
+            if name not in defaults and not name.endswith(("_plate_texture", "_plate_matrix", "_headlamp_left_matrix",
+                                                            "_headlamp_right_matrix")):
                 raise SceneError(f"{file}: vehicle.{ident}: the XML {xml.name} declares no "
                                  f"<default name=\"{name}\">")
-        if spec.plate_text and f"vehicle_{ident}_plate_texture" not in defaults:
-            raise SceneError(f"{file}: vehicle.{ident}.plate_text: the XML {xml.name} declares no "
-                             f"<default name=\"vehicle_{ident}_plate_texture\">")
+        for name in (f"{pre}_plate_texture", f"{pre}_plate_matrix"):
+            if spec.plate_text and name not in defaults:
+                raise SceneError(f"{file}: vehicle.{ident}.plate_text: the XML {xml.name} declares no "
+                                 f"<default name=\"{name}\"> (the plate's rectangle and texture)")
         params.update({k: v for k, v in values.items() if k in defaults})
     return params
