@@ -72,7 +72,8 @@ def result_page(name: str, g: dict) -> str:
     if g["script"] == "evaluate":
         out += ["Written by `poevp evaluate` (see [Evaluation](../guides/evaluation.md)).", ""]
     elif g["script"]:
-        out += [f"Written by `python -m benchmarks.{g['script']}`.", ""]
+        out += [f"Written by `.venv/bin/python -m benchmarks.{g['script']} --results` (without `--results` "
+                "the script writes into `out/benchmarks/`).", ""]
     mds = sorted(g["md"], key=lambda p: (p.stem != name, str(p)))
     for p in mds:
         rel = p.relative_to(RESULTS)
