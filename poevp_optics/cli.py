@@ -296,7 +296,8 @@ def cmd_sweep(args) -> int:
                scheduler=args.scheduler, scheduler_file=args.scheduler_file, shared_fs=args.shared_fs,
                retries=args.retries, job=args.job, base_overrides=_overrides(args),
                metric=args.plot, progress=not args.quiet, retry_failed=args.retry_failed,
-               threads=args.threads, yes=args.yes, rebuild=args.rebuild, **_tls_options(args))
+               threads=args.threads, yes=args.yes, rebuild=args.rebuild,
+               reuse_render=not args.no_reuse_render, **_tls_options(args))
     n_failed = 0
     if df is not None:
         n_ok = int((df["status"] == "ok").sum())
@@ -383,6 +384,9 @@ def _add_sweep_parser(sub) -> None:
                         "own report.json files (points without one run again)")
     p.add_argument("--allow-failed", action="store_true",
                    help="exit 0 even when points failed (default: exit 1)")
+    p.add_argument("--no-reuse-render", action="store_true",
+                   help="render every point (default: points whose render inputs are the same share "
+                        "one render, stored under renders/ in the sweep folder)")
     p.add_argument("--threads", type=_threads,
                    help="DrJit/torch/OpenCV threads per worker (default cores // workers)")
     p.add_argument("--quiet", action="store_true")

@@ -274,16 +274,20 @@ def loop_step_of(spec, camera: Camera) -> LoopStep | None:
 
 def run_frames(spec, out_dir: Path, progress: bool = True, *, renderer=None,
                exposures: list | None = None, write_images: bool = True,
-               keep_frames: tuple[int, ...] = ()) -> tuple[dict, dict]:
+               keep_frames: tuple[int, ...] = (), render_cache=None) -> tuple[dict, dict]:
     """Render (or read: [source]) `spec` and run the camera into `out_dir` (an empty staging
     folder); return (report, kept frames). renderer/exposures: reuse an opened source
     (render/radiance.py open_source) and its exposures (the comparison runs many camera loops
     over one render; its guard band must be the camera's).
     write_images=False writes only report.json. keep_frames: frame indices whose masks and
-    captures come back in the second value."""
+    captures come back in the second value. render_cache: a render/render_cache.py RenderCache
+    (a sweep's): the exposures of a stored identical render are replayed, or this run's render
+    is stored for the next run with the same render inputs."""
     out_dir = Path(out_dir)
     t_run = time.perf_counter()
     camera = Camera.from_params(spec.resolved.camera)
+    if render_cache is not None and renderer is None and exposures is None:
+        renderer = render_cache.open(spec.resolved.render, camera.guard_px)   # stored or recorded
     renderer = renderer or open_source(spec.resolved.render, camera.guard_px)       # the scene's [source] kind
     if renderer.guard_px != camera.guard_px:
         raise ValueError(f"renderer guard band {renderer.guard_px} px != camera's {camera.guard_px} px")
@@ -306,7 +310,11 @@ def run_frames(spec, out_dir: Path, progress: bool = True, *, renderer=None,
         temporal = {"rel": None, "method": renderer.temporal_skip, "seconds": 0.0}
     else:
         temporal = temporal_error(spec, renderer, camera, *(res.mid_frame or (None, None)))
+    if render_cache is not None:
+        render_cache.finish()
     report = build_report(spec, renderer, camera, step, res, setup_s=setup_s, t_run=t_run, temporal=temporal)
+    if render_cache is not None:
+        report["render_reuse"] = render_cache.report_section()
     if spec.resolved.derived:          # values the scene computed from other keys (scene/resolve.py)
         report["derived"] = dict(spec.resolved.derived)
     if spec.defaults_applied:          # the best loop the scene did not choose (scene/defaults.py)

@@ -25,10 +25,10 @@ class Job:
     sweepable: bool = False
 
 
-def _render(spec, stage, progress, **_):
+def _render(spec, stage, progress, render_cache=None, **_):
     from poevp_optics.apps.run.render_run import run_render
 
-    return run_render(spec, stage, progress=progress)
+    return run_render(spec, stage, progress=progress, render_cache=render_cache)
 
 
 def _chart(spec, stage, progress, **_):

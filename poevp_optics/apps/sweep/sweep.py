@@ -59,6 +59,7 @@ from poevp_optics.apps.sweep.bundle import (InputMismatch, InputPlan, InputRef, 
 from poevp_optics.apps.sweep.cluster import (ClusterError, check_local_flags, check_workers, connect, dashboard_link,
                                       software_versions, version_mismatch)
 from poevp_optics.apps.run.runner import JOBS, sweep_jobs
+from poevp_optics.apps.sweep.reuse import point_render_cache, render_result, reuse_columns
 from poevp_optics.apps.sweep.sweep_grid import (GRID_HELP, SEED_KEYS, canonical, parse_grid, point_key,  # noqa: F401
                                          point_overrides, toml_literal)
 from poevp_optics.apps.sweep.sweep_state import (RECORD_KEYS, TABLE_COLUMNS, SweepStateError,  # noqa: F401
@@ -99,7 +100,9 @@ class PointTask:
     overrides: the point's `KEY=VALUE` overrides (base, grid values, seeds). job: a sweepable
     job of apps/run/runner.py's JOBS. threads: DrJit/torch/OpenCV threads. plan, refs: where its inputs are and their
     hashes (bundle.py). versions: the client's software (cluster.PACKAGES); empty on a
-    LocalCluster, whose workers run this interpreter's."""
+    LocalCluster, whose workers run this interpreter's. render_group: the point's render group
+    (reuse.py; "" renders without storing), render_read: folders of stored renders this worker
+    reads itself, label: the point's folder name (who rendered a stored render)."""
 
     overrides: tuple[str, ...]
     job: str
@@ -107,6 +110,9 @@ class PointTask:
     plan: InputPlan
     refs: tuple[InputRef, ...]
     versions: dict = field(default_factory=dict)
+    render_group: str = ""
+    render_read: tuple[str, ...] = ()
+    label: str = ""
 
 
 def _worker_name() -> str:
@@ -123,11 +129,13 @@ def _one_line(e: BaseException) -> str:
     return f"{type(e).__name__}: {msg}"
 
 
-def run_point(task: PointTask, bundle: bytes | None = None) -> dict:
+def run_point(task: PointTask, bundle: bytes | None = None, renders: list = ()) -> dict:
     """Run one point in this (worker) process, inside a temporary folder removed afterwards;
     never raises. Returns {"row": columns, "archive": zip of the point's folder} (no archive
-    when the point failed), or {"refused": one line} when this worker cannot run the sweep
-    (other software, other files): the client then stops the sweep."""
+    when the point failed) with, for a point of a render group, "render" (the render it used)
+    and "render_archive" (the zip of a render it made), or {"refused": one line} when this
+    worker cannot run the sweep (other software, other files): the client then stops the sweep.
+    renders: [(key, zip bytes)] of stored renders sent to a worker that cannot read them."""
     from poevp_optics.core import runtime
 
     from poevp_optics.apps.run.preflight import check_run
@@ -150,11 +158,12 @@ def run_point(task: PointTask, bundle: bytes | None = None) -> dict:
             check_run(spec, task.job, memory=False)
             folder = work / "out"
             folder.mkdir()
-            report = JOBS[task.job].run(spec, folder, False)
+            cache = point_render_cache(task, renders, work)
+            report = JOBS[task.job].run(spec, folder, False, **({"render_cache": cache} if cache else {}))
             _report_paths_to_client(folder / "report.json", path_map)
             return {"row": {"status": "ok", "error": "", **flatten_report(report),
                             "point_seconds": time.perf_counter() - t0},
-                    "archive": pack_folder(folder)}
+                    "archive": pack_folder(folder), **render_result(cache)}
     except Exception as e:  # noqa: BLE001 - a failed point is data, not a crash
         return {"row": {"status": "failed", "error": map_paths(_one_line(e), path_map),
                         "point_seconds": time.perf_counter() - t0}}
@@ -261,7 +270,7 @@ def sweep(scene: str, grid_args: list[str], *, out: Path, seeds: int = 1, worker
           metric: str | None = None, progress: bool = True, retry_failed: bool = False,
           threads: int | None = None, log=print, yes: bool = False, rebuild: bool = False,
           tls_ca_file: str | None = None, tls_cert: str | None = None, tls_key: str | None = None,
-          require_tls: bool = False):
+          require_tls: bool = False, reuse_render: bool = True):
     """Run the grid; returns the results DataFrame. See the module docstring.
 
     scheduler / scheduler_file: an existing Dask scheduler (else a LocalCluster of `workers`).
@@ -269,7 +278,8 @@ def sweep(scene: str, grid_args: list[str], *, out: Path, seeds: int = 1, worker
     tls_ca_file / tls_cert / tls_key / require_tls: TLS to the scheduler (ClusterSettings).
     retries: runs again of a point whose worker died, >= 0 (default 2). yes: run above the
     run-size limits (apps/run/run_size.py). rebuild: a results table or sweep.json that does not
-    read is rebuilt from the points' own report.json files instead of refused."""
+    read is rebuilt from the points' own report.json files instead of refused. reuse_render:
+    points with the same render inputs share one render (reuse.py; False renders every point)."""
     from tqdm import tqdm
 
     _check_flags(job, seeds, retries)
@@ -301,19 +311,7 @@ def sweep(scene: str, grid_args: list[str], *, out: Path, seeds: int = 1, worker
     point_refs = [tuple(with_hashes(scene_inputs(sp), hashes)) for sp in specs]
     toml = resolve_scene_path(scene).resolve()
     base_raw = load_scene(scene, base, cross_checks=False).raw
-    if cl.local:                       # a remote cluster's memory is not this machine's
-        from poevp_optics.apps.run.memory import check_memory, estimate_run
-
-        n_workers = max(1, min(workers or os.cpu_count() or 1, len(combos) * seeds))
-        biggest = max(specs, key=lambda sp: estimate_run(sp, job).total_bytes)
-        check_memory(biggest, job, workers=n_workers,
-                     where=f"{toml} (largest sweep point, {n_workers} at once)")
-    sizes = check_sweep_size(specs, job, seeds, toml, yes)
-    if not (Path(out) / "results.parquet").exists():   # a new sweep: refused before writing anything
-        from poevp_optics.core.io import check_free_space
-
-        check_free_space(out, seeds * sum(sz.disk_bytes for sz in sizes),
-                         f"this sweep ({len(specs)} points x {seeds} seeds)")
+    sizes = _check_sizes(specs, job, seeds, toml, yes, out, cl, reuse_render)
     record = sweep_record(toml, job, seeds, dict(grid), dict(base_raw), point_refs)
     plan = make_plan("shared" if cl.local or shared_fs else "bundle", resolve_scene_path(scene),
                      [r for refs in point_refs for r in refs])
@@ -334,9 +332,32 @@ def sweep(scene: str, grid_args: list[str], *, out: Path, seeds: int = 1, worker
             write_json(mpath, record)
             with sigterm_raises():
                 return _run_sweep(scene, out, keys, combos, point_refs, plan, seeds, base, job, dask, metric,
-                                  progress, retry_failed, log, tqdm, rebuild, sizes)
+                                  progress, retry_failed, log, tqdm, rebuild, sizes, reuse_render)
     finally:
         dask.close()
+
+
+def _check_sizes(specs, job: str, seeds: int, toml: Path, yes: bool, out, cl: ClusterSettings,
+                 reuse_render: bool) -> list:
+    """Before anything runs: on a LocalCluster the largest point's memory times the workers at
+    once (a remote cluster's memory is not this machine's), the whole sweep's run size, and for
+    a new sweep the free space for its points and stored renders. Returns each point's size."""
+    if cl.local:
+        from poevp_optics.apps.run.memory import check_memory, estimate_run
+
+        n_workers = max(1, min(cl.workers or os.cpu_count() or 1, len(specs) * seeds))
+        biggest = max(specs, key=lambda sp: estimate_run(sp, job).total_bytes)
+        check_memory(biggest, job, workers=n_workers,
+                     where=f"{toml} (largest sweep point, {n_workers} at once)")
+    sizes = check_sweep_size(specs, job, seeds, toml, yes)
+    if not (Path(out) / "results.parquet").exists():   # a new sweep: refused before writing anything
+        from poevp_optics.apps.sweep.reuse import render_bytes_estimate
+        from poevp_optics.core.io import check_free_space
+
+        stored = render_bytes_estimate(specs, seeds) if reuse_render and job == "render" else 0
+        check_free_space(out, seeds * sum(sz.disk_bytes for sz in sizes) + stored,
+                         f"this sweep ({len(specs)} points x {seeds} seeds)")
+    return sizes
 
 
 class _Dask:
@@ -382,7 +403,7 @@ class _Dask:
 
 
 def _run_sweep(scene, out, keys, combos, point_refs, plan, seeds, base, job, dask, metric, progress,
-               retry_failed, log, tqdm, rebuild=False, sizes=None):
+               retry_failed, log, tqdm, rebuild=False, sizes=None, reuse_render=False):
     import shutil
     import tomllib
 
@@ -424,7 +445,12 @@ def _run_sweep(scene, out, keys, combos, point_refs, plan, seeds, base, job, das
                          f"the {len(todo)} sweep runs still to do")
     df = write_table(rows, out) if rows else None
     if todo:
-        df = _execute(todo, rows, out, job, plan, dask, progress, log, tqdm)
+        reuse = None
+        if reuse_render:
+            from poevp_optics.apps.sweep.reuse import RenderReuse, point_render_groups
+
+            reuse = RenderReuse(out, point_render_groups(scene, todo, job, log), plan.mode == "shared", log)
+        df = _execute(todo, rows, out, job, plan, dask, progress, log, tqdm, reuse)
     if df is not None and metric:
         path = plot_metric(df, keys, metric, out / f"plot_{metric.replace('.', '_')}.png")
         if path:
@@ -477,7 +503,7 @@ def _lost_worker_errors() -> tuple[type, ...]:
     return KilledWorker, CommClosedError
 
 
-def _execute(todo, rows, out, job, plan: InputPlan, dask: _Dask, progress, log, tqdm):
+def _execute(todo, rows, out, job, plan: InputPlan, dask: _Dask, progress, log, tqdm, reuse=None):
     from distributed import as_completed
     from distributed.client import CancelledError
 
@@ -501,13 +527,17 @@ def _execute(todo, rows, out, job, plan: InputPlan, dask: _Dask, progress, log, 
                 "(--shared-fs), verified on each worker")
         run_id = uuid.uuid4().hex[:8]
 
-        def submit(row, ov, refs, attempt):
-            task = PointTask(ov, job, dask.threads, plan, refs, dask.versions)
-            return client.submit(run_point, task, bundle, pure=False,
+        def submit(row, ov, refs, attempt, folder):
+            group = reuse.group_of((row, ov, refs, folder)) if reuse else ""
+            task = PointTask(ov, job, dask.threads, plan, refs, dask.versions, group,
+                             reuse.read_dirs() if group else (), folder.name)
+            renders = reuse.payload(client, (row, ov, refs, folder)) if group else []
+            return client.submit(run_point, task, bundle, renders, pure=False,
                                  key=f"poevp-point-{row['point_key']}-s{row['seed']}-{run_id}-a{attempt}")
 
-        futs = {submit(row, ov, refs, 0): (row, ov, refs, folder, 0) for row, ov, refs, folder in todo}
-        bar = tqdm(total=len(futs), desc="sweep", unit="point", disable=not progress or None)
+        first = reuse.initial(todo) if reuse else todo
+        futs = {submit(row, ov, refs, 0, folder): (row, ov, refs, folder, 0) for row, ov, refs, folder in first}
+        bar = tqdm(total=len(todo), desc="sweep", unit="point", disable=not progress or None)
         pending = as_completed(list(futs))
         for f in pending:
             row, ov, refs, folder, attempt = futs.pop(f)
@@ -517,7 +547,7 @@ def _execute(todo, rows, out, job, plan: InputPlan, dask: _Dask, progress, log, 
                 if attempt < cl.retries:
                     log(f"poevp sweep: point {row['point']} seed {row['seed']}: its worker was lost "
                         f"({type(e).__name__}); running it again (retry {attempt + 1} of {cl.retries})")
-                    nf = submit(row, ov, refs, attempt + 1)
+                    nf = submit(row, ov, refs, attempt + 1, folder)
                     futs[nf] = (row, ov, refs, folder, attempt + 1)
                     pending.add(nf)
                     continue
@@ -534,7 +564,11 @@ def _execute(todo, rows, out, job, plan: InputPlan, dask: _Dask, progress, log, 
                 raise ClusterError(res["refused"])
             if res.get("archive") is not None:
                 _write_point(folder, res["archive"], job)
-            rows.append({**row, **res["row"]})
+            for t in reuse.finished((row, ov, refs, folder), res) if reuse else ():
+                nf = submit(*t[:3], 0, t[3])
+                futs[nf] = (*t, 0)
+                pending.add(nf)
+            rows.append({**row, **res["row"], **reuse_columns(reuse, res)})
             df = write_table(rows, out)
             bar.update(1)
         bar.close()
