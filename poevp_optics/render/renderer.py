@@ -214,7 +214,8 @@ def plan_spectra(scene, force_mode: str | None = None) -> SpectralPlan:
         from poevp_optics.sources.plates import cached_plate_path
 
         params[scene.plate.param] = str(cached_plate_path(scene.plate.text, scene.plate.width_px,
-                                                         scene.plate.height_px))
+                                                         scene.plate.height_px, plate_format=scene.plate.format,
+                                                         band=scene.plate.band))
     if scene.has_road:
         from poevp_optics.sources.road import xml_params as road_xml_params
 

@@ -113,6 +113,8 @@ def check_plate(ctx, plate: PlateSpec):
     if plate.text and not plate.text.strip():
         raise ctx.fail("plate.text", f"blank text {plate.text!r}: give the plate's characters, "
                        "or leave it out ('') for the XML's own texture")
+    if plate.band and plate.format != "eu":
+        raise ctx.fail("plate.band", f"a {plate.format!r} plate has no blue band (only format 'eu' has)")
 
 
 def check_predictor(ctx, path: Path, pred: PredictorSpec, cross_checks: bool) -> PredictorSpec:

@@ -68,7 +68,7 @@ def test_cache_file_is_under_the_cache_root(tmp_path, monkeypatch):
 
 
 def test_the_users_keep_their_key_recipes(tmp_path, monkeypatch):
-    """Plates, car mesh and the objective's PSF grid: the file names are the hashes they were
+    """Plates (text, size, format, band, version), car mesh and the objective's PSF grid: the file names are the hashes they were
     (recomputed here with hashlib from each recipe)."""
     from poevp_optics.camera import objective as ob
     from poevp_optics.core import spectra
@@ -77,7 +77,7 @@ def test_the_users_keep_their_key_recipes(tmp_path, monkeypatch):
 
     monkeypatch.setenv("POEVP_CACHE_DIR", str(tmp_path))
     plate = cached_plate_path("AB 123", 104, 22)
-    assert plate == tmp_path / "plates" / f"plate_{hashlib.sha1(b'AB 123|104|22|v1').hexdigest()[:16]}.png"
+    assert plate == tmp_path / "plates" / f"plate_{hashlib.sha1(b'AB 123|104|22|eu|0|v2').hexdigest()[:16]}.png"
     assert plate.is_file()
     verts, tris = car_rear_mesh()
     key = hashlib.sha1(verts.tobytes() + tris.tobytes() + str(MESH_VERSION).encode()).hexdigest()[:16]
