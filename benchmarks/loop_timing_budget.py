@@ -1,4 +1,4 @@
-"""Predictor budget sweep (issue 18): as predictor + mask time grows from 2 to 40 ms, masks start
+"""Predictor budget sweep: as predictor + mask time grows from 2 to 40 ms, masks start
 arriving after their display window opens; the saturated plate fraction, the plate's white in
 band and whole-frame recognition, at 30 and 60 fps.
 

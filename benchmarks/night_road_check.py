@@ -1,4 +1,4 @@
-"""What issue 17 says `night_road` must show, measured on one run of the scene as `make demo`
+"""What the default scene `night_road` must show, measured on one run of the scene as `make demo`
 runs it (the causal loop): per frame the plate's distance, observation and entrance angles, R_A,
 peak over saturation, the LDR twin's and the encoded capture's whole-frame OCR (RapidOCR PP-OCRv4
 detection + recognition on the raw 8-bit frame, no crop: analysis/recognition.py frame_reads),
@@ -90,7 +90,7 @@ def main(argv=None):
           [f"DMD floor ({nr['dmd_binding_part']} binds it)", nr["dmd_floor_db"]],
           ["objective glare floor (veil on the plate)", nr["glare_floor_db"]],
           ["ink below sheeting", nr["ink_over_sheeting_db"]]]
-    text = (f"# night_road: what issue 17 says it must show\n\n"
+    text = (f"# night_road: what the default scene must show\n\n"
             f"Scene `{args.scene}` {' '.join(args.set) or '(as `make demo` runs it)'}: "
             f"{spec.timing.frames} frames at {spec.timing.fps:g} fps, "
             f"{spec.render.resolution[0]}x{spec.render.resolution[1]}, {spec.render.spp} spp, "

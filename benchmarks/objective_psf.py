@@ -1,4 +1,4 @@
-"""Objective stage (issue 17): the Double Gauss's PSF over the field, and what the stage costs.
+"""Objective stage: the Double Gauss's PSF over the field, and what the stage costs.
 
 * PSF peak and encircled energy vs field of the Double Gauss (optiland sample) at the IMX253
   band (3 equal-signal wavelengths), on 7.56 um mirrors, along the image's diagonal and x axis:

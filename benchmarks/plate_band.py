@@ -1,4 +1,4 @@
-"""The default loop on six plate texts at the default and 10x high beams (issue 18): the plate's
+"""The default loop on six plate texts at the default and 10x high beams: the plate's
 white per frame (90th percentile of the plate box in the raw 8-bit capture / 255) against the
 40-90 % band, and whole-frame PP-OCRv4 detection + recognition (no crop from the known box).
 

@@ -1,4 +1,4 @@
-"""The plate's DN distribution per frame for over-exposure from 2x to 1000x (issue 18), on the
+"""The plate's DN distribution per frame for over-exposure from 2x to 1000x, on the
 default scene's retroreflective plate (night_road, as `make demo` runs it: the causal loop, the
 exposure controller, the variable ND).
 

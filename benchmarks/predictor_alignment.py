@@ -1,5 +1,5 @@
 """Where each predictor puts the plate's highlight, frame by frame, at the speeds where `poevp
-evaluate` stops reading (issue 20): lateral motion at E = 9 on `highbeam_plate`, the evaluation's
+evaluate` stops reading: lateral motion at E = 9 on `highbeam_plate`, the evaluation's
 own sequences (rendered once, cached by content), loop modes `open` and `demodulated`, the
 scene's mask law (`exposure_controller`).
 

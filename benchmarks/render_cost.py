@@ -1,4 +1,4 @@
-"""Render cost of the default scene (issue 27): where the CPU time of a frame goes, how it grows
+"""Render cost of the default scene: where the CPU time of a frame goes, how it grows
 with the resolution, what each region's Monte Carlo error costs, and the ROI box render.
 
 Scene `scenes/night_road`, at resolutions from its own 184x320 to the DLP6500's 1080x1920, each
@@ -238,7 +238,7 @@ def main(argv=None):
     runs = {"before (render.spp=8)": st.get(f"{rh}x{rw}") or _in_process("stages", rh, rw, frames, ["render.spp=8"]),
             f"after (render.spp={args.frame_spp}, roi_spp={args.roi_spp})": _in_process("stages", rh, rw, frames, after_sets)}
 
-    lines = [f"# Render cost of {SCENE} (issue 27)", "", f"Machine: {machine_line()}. Process CPU seconds "
+    lines = [f"# Render cost of {SCENE}", "", f"Machine: {machine_line()}. Process CPU seconds "
              "(all threads; the machine is shared, so wall time is not the measure). "
              f"`.venv/bin/python -m benchmarks.render_cost{' --quick' if args.quick else ''}`: {frames} frames per run, "
              f"benchmark {time.time() - t_all:.0f} s wall. Resolutions scale the objective's focal length, "

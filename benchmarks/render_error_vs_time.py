@@ -1,5 +1,5 @@
 """Render error against run time: time to 1 % and 3 % plate (ROI) error, naive baseline vs the
-new defaults, measured side by side in one run (issue 16).
+new defaults, measured side by side in one run.
 
 Configurations (each in its own process: a Mitsuba variant is process-wide state):
 

@@ -1,4 +1,4 @@
-"""Where a run's scene value goes (issue 30): stops, files, climbs back up, and the functions below
+"""Where a run's scene value goes: stops, files, climbs back up, and the functions below
 apps/ that receive the whole scene object, for this checkout and (``--before REV``) an older one,
 side by side in one run. Writes scene_flow.md into out/benchmarks/ (benchmarks/results/ with --results).
 
@@ -56,7 +56,7 @@ def trace(tree: Path) -> dict:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--before", help="an older commit to trace side by side (e.g. b481423, before issue 30)")
+    ap.add_argument("--before", help="an older commit to trace side by side")
     add_results_flag(ap)
     args = ap.parse_args()
     dest = output_folder(args.results)
@@ -80,7 +80,7 @@ def main() -> None:
     table = markdown_table(["checkout", "run", "stops", "files", "climbs back up", "functions below apps/ given "
                             "the SceneSpec", "which"], rows)
     text = (f"# Where the scene value goes\n\n{machine_line()}\n\n{table}\n\nStops: distinct poevp_optics "
-            "functions given the scene or a part resolved from it (SceneSpec; since issue 30 also ResolvedScene, "
+            "functions given the scene or a part resolved from it (SceneSpec, ResolvedScene, "
             "RenderScene, CameraParams, LoopParams), first-visit order. Climbs: a stop in a package that may "
             "import the previous stop's. Runs: tests/scene_flow.py RUNS.\n")
     print(text)

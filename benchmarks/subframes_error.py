@@ -2,7 +2,7 @@
 
 The encoded pixel of a mirror at level v is int m_v(t) L(t) dt over the exposure. Three rules:
 
-* before (issue 13): K samples at the midpoints of K equal sub-intervals, each weighted by the
+* midpoint: K samples at the midpoints of K equal sub-intervals, each weighted by the
   exact on-time of the level in its sub-interval: first order in 1/K when a level's few short
   bit-planes sit off a sub-interval's centre.
 * uniform: K nodes including the exposure's ends, each weighted by the exact integral of m_v
@@ -243,7 +243,7 @@ def main(argv=None):
     dest = output_folder(ap.parse_args(argv).results)
     header_k = [f"{k - 1} int." for k in KS]
     rows_a = part_a()
-    text = (f"# Encoded temporal error vs K, per mask level, before and after (issue 13)\n\n"
+    text = (f"# Encoded temporal error vs K, per mask level: midpoint samples and trapezoid nodes\n\n"
             f"Machine: {machine_line()}. Columns: number of intervals (before: K - 1 sub-intervals with "
             f"midpoint samples; uniform: K nodes; uniform + PWM: the same K nodes plus the DMD's "
             f"switching times). Slope of log error vs log intervals, from 8 intervals on.\n\n"

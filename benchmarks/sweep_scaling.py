@@ -5,7 +5,7 @@ points cost without any sweep machinery), then `sweep` with 1 worker x 2 threads
 user gets with --workers 1), 1 worker x 1 thread, and 2 workers x 1 thread (the default on 2
 cores). Speed-up = 1-worker wall time / 2-worker wall time; per-point overhead = (sweep wall
 - bare wall) / points, both at 2 cores in use. The first point of each worker process pays the
-imports and Mitsuba's JIT; that is part of the overhead. Target (issue 6): >= 1.7x on 2 cores.
+imports and Mitsuba's JIT; that is part of the overhead. Target: >= 1.7x on 2 cores.
 
     .venv/bin/python -m benchmarks.sweep_scaling [--results]
 """
