@@ -19,8 +19,8 @@ changes how it runs:
 * `<!-- docs-test: run-with: ARGS -->`: ARGS appended to each `poevp` / `.venv/bin/python` command
   of the block (for `make TARGET`: to the commands of its recipe, `make -n`): a quick but real run.
 * `<!-- docs-test: skip: REASON -->`: not run; each command is still checked to exist (`poevp SUB
-  --help`, `.venv/bin/python -m MODULE --help`, `make -n TARGET`, the executable on PATH), and the
-  test is skipped with REASON.
+  --help`, `.venv/bin/python -m MODULE --help`, a script's file, `make -n TARGET`, the executable on
+  PATH), and the test is skipped with REASON.
 * `<!-- docs-test: edit: PATH -->` before a TOML snippet: the step "put this into PATH" (each of
   its tables replaces the file's table of the same name, or is added).
 
@@ -277,8 +277,12 @@ def check_exists(run: PageRun, block: Block, cmd: str) -> None:
     if word == "<venv>":
         prog = next(w for w in words if w.startswith(".venv/bin/"))
         rest = words[words.index(prog) + 1:]
-        target = f"{prog} -m {rest[1]}" if rest[:1] == ["-m"] else prog
-        run.run(block, f"{target} --help")
+        if rest[:1] == ["-m"]:
+            run.run(block, f"{prog} -m {rest[1]} --help")
+        elif rest and not rest[0].startswith("-"):      # a script: it exists (its --help might run it)
+            assert (run.repo / rest[0]).is_file(), f"{block.id}: `{cmd}`: no script {rest[0]}"
+        else:
+            run.run(block, f"{prog} --help")
         return
     if word == "dask":
         run.run(block, f"dask {words[1]} --help")
