@@ -528,7 +528,8 @@ class Renderer:
         fy = (dr.gather(mi.Float, mi.Float(py), idx) + pos.y) / hh
         ray, ray_w = self.sensor.sample_ray(mi.Float(self.sensor.shutter_open()), mi.Float(0.5),
                                             mi.Point2f(fx, fy), mi.Point2f(0.5, 0.5))
-        L, _, _ = self.mi_scene.integrator().sample(self.mi_scene, sampler, ray, None, True)
+        # the camera's medium (fog around it: sources/weather.py), as Mitsuba's own render passes it
+        L, _, _ = self.mi_scene.integrator().sample(self.mi_scene, sampler, ray, self.sensor.get_medium(), True)
         val = np.array(ray_w * L, dtype=np.float64)
         val = val.reshape(-1, lanes).mean(axis=0) if val.size != lanes else val.ravel()
         out = val.reshape(h * w, n).mean(axis=1).reshape(h, w)

@@ -47,7 +47,9 @@ facing out, 5 mm deep in 10 mm pockets: `area` emitters). The body is the side p
 across the width (the greenhouse and roof inset 12 cm per side at 1.83 m, in proportion to the
 width) with wheel arches, lamp pockets and the plate recess cut out (manifold3d
 booleans: every solid part is closed and watertight). The plate itself is a Mitsuba `rectangle`
-placed by `$vehicle_<id>_plate_matrix` (texture row 0 at the top); `$vehicle_<id>_matrix` places
+placed by `$vehicle_<id>_plate_matrix` (a rotation: texture row 0 at the top, u running to the
+vehicle's left, so its bitmap takes `<transform name="to_uv"><scale x="-1"/><translate x="1"/></transform>`
+to read left to right from behind); `$vehicle_<id>_matrix` places
 the meshes and `$vehicle_<id>_headlamp_{left,right}_matrix` the headlamps' `photometric`
 emitters (local +z along the vehicle's +z, +y up).
 
@@ -420,7 +422,10 @@ def xml_params(ident: str, spec: VehicleSpec) -> dict[str, str]:
     out[f"{pre}_matrix"] = _matrix(world)
     w, h = PLATE_FORMATS[spec.plate_format]
     plate = np.eye(4)
-    plate[:3, :3] = np.diag([-w / 2, -h / 2, -1.0])      # rotate 180 deg about y (face -z), flip rows
+    # a proper rotation (180 deg about x: facing -z, texture rows from the top) scaled to the plate:
+    # a mirroring matrix would flip the geometric normal against the shading one, and media (fog)
+    # take the side from the geometric normal; the XML mirrors u instead (`to_uv`, module docstring)
+    plate[:3, :3] = np.diag([w / 2, -h / 2, -1.0])
     plate[:3, 3] = plate_centre_m(s)
     out[f"{pre}_plate_matrix"] = _matrix(world @ plate)
     for side, c in headlamp_centres_m(s).items():

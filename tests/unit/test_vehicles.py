@@ -67,6 +67,7 @@ def test_plate_recess_frame_and_plate_have_the_format_size(fmt):
     corners = (m @ np.array([[-1, -1, 0, 1], [1, -1, 0, 1], [1, 1, 0, 1]]).T).T[:, :3]
     assert np.linalg.norm(corners[1] - corners[0]) == pytest.approx(pw, abs=1e-7)
     assert np.linalg.norm(corners[2] - corners[1]) == pytest.approx(ph, abs=1e-7)
+    assert np.linalg.det(m[:3, :3]) > 0        # a rotation: geometric and shading normals agree (media)
     normal = m[:3, :3] @ np.array([0.0, 0.0, 1.0])
     np.testing.assert_allclose(normal / np.linalg.norm(normal), [0, 0, -1], atol=1e-9)
     assert corners[:, 2] == pytest.approx(DEPTH - 0.002)        # 2 mm proud of the recess floor
