@@ -13,26 +13,100 @@ box) behind levels 6-255.
 affine map, per axis, that took its bounding box from the previous frame to this one
 (x' = a x + b: the growth a and shift b of a box under constant velocity in position and
 size; a is limited to [1/2, 2]), and resamples its demand into that box. A region of this frame
-is matched to the previous region it overlaps most; one without overlap (new, or moved more than
-its own size) is not moved. The box-extrapolation of tracked regions is the constant-velocity
+is matched to a previous region only when the match is mutual and their areas are alike
+(`match_regions`, with no shift: the previous region it overlaps most, which no other region of
+this frame overlaps better); one without such a match (new, split off, or moved more than its own
+size) is not moved. The box-extrapolation of tracked regions is the constant-velocity
 model of a Kalman box tracker's prediction step (SORT: Bewley et al., ICIP 2016, box centre and
 scale with constant velocity), here without the filter: the last two frames set the motion.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 #: Largest growth (and shrink, its inverse) of a region's box per frame that is extrapolated.
 MAX_GROWTH = 2.0
+#: Largest ratio of two regions' areas (px) that may be one region in consecutive frames: a
+#: light growing 25 % a frame in size grows 1.56x in area; two lights merging double it.
+MAX_AREA_RATIO = 2.0
+#: Claims on one previous region whose overlaps (IoU) lie this close are a tie, settled by the
+#: smaller shift (a light appearing beside a standing one is new: the standing one keeps its match).
+IOU_TIE = 0.1
 
 
-def _components(bright: np.ndarray):
+def components(bright: np.ndarray):
     """(labels, stats) of the 8-connected regions of `bright`; stats rows: x, y, w, h, area."""
     import cv2
 
     _, labels, stats, _ = cv2.connectedComponentsWithStats(bright.astype(np.uint8), connectivity=8)
     return labels, stats
+
+
+@dataclass(frozen=True)
+class RegionMatch:
+    """A region of the later frame (its label) and the region of the earlier frame it is the
+    same light as (`prev_label`, 0 = none: a new region), with the measured shift (px, from the
+    earlier frame to the later) and its correlation response (1 where no correlation is made)."""
+
+    label: int
+    prev_label: int
+    shift: tuple[float, float]
+    response: float
+
+
+def _touches_edge(stat, shape) -> bool:
+    x, y, w, h = (int(v) for v in stat[:4])
+    return x == 0 or y == 0 or x + w >= shape[1] or y + h >= shape[0]
+
+
+def match_regions(prev_labels: np.ndarray, prev_stats: np.ndarray, labels: np.ndarray, stats: np.ndarray,
+                  shifts: dict[int, tuple[float, float, float]], min_response: float = 0.0) -> dict[int, RegionMatch]:
+    """Mutual matching of the later frame's regions (`labels`, `stats` from `components`)
+    with the earlier frame's. shifts: {label: (dx, dy, response)} of every later region to be
+    matched (px, the earlier frame's region maps onto the later one by +shift).
+
+    Each later region, moved back by its shift, claims the earlier region it overlaps most (IoU
+    of the moved-back region with it). An earlier region claimed more than once keeps the claim
+    of the highest IoU, ties (within `IOU_TIE`) going to the smaller shift. A claim stands when
+    it won, its response is at least `min_response`, and the two areas differ by at most
+    `MAX_AREA_RATIO` (not checked for a region cut by the frame's edge: its visible area changes
+    as it enters or leaves). Every other region is new (prev_label 0)."""
+    h, w = labels.shape
+    claims: dict[int, list[tuple[float, float, int]]] = {}
+    best: dict[int, tuple[int, float]] = {}
+    for k, (dx, dy, resp) in shifts.items():
+        x, y, bw, bh, area = (int(v) for v in stats[k])
+        region = (labels[y:y + bh, x:x + bw] == k).astype(np.uint8)
+        ox, oy = x - int(round(dx)), y - int(round(dy))
+        # the region moved back, clipped to the frame
+        y0, x0, y1, x1 = max(oy, 0), max(ox, 0), min(oy + bh, h), min(ox + bw, w)
+        if resp < min_response or y1 <= y0 or x1 <= x0:
+            continue
+        moved = region[y0 - oy:y1 - oy, x0 - ox:x1 - ox].astype(bool)
+        under = prev_labels[y0:y1, x0:x1][moved]
+        ids, counts = np.unique(under[under > 0], return_counts=True)
+        if ids.size == 0:
+            continue
+        iou = counts / (area + prev_stats[ids, 4] - counts)
+        j = int(ids[np.argmax(iou)])
+        best[k] = (j, float(iou.max()))
+        claims.setdefault(j, []).append((float(iou.max()), float(np.hypot(dx, dy)), k))
+    out = {}
+    for k, (dx, dy, resp) in shifts.items():
+        prev = 0
+        if k in best:
+            j, _ = best[k]
+            top = max(c[0] for c in claims[j])
+            winner = min((c for c in claims[j] if c[0] >= top - IOU_TIE), key=lambda c: (c[1], -c[0]))[2]
+            a, b = float(stats[k, 4]), float(prev_stats[j, 4])
+            alike = max(a, b) <= MAX_AREA_RATIO * min(a, b)
+            if winner == k and (alike or _touches_edge(stats[k], (h, w)) or _touches_edge(prev_stats[j], (h, w))):
+                prev = j
+        out[k] = RegionMatch(k, prev, (float(dx), float(dy)), float(resp))
+    return out
 
 
 def _axis_map(p0: float, pn: float, c0: float, cn: float) -> tuple[float, float]:
@@ -48,16 +122,15 @@ def extrapolate(prev: np.ndarray, cur: np.ndarray, level: float) -> np.ndarray:
     import cv2
 
     out = np.zeros(cur.shape, np.float32)
-    lp, sp = _components(np.asarray(prev) >= level)
-    lc, sc = _components(np.asarray(cur) >= level)
+    lp, sp = components(np.asarray(prev) >= level)
+    lc, sc = components(np.asarray(cur) >= level)
     h, w = cur.shape
+    matches = match_regions(lp, sp, lc, sc, {k: (0.0, 0.0, 1.0) for k in range(1, len(sc))})
     for k in range(1, len(sc)):
         region = lc == k
-        ids, counts = np.unique(lp[region], return_counts=True)
-        counts, ids = counts[ids > 0], ids[ids > 0]
-        if ids.size == 0:
+        if not matches[k].prev_label:
             continue
-        px, py, pw, ph = sp[ids[np.argmax(counts)], :4].astype(np.float64)
+        px, py, pw, ph = sp[matches[k].prev_label, :4].astype(np.float64)
         cx, cy, cw, ch = sc[k, :4].astype(np.float64)
         ax, bx = _axis_map(px, pw, cx, cw)
         ay, by = _axis_map(py, ph, cy, ch)

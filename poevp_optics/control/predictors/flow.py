@@ -15,7 +15,10 @@ Two things DIS cannot see (issue 20, benchmarks/results/predictor_alignment.md):
   `phaseCorrelate`, no taper: outlines on the frame's edge are dropped, since they do not move
   with a region the frame cuts, so the maps are zero at the window's edge), searched over a window
   of the region's box grown by `SEARCH_PX` + the region's own size (a shift up to half the window
-  is found, whatever the speed); that translation replaces DIS's flow inside the region.
+  is found, whatever the speed); that translation replaces DIS's flow inside the region when
+  the region and the frame t-1 region it lands on are each other's match and alike in area
+  (region_motion.py `match_regions`); a region with no such match is new (a light switched on,
+  or appearing beside another) and is predicted where it is.
 - **Values above 255** (the `demodulated` loop mode's unclipped estimates). DIS takes 8-bit
   frames: both frames are mapped by one log curve, 255 ln(1 + x) / ln(1 + max), when either
   exceeds 255 (radiance ratios become differences: a plate 200x over its surround keeps its
@@ -91,23 +94,35 @@ def region_shift(prev_outline: np.ndarray, cur_sat: np.ndarray, box, margin_px: 
     return float(dx), float(dy), float(resp)
 
 
-def region_translations(prev_sat: np.ndarray, cur_sat: np.ndarray, flow: np.ndarray) -> list[tuple]:
-    """Overwrite `flow` (H, W, 2; x, y) inside each saturated region of frame t with the region's
-    translation from frame t-1 (module docstring); returns [(box, dx, dy, response)]."""
+def region_matches(prev_sat: np.ndarray, cur_sat: np.ndarray):
+    """(labels, stats, matches) of frame t's saturated regions: each region of at least
+    `MIN_REGION_PX` with its translation from frame t-1 (`region_shift`) and its match there
+    (region_motion.py `match_regions`: mutual, areas alike, response >= `MIN_RESPONSE`; a
+    region without one is new). labels, stats: cv2.connectedComponentsWithStats of `cur_sat`."""
+    from poevp_optics.control.region_motion import components, match_regions
+
     n, labels, stats, _ = cv2.connectedComponentsWithStats(cur_sat.astype(np.uint8), connectivity=8)
-    out = []
+    prev_labels, prev_stats = components(prev_sat)
     prev_outline = outline(prev_sat)              # one map for every region of frame t
+    shifts = {}
     for k in range(1, n):
         x, y, bw, bh, area = (int(v) for v in stats[k])
-        if area < MIN_REGION_PX:
-            continue
-        box = (y, x, y + bh, x + bw)
+        if area >= MIN_REGION_PX:
+            shifts[k] = region_shift(prev_outline, labels == k, (y, x, y + bh, x + bw), SEARCH_PX + max(bw, bh))
+    return labels, stats, match_regions(prev_labels, prev_stats, labels, stats, shifts, MIN_RESPONSE)
+
+
+def region_translations(prev_sat: np.ndarray, cur_sat: np.ndarray, flow: np.ndarray) -> list[tuple]:
+    """Overwrite `flow` (H, W, 2; x, y) inside each saturated region of frame t with the region's
+    translation from frame t-1 (module docstring), or with zero where the region has no match
+    in frame t-1 (new: predicted where it is); returns [(box, dx, dy, response, matched)]."""
+    labels, stats, matches = region_matches(prev_sat, cur_sat)
+    out = []
+    for k, m in matches.items():
+        x, y, bw, bh, _ = (int(v) for v in stats[k])
         inside = labels == k
-        dx, dy, resp = region_shift(prev_outline, inside, box, SEARCH_PX + max(bw, bh))
-        out.append((box, dx, dy, resp))
-        if resp >= MIN_RESPONSE:
-            flow[inside, 0] = dx
-            flow[inside, 1] = dy
+        flow[inside] = m.shift if m.prev_label else (0.0, 0.0)
+        out.append(((y, x, y + bh, x + bw), *m.shift, m.response, bool(m.prev_label)))
     return out
 
 

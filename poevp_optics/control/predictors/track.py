@@ -12,9 +12,12 @@ Per frame t (history oldest first, up to four frames):
 1. **Measure.** Each connected region of frame t at or above `SATURATED` (the mask laws' clip
    marker) of at least `MIN_REGION_PX` pixels is followed back through the history: its
    translation from frame t-1 is the phase-correlation peak of the saturated outlines (flow.py
-   `region_shift`: Kuglin & Hines 1975), its footprint in frame t-1 is frame t-1's saturated map
-   near the region shifted back, and so on: displacements d_t, d_{t-1}, d_{t-2} (px, x and y),
-   each with its correlation response (weak responses end the chain).
+   `region_shift`: Kuglin & Hines 1975), and it is the same light as the frame t-1 region it
+   lands on only when that match is mutual and the areas are alike (region_motion.py
+   `match_regions`); that region is followed on to frame t-2 the same way, and so on:
+   displacements d_t, d_{t-1}, d_{t-2} (px, x and y), each with its correlation response. A
+   weak response or a lost match ends the chain; a region with no match at all is new and is
+   predicted where it is.
 2. **Extrapolate.** The next displacement is a combination of the measured ones,
    d_{t+1} = c_0 d_t + c_1 d_{t-1} + c_2 d_{t-2}: `track` uses the closed forms below; `track_net`
    takes the coefficients from a small trained network (track_net.py) fed only with quantities
@@ -48,8 +51,8 @@ import cv2
 import numpy as np
 
 from poevp_optics.control.predictors.base import Predictor
-from poevp_optics.control.predictors.flow import (MIN_REGION_PX, MIN_RESPONSE, SATURATED, SEARCH_PX,
-                                                  forward_splat, log_8bit, outline, region_shift)
+from poevp_optics.control.predictors.flow import MIN_REGION_PX, SATURATED, forward_splat, log_8bit, region_matches
+from poevp_optics.control.region_motion import components
 
 #: Longest chain of displacements followed back (four frames of history: the loop keeps four).
 MAX_CHAIN = 3
@@ -69,45 +72,30 @@ class RegionTrack:
     responses: tuple[float, ...]
 
 
-def _shifted(mask: np.ndarray, dx: float, dy: float) -> np.ndarray:
-    """`mask` (bool) translated by (dx, dy) px, rounded to whole pixels, zero-filled."""
-    h, w = mask.shape
-    m = np.float32([[1, 0, round(dx)], [0, 1, round(dy)]])
-    return cv2.warpAffine(mask.astype(np.uint8), m, (w, h), flags=cv2.INTER_NEAREST, borderValue=0) > 0
-
-
 def region_tracks(history: list[np.ndarray], max_chain: int = MAX_CHAIN) -> tuple[list[RegionTrack], np.ndarray]:
     """(tracks, labels): every saturated region of the last frame with its displacement chain
     (module docstring, step 1), and the last frame's region labels (0 = none)."""
     sats = [np.asarray(f) >= SATURATED for f in history]
-    outlines = [outline(s) for s in sats[:-1]]
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(sats[-1].astype(np.uint8), connectivity=8)
+    # pairs[j]: frame t-j's regions, each with its shift from frame t-j-1 and its match there
+    pairs = [region_matches(sats[-2 - j], sats[-1 - j]) for j in range(min(max_chain, len(history) - 1))]
+    if pairs:
+        labels, stats, _ = pairs[0]
+    else:
+        labels, stats = components(sats[-1])
     tracks = []
-    grow = np.ones((5, 5), np.uint8)
-    for k in range(1, n):
+    for k in range(1, len(stats)):
         x, y, bw, bh, area = (int(v) for v in stats[k])
         if area < MIN_REGION_PX:
             continue
-        region = labels == k
-        box = (y, x, y + bh, x + bw)
-        disp, resp = [], []
-        cur, cur_box = region, box
-        for j in range(min(max_chain, len(history) - 1)):
-            prev_outline = outlines[-1 - j]
-            margin = SEARCH_PX + max(cur_box[2] - cur_box[0], cur_box[3] - cur_box[1])
-            dx, dy, r = region_shift(prev_outline, cur, cur_box, margin)
-            if r < MIN_RESPONSE:
-                break
-            disp.append((dx, dy))
-            resp.append(r)
-            # the region's footprint one frame back: that frame's saturated pixels near it
-            back = cv2.dilate(_shifted(cur, -dx, -dy).astype(np.uint8), grow) > 0
-            cur = back & sats[-2 - j]
-            if cur.sum() < MIN_REGION_PX:
-                break
-            ys, xs = np.nonzero(cur)
-            cur_box = (int(ys.min()), int(xs.min()), int(ys.max()) + 1, int(xs.max()) + 1)
-        tracks.append(RegionTrack(k, box, area, tuple(disp), tuple(resp)))
+        disp, resp, label = [], [], k
+        for _, _, matches in pairs:
+            m = matches.get(label)
+            if m is None or not m.prev_label:
+                break                                    # new in this frame, or too small to follow
+            disp.append(m.shift)
+            resp.append(m.response)
+            label = m.prev_label
+        tracks.append(RegionTrack(k, (y, x, y + bh, x + bw), area, tuple(disp), tuple(resp)))
     return tracks, labels
 
 
@@ -149,7 +137,7 @@ class RegionTracker(Predictor):
         tracks, labels = region_tracks(frames)
         for tr, d in zip(tracks, self.next_displacement(tracks)):
             if not tr.displacements:
-                continue                               # no match back: DIS's flow moves it
+                d = (0.0, 0.0)                         # new (no match back): predicted where it is
             y0, x0, y1, x1 = tr.box
             inside = labels[y0:y1, x0:x1] == tr.label
             flow[y0:y1, x0:x1, 0][inside] = d[0]
