@@ -1,4 +1,11 @@
-"""Prediction quality: PSNR, MS-SSIM (Wang, Simoncelli & Bovik 2003) and highlight IoU."""
+"""Prediction quality: PSNR, MS-SSIM (Wang, Simoncelli & Bovik 2003), and what the mask needs:
+the IoU of the saturated regions and the fraction of truly saturated pixels a prediction leaves
+undimmed; `tail` summarises per-frame scores with their p90 and worst frame beside the median.
+
+A frame whose truth holds no saturated pixel has nothing to dim: its saturated-region scores are
+NaN and `tail` leaves it out (counted). A prediction that loses the highlight (no saturated pixel
+where the truth has some) scores IoU 0 and undimmed fraction 1: a miss, never a skipped frame.
+"""
 
 from __future__ import annotations
 
@@ -48,8 +55,50 @@ def ms_ssim(pred: np.ndarray, truth: np.ndarray, peak: float = 255.0) -> float:
     return float(torch.stack(vals).prod())
 
 
-def highlight_iou(pred: np.ndarray, truth: np.ndarray, level: float = 250.0) -> float:
-    """IoU of the saturated (>= level) regions; 1 when neither has any."""
+#: 8-bit value from which a pixel counts as saturated: the mask laws' clip marker (masks.py,
+#: control/predictors/flow.py SATURATED).
+SATURATED_8BIT = 254.5
+
+
+def saturated_iou(pred: np.ndarray, truth: np.ndarray, level: float = SATURATED_8BIT) -> float:
+    """IoU of the saturated (>= level) regions of a prediction and the truth: the pixels the
+    mask law dims against those it must dim. NaN when the truth has none (nothing to score);
+    0 when the prediction has none (a miss)."""
     a, b = np.asarray(pred) >= level, np.asarray(truth) >= level
-    union = np.logical_or(a, b).sum()
-    return float(np.logical_and(a, b).sum() / union) if union else 1.0
+    n_true = int(b.sum())
+    if n_true == 0:
+        return float("nan")
+    return float(np.logical_and(a, b).sum() / np.logical_or(a, b).sum())
+
+
+def undimmed_fraction(pred: np.ndarray, truth: np.ndarray, level: float = SATURATED_8BIT) -> float:
+    """Fraction of the truly saturated pixels (truth >= level) the prediction leaves undimmed
+    (prediction < level there: the law leaves those mirrors white and they clip). NaN when the
+    truth has none; 1 for a prediction that loses the highlight."""
+    b = np.asarray(truth) >= level
+    n_true = int(b.sum())
+    if n_true == 0:
+        return float("nan")
+    return float(np.logical_and(b, np.asarray(pred) < level).sum() / n_true)
+
+
+def highlight_iou(pred: np.ndarray, truth: np.ndarray, level: float = 250.0) -> float:
+    """`saturated_iou` at `level` (250: the DMVFN training's validation): NaN when the truth has
+    no highlight, 0 when the prediction lost it."""
+    return saturated_iou(pred, truth, level)
+
+
+def tail(values, higher_is_better: bool) -> dict:
+    """Summary of per-frame scores: n scored, `left_out` (NaN: frames with no true highlight),
+    mean, median, p90 (the score 90 % of the frames reach or beat: the 10th percentile of a
+    higher-is-better score, the 90th of an error) and the worst frame. An infinite error (a
+    miss) counts as the worst; with nothing scored every statistic is NaN."""
+    v = np.asarray(list(values), dtype=np.float64)
+    keep = v[~np.isnan(v)]
+    out = {"n": int(keep.size), "left_out": int(v.size - keep.size)}
+    if keep.size == 0:
+        return {**out, **dict.fromkeys(("mean", "median", "p90", "worst"), float("nan"))}
+    q = 10.0 if higher_is_better else 90.0
+    return {**out, "mean": float(np.mean(keep)), "median": float(np.median(keep)),
+            "p90": float(np.percentile(keep, q, method="inverted_cdf")),
+            "worst": float(keep.min() if higher_is_better else keep.max())}

@@ -13,7 +13,8 @@ from poevp_optics.control.predictors import make_predictor
 from poevp_optics.control.predictors.dmvfn import (FULL, LITE, DMVFN, WeightsError, count_parameters,
                                         load_weights, save_weights)
 from poevp_optics.control.predictors.flow import FlowExtrapolation, forward_splat
-from poevp_optics.analysis.prediction_metrics import highlight_iou, ms_ssim, psnr
+from poevp_optics.analysis.prediction_metrics import (highlight_iou, ms_ssim, psnr, saturated_iou, tail,
+                                                     undimmed_fraction)
 from tests.conftest import SCENES
 
 
@@ -83,6 +84,30 @@ def test_prediction_metrics():
     a = np.random.default_rng(1).uniform(0, 255, (64, 64))
     assert psnr(a, a) == float("inf") and ms_ssim(a, a) == pytest.approx(1.0)
     assert ms_ssim(a, a + 20) < 1.0 and psnr(a, a + 5) == pytest.approx(20 * np.log10(255 / 5))
+
+
+def test_saturated_region_scores_count_misses_and_leave_out_empty_truths():
+    """Closed forms on 10x10 clipped squares: shifted by 5 px the IoU is 50 / 150 and half the
+    true square is left undimmed; a prediction that lost the highlight is a miss (IoU 0,
+    undimmed 1); a truth with no highlight is not scored (NaN), never a free 1.0."""
+    def sq(x0):
+        img = np.full((32, 48), 30.0, np.float32)
+        if x0 is not None:
+            img[10:20, x0:x0 + 10] = 255.0
+        return img
+    assert saturated_iou(sq(10), sq(15)) == pytest.approx(1 / 3)
+    assert undimmed_fraction(sq(10), sq(15)) == pytest.approx(0.5)
+    assert saturated_iou(sq(None), sq(15)) == 0.0 and undimmed_fraction(sq(None), sq(15)) == 1.0
+    assert np.isnan(saturated_iou(sq(10), sq(None))) and np.isnan(undimmed_fraction(sq(10), sq(None)))
+    assert np.isnan(highlight_iou(sq(None), sq(None)))
+    # tail: NaN frames left out and counted; p90 the 10th percentile of a score, the 90th of an
+    # error (a real frame's value); an infinite error (a miss) is the worst
+    iou = tail([1.0, float("nan"), 0.9, 0.8, 0.7, 0.6, 0.5, 0.4, 0.3, 0.2, 0.1, 0.0], higher_is_better=True)
+    assert (iou["n"], iou["left_out"], iou["worst"]) == (11, 1, 0.0)
+    assert iou["median"] == pytest.approx(0.5) and iou["mean"] == pytest.approx(0.5) and iou["p90"] == pytest.approx(0.1)
+    err = tail([1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 9.0, float("inf")], higher_is_better=False)
+    assert err["p90"] == 9.0 and err["worst"] == float("inf") and err["median"] == pytest.approx(5.5)
+    assert np.isnan(tail([float("nan")], True)["mean"]) and tail([float("nan")], True)["left_out"] == 1
 
 
 @pytest.mark.parametrize("mode", ["open", "raw", "demodulated"])
