@@ -3,14 +3,21 @@
 Loss: multi-scale L1 (full, 1/2, 1/4 resolution; the paper's L1 loss family, Hu et al. 2023),
 AdamW with a cosine learning-rate decay, batches of (x_{t-1}, x_t -> x_{t+1}) triplets. Training
 is time-boxed (`--minutes`) and resumable: a checkpoint (model + AdamW moments, safetensors) and
-its state JSON are written atomically every `--checkpoint-every` steps; re-running continues.
+its state JSON are written atomically every `--checkpoint-every` steps; re-running the same run
+continues it. The run's identity (`run_identity`: model and its config, learning rate, batch,
+seed, the data's SHA-256 and source) is stored in the checkpoint; a checkpoint of another run is
+not resumed: the run starts afresh with a one-line note (its checkpoint is then overwritten).
+The budget (--minutes, --max-steps) is not part of the identity: a run may be given more.
 Validation on held-out sequences (other seed: other texts, speeds and directions) gives PSNR,
-MS-SSIM and highlight IoU for the model and for `hold` and `flow`.
+MS-SSIM and highlight IoU (frames with no true highlight left out) for the model and for `hold`
+and `flow`.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
+import sys
 import time
 from dataclasses import asdict
 from pathlib import Path
@@ -26,7 +33,7 @@ from poevp_optics.apps.train.training_data import build_dataset
 from poevp_optics.control.predictors.dmvfn import FULL, LITE, DMVFN, DMVFNPredictor, count_macs, count_parameters, save_weights
 from poevp_optics.control.predictors.flow import FlowExtrapolation
 from poevp_optics.control.predictors.base import Hold
-from poevp_optics.analysis.prediction_metrics import highlight_iou, ms_ssim, psnr
+from poevp_optics.analysis.prediction_metrics import highlight_iou, ms_ssim, psnr, tail
 
 
 def multiscale_l1(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
@@ -50,6 +57,23 @@ def _batch(frames, idx, c):
     return prev, cur, nxt
 
 
+def frames_sha256(*arrays: np.ndarray) -> str:
+    """SHA-256 of frame arrays (shape, dtype and bytes of each, in order)."""
+    h = hashlib.sha256()
+    for a in arrays:
+        a = np.ascontiguousarray(a)
+        h.update(json.dumps([list(a.shape), str(a.dtype)]).encode())
+        h.update(a.tobytes())
+    return h.hexdigest()
+
+
+def run_identity(name: str, cfg, *, lr: float, batch: int, seed: int, data_sha256: str, source: str) -> dict:
+    """What makes two training runs the same run (module docstring): a checkpoint is resumed
+    only by a run with an equal identity."""
+    return {"name": name, "config": jsonable(asdict(cfg)), "lr": float(lr), "batch": int(batch), "seed": int(seed),
+            "data_sha256": data_sha256, "source": source}
+
+
 def _save_checkpoint(out: Path, model, opt, state: dict) -> None:
     from safetensors.torch import save_file
 
@@ -61,14 +85,39 @@ def _save_checkpoint(out: Path, model, opt, state: dict) -> None:
         if "step" in st:
             tensors[f"adam.{i}.step"] = torch.as_tensor(st["step"], dtype=torch.float32).reshape(1)
     with atomic_path(out / "checkpoint.safetensors") as tmp:
-        save_file(tensors, str(tmp))
+        save_file(tensors, str(tmp), metadata={"run": json.dumps(state.get("run"), sort_keys=True)})
     write_json(out / "checkpoint.json", state)
 
 
-def _load_checkpoint(out: Path, model, opt) -> dict | None:
+def _checkpoint_run(out: Path) -> dict | None:
+    """The run identity stored in out/checkpoint.safetensors' metadata (None: none stored)."""
+    from safetensors import safe_open
+
+    with safe_open(str(out / "checkpoint.safetensors"), framework="pt") as f:
+        return json.loads((f.metadata() or {}).get("run", "null"))
+
+
+def _load_checkpoint(out: Path, model, opt, run: dict, log=None) -> dict | None:
+    """The state of out/'s checkpoint, loaded into `model` and `opt`, when it is a checkpoint
+    of the run `run`; None (start afresh) when there is none, and also, after a one-line note,
+    when it is another run's or unreadable."""
+    from safetensors import SafetensorError
     from safetensors.torch import load_file
 
     if not (out / "checkpoint.safetensors").exists() or not (out / "checkpoint.json").exists():
+        return None
+    log = log or (lambda msg: print(msg, file=sys.stderr, flush=True))
+    try:
+        theirs = _checkpoint_run(out)
+        state = json.loads((out / "checkpoint.json").read_text())
+    except (SafetensorError, OSError, ValueError) as e:
+        log(f"poevp: {out / 'checkpoint.safetensors'}: unreadable checkpoint ({' '.join(str(e).split())[:120]}); "
+            "training starts afresh")
+        return None
+    if theirs != run or state.get("run") != run:
+        differs = sorted(k for k in run if not isinstance(theirs, dict) or theirs.get(k) != run[k])
+        log(f"poevp: {out / 'checkpoint.safetensors'} is another run's checkpoint (differs in "
+            f"{', '.join(differs) or 'its record'}); training starts afresh and replaces it")
         return None
     tensors = load_file(str(out / "checkpoint.safetensors"))
     model.load_state_dict({k[6:]: v for k, v in tensors.items() if k.startswith("model.")})
@@ -77,11 +126,12 @@ def _load_checkpoint(out: Path, model, opt) -> dict | None:
             opt.state[p] = {"exp_avg": tensors[f"adam.{i}.exp_avg"],
                             "exp_avg_sq": tensors[f"adam.{i}.exp_avg_sq"],
                             "step": tensors[f"adam.{i}.step"].reshape(())}
-    return json.loads((out / "checkpoint.json").read_text())
+    return state
 
 
 def evaluate(predict, frames: np.ndarray) -> dict:
-    """Mean PSNR, MS-SSIM and highlight IoU of `predict(history)` on every triplet."""
+    """Mean PSNR, MS-SSIM and highlight IoU of `predict(history)` on every triplet (the IoU over
+    the frames with a true highlight, their count `highlight_frames`)."""
     ps, ss, ious = [], [], []
     for i, t in triplets(frames):
         hist = [frames[i, t - 1].astype(np.float32), frames[i, t].astype(np.float32)]
@@ -90,8 +140,9 @@ def evaluate(predict, frames: np.ndarray) -> dict:
         ps.append(psnr(pred, truth))
         ss.append(ms_ssim(pred, truth))
         ious.append(highlight_iou(pred, truth))
+    iou = tail(ious, higher_is_better=True)
     return {"psnr_db": float(np.mean(ps)), "ms_ssim": float(np.mean(ss)),
-            "highlight_iou": float(np.mean(ious))}
+            "highlight_iou": iou["mean"], "highlight_frames": iou["n"]}
 
 
 def _optimizer_to(opt, device, keep=()) -> None:
@@ -112,10 +163,11 @@ def train(name: str = "dmvfn_lite", *, minutes: float = 10.0, sequences: int = 4
           val_sequences: int = 8, batch: int = 4, lr: float = 2e-3, seed: int = 0,
           out: Path = Path("out/train"), weights_out: Path | None = None, max_steps: int | None = None,
           checkpoint_every: int = 50, resolution=(368, 640), progress: bool = True,
-          frames_data: tuple | None = None, device: str = "auto", source: str | None = None) -> dict:
+          frames_data: tuple | None = None, device: str = "auto", source: str | None = None, log=None) -> dict:
     """Train and save weights; returns the training record (also written as JSON). frames_data:
     (train, val) uint8 (N, T, H, W) frames of `source` (apps/train/train_data.py) instead of the
-    procedural set; device: cpu, cuda or auto (cuda when torch.cuda.is_available())."""
+    procedural set; device: cpu, cuda or auto (cuda when torch.cuda.is_available()); log: where
+    the one-line note on a checkpoint of another run goes (default stderr)."""
     cfg = LITE if name == "dmvfn_lite" else FULL
     rng = np.random.default_rng(seed)
     routing_rng = torch.Generator().manual_seed(seed)
@@ -130,7 +182,9 @@ def train(name: str = "dmvfn_lite", *, minutes: float = 10.0, sequences: int = 4
         torch.manual_seed(seed)
         model = DMVFN(cfg)
     opt = torch.optim.AdamW(model.parameters(), lr=lr, weight_decay=1e-4)
-    state = _load_checkpoint(out, model, opt) or {"step": 0, "seconds": 0.0, "losses": []}
+    source = source or "scenes/highbeam_plate, procedurally varied (apps/train/training_data.py)"
+    run = run_identity(name, cfg, lr=lr, batch=batch, seed=seed, data_sha256=frames_sha256(data, val), source=source)
+    state = _load_checkpoint(out, model, opt, run, log) or {"step": 0, "seconds": 0.0, "losses": [], "run": run}
     model.to(device)
     _optimizer_to(opt, device, keep=("step",))
     idx = triplets(data)
@@ -176,7 +230,7 @@ def train(name: str = "dmvfn_lite", *, minutes: float = 10.0, sequences: int = 4
               "loss_last_50": float(np.mean(state["losses"][-50:])) if state["losses"] else None,
               "dataset": {"train_sequences": sequences, "val_sequences": val_sequences,
                           "frames": frames, "resolution": list(resolution), "seed": seed,
-                          "source": source or "scenes/highbeam_plate, procedurally varied (apps/train/training_data.py)"},
+                          "source": source, "sha256": run["data_sha256"]},
               "validation": validation, "torch_threads": torch.get_num_threads(), "device": str(device)}
     record = jsonable(record)
     if weights_out is not None:

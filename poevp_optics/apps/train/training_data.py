@@ -3,6 +3,10 @@ passed through the LDR camera (DMD white, IMX253 8-bit, noise on), cached as a s
 
 Varied per sequence (seeded): plate text, lateral and closing speed (direction), start distance
 and lateral offset, high-beam intensity, exposure time. Frames are at the predictor resolution.
+
+The cache is keyed on everything the frames depend on (`dataset_key`): the draw parameters, the
+SHA-256 of every file the scene reads (scene.toml, scene.xml, spectra, meshes, textures), the
+resolved camera, the generator's own version, the package's, Mitsuba's and DrJit's.
 """
 
 from __future__ import annotations
@@ -13,9 +17,12 @@ import string
 from pathlib import Path
 
 import numpy as np
-from poevp_optics.core.paths import SCENES_DIR
+from poevp_optics.core.paths import REPO_ROOT, SCENES_DIR
 
 SCENE = SCENES_DIR / "highbeam_plate"
+#: Version of what this module draws and renders per sequence (`sequence_overrides`,
+#: `render_ldr_sequence`): raised whenever either changes what a sequence holds.
+GENERATOR_VERSION = 2
 LETTERS = string.ascii_uppercase.replace("I", "").replace("O", "")
 
 
@@ -69,12 +76,46 @@ def cache_dir() -> Path:
     return runtime.cache_dir("predictor_data")
 
 
+def dataset_key(n_sequences: int, frames: int, seed: int, resolution=(368, 640)) -> tuple[str, dict]:
+    """(key, parts): the first 16 hex of the SHA-256 of everything a data set's frames depend
+    on, and those parts: draw parameters, the scene's files (name -> SHA-256, named relative to
+    the scene's folder or else the repository, so the key is the same on every clone), the
+    resolved camera, and the
+    generator, package, Mitsuba and DrJit versions."""
+    import drjit as dr
+    import mitsuba as mi
+
+    from poevp_optics import __version__
+    from poevp_optics.apps.sweep.bundle import scene_inputs, with_hashes
+    from poevp_optics.core.cache import json_digest
+    from poevp_optics.scene.load import load_scene
+
+    spec = load_scene(SCENE, cross_checks=False)
+    cam = spec.resolved.camera
+    camera = repr(cam).replace(repr(cam.base_dir), "<scene folder>")     # the same camera in any folder
+    files = {}
+    for r in with_hashes(scene_inputs(spec)):
+        src = Path(r.source).resolve()
+        for root in (Path(SCENE).resolve(), REPO_ROOT):
+            if src.is_relative_to(root):
+                files[src.relative_to(root).as_posix()] = r.sha256
+                break
+        else:
+            files[src.name] = r.sha256
+    parts = {"sequences": int(n_sequences), "frames": int(frames), "seed": int(seed),
+             "resolution": [int(v) for v in resolution], "scene": SCENE.name,
+             "scene_files_sha256": dict(sorted(files.items())), "camera": camera,
+             "generator": GENERATOR_VERSION, "poevp_optics": __version__, "mitsuba": mi.__version__,
+             "drjit": dr.__version__}
+    return json_digest(parts, algo="sha256", sort_keys=True), parts
+
+
 def build_dataset(n_sequences: int, frames: int, seed: int, resolution=(368, 640),
                   progress: bool = True) -> np.ndarray:
     """(N, T, H, W) uint8, cached by its parameters."""
     from tqdm import tqdm
 
-    from poevp_optics.core.cache import cached, json_digest
+    from poevp_optics.core.cache import cached
 
     def build():
         rng = np.random.default_rng(seed)
@@ -95,5 +136,6 @@ def build_dataset(n_sequences: int, frames: int, seed: int, resolution=(368, 640
         want = (n_sequences, frames, int(resolution[0]), int(resolution[1]))
         return None if arr.dtype == np.uint8 and arr.shape == want else f"frames {arr.dtype} {arr.shape}, not uint8 {want}"
 
-    path = cache_dir() / f"seq_{json_digest([n_sequences, frames, seed, list(resolution), 'v1'])}.npz"
+    key, _ = dataset_key(n_sequences, frames, seed, resolution)
+    path = cache_dir() / f"seq_{key}.npz"
     return cached(path, build, load=load, save=save, check=problem)
