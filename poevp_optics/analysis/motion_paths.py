@@ -11,19 +11,27 @@ theta the heading (deg, 0 = right, 90 = down: image axes):
 | curved       | arc of constant turn rate w (rad/frame): heading theta + w u, speed v      |
 | accelerating | (v u + a u^2 / 2) e(theta), a = +v / (frames - 1) (speed doubles)         |
 | braking      | (v u - a u^2 / 2) e(theta) until the stop, then held (a = v / (frames - 1))|
-| swerve       | v u e(theta) + A sin(2 pi u / P) n(theta), P = 16 frames, A = v P / (4 pi) |
-| lane_change  | v u e(theta) + L s(u) n(theta), s a smoothstep 6 frames wide, L = 2 v     |
-| reversal     | +v until the middle frame, then -v (over two frames)                       |
+| swerve       | v u e(theta) + A sin(2 pi u / P) n(theta), P = `period_frames`, A = v P / (4 pi) |
+| lane_change  | v u e(theta) + L s(u) n(theta), s a smoothstep `width_frames` wide centred at the event, L = `lane_per_v` v |
+| reversal     | speed +v, from the event on ramped linearly to -v over `ramp_frames`        |
+| stop         | speed v, ramped linearly to 0 over `ramp_frames` ending at the event, then standing |
+| go           | standing until the event, then ramped linearly to v over `ramp_frames`      |
+| standing     | no motion (a parked car's lamp, a street light)                            |
 
-e(theta) is the heading's unit vector, n(theta) its normal. The sequence: a textured car body
-(grey, 0.35 x the frame's width) carrying a white plate whose light is E times over saturation
+The event is at u = `event_frac` (frames - 1). e(theta) is the heading's unit vector, n(theta)
+its normal. Defaults (`PathSpec`): event at the middle frame, a 2-frame reversal ramp, a 6-frame
+lane change of 2 v, a 16-frame swerve; the training set (apps/train/train_track.py) draws each
+from `TRAINING_SHAPES`, and the held-out traffic benchmark (analysis/traffic_paths.py) uses
+another generator whose shapes lie outside these ranges.
+
+The sequence: a textured car body (grey, 0.35 x the frame's width) carrying a white plate whose light is E times over saturation
 in a Gaussian highlight (paper Eq. 3, H = O (E G + 1), G peak 1), on a textured road, each frame
 rendered by an exact sub-pixel translation of the HDR layer, clipped at 255 and rounded as an
 8-bit camera would (no noise unless `noise_dn` > 0).
 
-The swerve's period, 16 frames, is 0.53 s at 30 fps: a hard evasive swerve (a lane change and
-back takes 2-4 s on the road); its peak lateral speed is v / 2. The lane change moves one lane
-(2 v px) in 6 frames (0.2 s at 30 fps, again harder than the road's 1-3 s).
+The default swerve's period, 16 frames, is 0.53 s at 30 fps: a hard evasive swerve (a lane
+change and back takes 2-4 s on the road); its peak lateral speed is v / 2. The default lane
+change moves one lane (2 v px) in 6 frames (0.2 s at 30 fps, again harder than the road's 1-3 s).
 """
 
 from __future__ import annotations
@@ -32,25 +40,50 @@ from dataclasses import dataclass
 
 import numpy as np
 
-#: The swerve's period (frames): module docstring.
+#: The default swerve's period (frames): module docstring.
 SWERVE_PERIOD_FRAMES = 16.0
-KINDS = ("straight", "curved", "accelerating", "braking", "swerve", "lane_change", "reversal")
+KINDS = ("straight", "curved", "accelerating", "braking", "swerve", "lane_change", "reversal", "stop", "go",
+         "standing")
+#: Ranges the training set draws the shape parameters from (apps/train/train_track.py
+#: `random_path`): (low, high) per `PathSpec` field. The held-out traffic generator's shapes lie
+#: outside them (analysis/traffic_paths.py, tests/unit/test_traffic_paths.py).
+TRAINING_SHAPES = {"turn_rad": (0.04, 0.25), "event_frac": (0.3, 0.7), "reversal_ramp_frames": (2.5, 8.0),
+                   "stop_ramp_frames": (0.25, 6.0), "width_frames": (3.0, 10.0), "lane_per_v": (1.0, 3.0),
+                   "period_frames": (10.0, 24.0)}
 
 
 @dataclass(frozen=True)
 class PathSpec:
-    """One image-space path: kind, speed v (px/frame), heading (deg), frames, and the kind's
-    parameter (curved: turn rate, rad/frame; others ignore it)."""
+    """One image-space path: kind, speed v (px/frame), heading (deg), frames, and the kinds'
+    shape parameters (module docstring): turn rate (curved, rad/frame), the event's place as a
+    fraction of the path (reversal, stop, go, lane change), the ramp of a reversal, stop or go
+    (frames), a lane change's width (frames) and offset (x v), a swerve's period (frames)."""
 
     kind: str
     speed_px: float
     heading_deg: float = 0.0
     frames: int = 8
     turn_rad: float = 0.15
+    event_frac: float = 0.5
+    ramp_frames: float = 2.0
+    width_frames: float = 6.0
+    lane_per_v: float = 2.0
+    period_frames: float = SWERVE_PERIOD_FRAMES
 
     def __post_init__(self):
         if self.kind not in KINDS:
             raise ValueError(f"motion kind {self.kind!r}: choose one of {', '.join(KINDS)}")
+        if self.ramp_frames <= 0 or self.width_frames <= 0 or self.period_frames <= 0:
+            raise ValueError(f"{self}: ramp_frames, width_frames and period_frames must be > 0")
+
+
+def _integrated(u: np.ndarray, knots_u, knots_v, n: float) -> np.ndarray:
+    """Distance (px) travelled by time u with a speed piecewise linear through (knots_u,
+    knots_v) (px/frame, held beyond the ends), from u = 0: trapezoidal on a fine grid."""
+    fine = np.linspace(-1.0, n + 2.0, 4001)
+    vel = np.interp(fine, knots_u, knots_v)
+    pos = np.concatenate([[0.0], np.cumsum((vel[1:] + vel[:-1]) / 2 * np.diff(fine))])
+    return np.interp(u, fine, pos) - np.interp(0.0, fine, pos)
 
 
 def centres(path: PathSpec, u: np.ndarray) -> np.ndarray:
@@ -61,32 +94,35 @@ def centres(path: PathSpec, u: np.ndarray) -> np.ndarray:
     nrm = np.array([-np.sin(th), np.cos(th)])
     v, n = float(path.speed_px), max(path.frames - 1, 1)
     k = path.kind
+    ev, r = path.event_frac * n, path.ramp_frames
+    q = 0 * u
     if k == "straight":
-        s, q = v * u, 0 * u
+        s = v * u
     elif k == "curved":
         w = path.turn_rad if path.turn_rad != 0 else 1e-9
         s, q = v * np.sin(w * u) / w, v * (1 - np.cos(w * u)) / w
     elif k == "accelerating":
         a = v / n
-        s, q = v * u + a * u * u / 2, 0 * u
+        s = v * u + a * u * u / 2
     elif k == "braking":
         a = v / n
         um = np.minimum(u, v / a)
-        s, q = v * um - a * um * um / 2, 0 * u
+        s = v * um - a * um * um / 2
     elif k == "swerve":
-        period = SWERVE_PERIOD_FRAMES
+        period = path.period_frames
         amp = v * period / (2 * np.pi) / 2
         s, q = v * u, amp * np.sin(2 * np.pi * u / period)
     elif k == "lane_change":
-        mid, width = n / 2.0, 6.0
-        x = np.clip((u - mid) / width + 0.5, 0, 1)
-        s, q = v * u, 2 * v * (x * x * (3 - 2 * x))
-    else:                                              # reversal
-        mid = n / 2.0
-        fine = np.linspace(-1.0, n + 2.0, 4001)
-        vel = np.interp(fine, [mid, mid + 2.0], [v, -v])
-        pos = np.concatenate([[0.0], np.cumsum((vel[1:] + vel[:-1]) / 2 * np.diff(fine))])
-        s, q = np.interp(u, fine, pos) - np.interp(0.0, fine, pos), 0 * u
+        x = np.clip((u - ev) / path.width_frames + 0.5, 0, 1)
+        s, q = v * u, path.lane_per_v * v * (x * x * (3 - 2 * x))
+    elif k == "reversal":
+        s = _integrated(u, [ev, ev + r], [v, -v], n)
+    elif k == "stop":
+        s = _integrated(u, [ev - r, ev], [v, 0.0], n)
+    elif k == "go":
+        s = _integrated(u, [ev, ev + r], [0.0, v], n)
+    else:                                              # standing
+        s = 0 * u
     return s[:, None] * e[None] + q[:, None] * nrm[None]
 
 

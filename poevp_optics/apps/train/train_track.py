@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from poevp_optics.analysis.motion_paths import KINDS, PathSpec, render_sequence
+from poevp_optics.analysis.motion_paths import KINDS, TRAINING_SHAPES, PathSpec, render_sequence
 from poevp_optics.core.exceptions import UserError
 from poevp_optics.control.predictors.track import RegionTrack, closed_form_displacement, region_tracks
 from poevp_optics.control.predictors.track_net import (TrackNet, TrackNetConfig, chain_arrays,
@@ -51,14 +51,26 @@ SPLIT_SEEDS = {"train": 0, "val": 1_000_000, "test": 2_000_000}
 LETTERS = string.ascii_uppercase.replace("I", "").replace("O", "")
 
 
+def _log_uniform(rng: np.random.Generator, lo_hi: tuple[float, float]) -> float:
+    return float(np.exp(rng.uniform(np.log(lo_hi[0]), np.log(lo_hi[1]))))
+
+
 def random_path(rng: np.random.Generator, frames: int) -> tuple[PathSpec, dict]:
-    """A path of a random kind, speed, heading and turn; plus the sequence's other draws."""
+    """A path of a random kind, speed, heading and shape (each shape parameter drawn from
+    motion_paths.TRAINING_SHAPES); plus the sequence's other draws."""
     kind = KINDS[int(rng.integers(len(KINDS)))]
-    turn = float(rng.uniform(0.04, 0.25)) * (1 if rng.random() < 0.5 else -1)
-    path = PathSpec(kind, float(rng.uniform(4.0, 48.0)), float(rng.uniform(0.0, 360.0)), frames, turn)
+    turn = float(rng.uniform(*TRAINING_SHAPES["turn_rad"])) * (1 if rng.random() < 0.5 else -1)
+    speed, heading = float(rng.uniform(4.0, 48.0)), float(rng.uniform(0.0, 360.0))
+    shape = {"event_frac": float(rng.uniform(*TRAINING_SHAPES["event_frac"])),
+             "ramp_frames": _log_uniform(rng, TRAINING_SHAPES["reversal_ramp_frames" if kind == "reversal"
+                                                             else "stop_ramp_frames"]),
+             "width_frames": float(rng.uniform(*TRAINING_SHAPES["width_frames"])),
+             "lane_per_v": float(rng.uniform(*TRAINING_SHAPES["lane_per_v"])),
+             "period_frames": float(rng.uniform(*TRAINING_SHAPES["period_frames"]))}
+    path = PathSpec(kind, speed, heading, frames, turn, **shape)
     text = f"{''.join(rng.choice(list(LETTERS), 2))} {''.join(rng.choice(list(string.digits), 4))}"
     return path, {"text": text, "e_over": float(np.exp(rng.uniform(np.log(5.0), np.log(50.0)))),
-                  "noise_dn": float(rng.uniform(0.0, 2.0))}
+                  "noise_dn": float(rng.uniform(0.0, 2.0)), **shape}
 
 
 def _match(tracks: list[RegionTrack], labels: np.ndarray, centre: np.ndarray) -> RegionTrack | None:
