@@ -433,6 +433,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     _add_sweep_parser(sub)
 
+    from poevp_optics.apps.search.search_cli import add_search_parser
+
+    add_search_parser(sub, _add_run_options, _overrides)
+
     add_evaluate_parser(sub, _add_job_options)
 
     add_train_parsers(sub)

@@ -42,7 +42,7 @@ from poevp_optics.core.exceptions import UserError
 
 #: Written into every output folder: which kind of poevp run made it.
 MARKER = ".poevp-output.json"
-OUTPUT_KINDS = ("render", "chart", "compare", "evaluate", "sweep", "train_sequence")
+OUTPUT_KINDS = ("render", "chart", "compare", "evaluate", "sweep", "search", "train_sequence")
 
 
 def _tmp_path(path: Path) -> Path:

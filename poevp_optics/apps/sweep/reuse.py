@@ -76,16 +76,23 @@ class RenderReuse:
 
     def __init__(self, out: Path, groups: dict[str, str], shared: bool, log=print):
         self.store = Path(out) / "renders"
-        self.groups, self.shared, self.log = groups, shared, log
+        self.shared, self.log = shared, log
         clean_stale(self.store)
+        self.groups: dict[str, str] = {}
         self.stored: dict[str, list[str]] = {}            # group -> keys of its stored renders
-        for g in set(groups.values()):
-            for folder in sorted(self.store.glob(f"{g}-g*")) if self.store.is_dir() else ():
-                if verify(folder)[0] is not None:
-                    self.stored.setdefault(g, []).append(folder.name)
         self.waiting: dict[str, list] = {}                # group -> tasks held back
         self.leaders: dict[str, str] = {}                 # leader's folder -> group
         self._scattered: dict[str, object] = {}           # key -> Dask future of its bytes
+        self.add_groups(groups)
+
+    def add_groups(self, groups: dict[str, str]) -> None:
+        """More points' render groups ({point folder: group}; a search adds each batch's), with
+        the complete renders already stored for their groups."""
+        for g in set(groups.values()) - set(self.groups.values()):
+            for folder in sorted(self.store.glob(f"{g}-g*")) if self.store.is_dir() else ():
+                if verify(folder)[0] is not None:
+                    self.stored.setdefault(g, []).append(folder.name)
+        self.groups.update(groups)
 
     def group_of(self, task) -> str:
         return self.groups.get(str(task[3]), "")
@@ -179,3 +186,19 @@ def reuse_columns(reuse: RenderReuse | None, res: dict) -> dict:
     info = res.get("render") or {}
     return {"render_key": info.get("key") or "", "render_reused": bool(info.get("reused")),
             "render_by": info.get("rendered_by") or ""}
+
+
+def columns_from_report(folder: Path, report: dict) -> dict:
+    """The render columns of a point rebuilt from its report (`--rebuild`): the key its report
+    names, and who rendered it from the stored render's manifest in the sweep's renders/
+    (`folder` is the point's folder, points/<name>); {} for a report without a render key."""
+    import json
+
+    key = (report.get("render_reuse") or {}).get("key")
+    if not key:
+        return {}
+    try:
+        by = json.loads((folder.parent.parent / "renders" / key / "manifest.json").read_text()).get("rendered_by") or ""
+    except (OSError, ValueError):
+        by = ""
+    return {"render_key": key, "render_reused": bool(by) and by != folder.name, "render_by": by}

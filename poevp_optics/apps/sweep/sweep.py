@@ -46,20 +46,16 @@ import itertools
 import json
 import math
 import os
-import time
-import uuid
-from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
-from poevp_optics.apps.sweep.bundle import (InputMismatch, InputPlan, InputRef, check_same_inputs, make_bundle,
-                                     make_plan, map_paths, materialize, pack_folder, point_workdir,
-                                     scene_inputs, unpack_archive, with_hashes)
-from poevp_optics.apps.sweep.cluster import (ClusterError, check_local_flags, check_workers, connect, dashboard_link,
-                                      software_versions, version_mismatch)
-from poevp_optics.apps.run.runner import JOBS, sweep_jobs
-from poevp_optics.apps.sweep.reuse import point_render_cache, render_result, reuse_columns
+from poevp_optics.apps.sweep.bundle import InputPlan, make_plan, scene_inputs, with_hashes
+from poevp_optics.apps.sweep.cluster import ClusterError, check_local_flags
+from poevp_optics.apps.sweep.execute import ClusterSettings, DaskSession, execute_points
+from poevp_optics.apps.sweep.point import PointTask, flatten_report, run_point  # noqa: F401
+from poevp_optics.apps.run.runner import sweep_jobs
+from poevp_optics.apps.sweep.reuse import columns_from_report, reuse_columns
 from poevp_optics.apps.sweep.sweep_grid import (GRID_HELP, SEED_KEYS, canonical, parse_grid, point_key,  # noqa: F401
                                          point_overrides, toml_literal)
 from poevp_optics.apps.sweep.sweep_state import (RECORD_KEYS, TABLE_COLUMNS, SweepStateError,  # noqa: F401
@@ -67,118 +63,11 @@ from poevp_optics.apps.sweep.sweep_state import (RECORD_KEYS, TABLE_COLUMNS, Swe
                                           record_differences, sweep_record, write_table)
 from poevp_optics.apps.run.run_size import MAX_SEEDS, MAX_SWEEP_RUNS, RunTooLarge
 from poevp_optics.core.exceptions import SceneError
-from poevp_optics.core.io import MARKER, atomic_path, locked_dir, staged_dir, write_json
+from poevp_optics.core.io import atomic_path, locked_dir, write_json
 from poevp_optics.core.runtime import Terminated, sigterm_raises
 from poevp_optics.scene.load import apply_overrides, load_scene, resolve_scene_path
 
 # ---------------------------------------------------------------------------- one point
-def flatten_report(report: dict) -> dict:
-    """Scalar metrics of a run's report as dotted columns (metrics, stages, DR, limits)."""
-    out = {}
-
-    def walk(prefix, obj):
-        if isinstance(obj, dict):
-            for k, v in obj.items():
-                if not str(k).startswith("_"):
-                    walk(f"{prefix}.{k}", v)
-        elif isinstance(obj, (int, float)) and not isinstance(obj, bool):
-            out[prefix] = float(obj)
-
-    for sec in ("metrics", "stages", "dynamic_range_db", "limits", "render"):
-        if sec in report:
-            walk(sec, report[sec])
-    if "settle" in report:
-        out["settle.frames"] = float(report["settle"]["frames"])
-    out["total_seconds"] = float(report.get("total_seconds", math.nan))
-    return out
-
-
-@dataclass(frozen=True)
-class PointTask:
-    """What a worker needs for one point (pickled with the task; small).
-
-    overrides: the point's `KEY=VALUE` overrides (base, grid values, seeds). job: a sweepable
-    job of apps/run/runner.py's JOBS. threads: DrJit/torch/OpenCV threads. plan, refs: where its inputs are and their
-    hashes (bundle.py). versions: the client's software (cluster.PACKAGES); empty on a
-    LocalCluster, whose workers run this interpreter's. render_group: the point's render group
-    (reuse.py; "" renders without storing), render_read: folders of stored renders this worker
-    reads itself, label: the point's folder name (who rendered a stored render)."""
-
-    overrides: tuple[str, ...]
-    job: str
-    threads: int
-    plan: InputPlan
-    refs: tuple[InputRef, ...]
-    versions: dict = field(default_factory=dict)
-    render_group: str = ""
-    render_read: tuple[str, ...] = ()
-    label: str = ""
-
-
-def _worker_name() -> str:
-    try:
-        from distributed import get_worker
-
-        return f"worker {get_worker().address}"
-    except (ImportError, ValueError):
-        return "this process"
-
-
-def _one_line(e: BaseException) -> str:
-    msg = str(e).strip().splitlines()[0] if str(e).strip() else ""
-    return f"{type(e).__name__}: {msg}"
-
-
-def run_point(task: PointTask, bundle: bytes | None = None, renders: list = ()) -> dict:
-    """Run one point in this (worker) process, inside a temporary folder removed afterwards;
-    never raises. Returns {"row": columns, "archive": zip of the point's folder} (no archive
-    when the point failed) with, for a point of a render group, "render" (the render it used)
-    and "render_archive" (the zip of a render it made), or {"refused": one line} when this
-    worker cannot run the sweep (other software, other files): the client then stops the sweep.
-    renders: [(key, zip bytes)] of stored renders sent to a worker that cannot read them."""
-    from poevp_optics.core import runtime
-
-    from poevp_optics.apps.run.preflight import check_run
-
-    t0 = time.perf_counter()
-    path_map = ()
-    try:
-        problem = version_mismatch(task.versions, software_versions()) if task.versions else None
-        if problem:
-            return {"refused": f"{_worker_name()}: {problem}; install the same software on every worker"}
-        runtime.set_threads(task.threads)
-        with point_workdir() as work:
-            try:
-                inputs = materialize(task.plan, list(task.refs), bundle, work)
-                path_map = inputs.path_map
-                spec = load_scene(inputs.scene, [*task.overrides, *inputs.overrides])
-                check_same_inputs(list(task.refs), spec, path_map)
-            except InputMismatch as e:
-                return {"refused": f"{_worker_name()}: {map_paths(str(e), path_map)}"}
-            check_run(spec, task.job, memory=False)
-            folder = work / "out"
-            folder.mkdir()
-            cache = point_render_cache(task, renders, work)
-            report = JOBS[task.job].run(spec, folder, False, **({"render_cache": cache} if cache else {}))
-            _report_paths_to_client(folder / "report.json", path_map)
-            return {"row": {"status": "ok", "error": "", **flatten_report(report),
-                            "point_seconds": time.perf_counter() - t0},
-                    "archive": pack_folder(folder), **render_result(cache)}
-    except Exception as e:  # noqa: BLE001 - a failed point is data, not a crash
-        return {"row": {"status": "failed", "error": map_paths(_one_line(e), path_map),
-                        "point_seconds": time.perf_counter() - t0}}
-
-
-def _report_paths_to_client(path: Path, path_map) -> None:
-    """Name the client's files in report.json, not the worker's temporary copies."""
-    if not path_map or not path.is_file():
-        return
-    report = json.loads(path.read_text())
-    mapped = map_paths(report, path_map)
-    if mapped != report:
-        write_json(path, mapped)
-
-
 # ---------------------------------------------------------------------------- table + plots
 def plot_metric(df, keys: list[str], metric: str, path: Path) -> Path | None:
     """Line plot (one key) or heat maps (two keys; one panel per value of any further keys)."""
@@ -226,34 +115,6 @@ def plot_metric(df, keys: list[str], metric: str, path: Path) -> Path | None:
 
 
 # ---------------------------------------------------------------------------- driver
-@dataclass(frozen=True)
-class ClusterSettings:
-    """Where a sweep runs (cluster.py): an embedded LocalCluster of `workers` processes, or the
-    scheduler at `scheduler` (tcp://HOST:PORT) or named by `scheduler_file`.
-
-    shared_fs: the workers read the client's paths (verified) instead of a scene bundle; a
-    LocalCluster always does. retries: how often a point whose worker died runs again
-    elsewhere before it is a failed row. threads: DrJit/torch/OpenCV threads per point
-    (default: cores // workers on a LocalCluster, 1 on a cluster). tls_ca_file, tls_cert,
-    tls_key: PEM file paths for a tls:// scheduler (None: Dask's configuration); require_tls:
-    refuse a plaintext scheduler (cluster.py `connect`)."""
-
-    workers: int | None = None
-    scheduler: str | None = None
-    scheduler_file: str | None = None
-    shared_fs: bool = False
-    retries: int = 2
-    threads: int | None = None
-    tls_ca_file: str | None = None
-    tls_cert: str | None = None
-    tls_key: str | None = None
-    require_tls: bool = False
-
-    @property
-    def local(self) -> bool:
-        return not (self.scheduler or self.scheduler_file)
-
-
 def _check_flags(job: str, seeds: int, retries: int) -> None:
     """One line naming the flag for a job, seed count or retry count out of range."""
     if job not in sweep_jobs():
@@ -280,8 +141,6 @@ def sweep(scene: str, grid_args: list[str], *, out: Path, seeds: int = 1, worker
     run-size limits (apps/run/run_size.py). rebuild: a results table or sweep.json that does not
     read is rebuilt from the points' own report.json files instead of refused. reuse_render:
     points with the same render inputs share one render (reuse.py; False renders every point)."""
-    from tqdm import tqdm
-
     _check_flags(job, seeds, retries)
     cl = ClusterSettings(workers, scheduler, str(scheduler_file) if scheduler_file else None, shared_fs,
                          retries, threads, tls_ca_file, tls_cert, tls_key, require_tls)
@@ -316,7 +175,7 @@ def sweep(scene: str, grid_args: list[str], *, out: Path, seeds: int = 1, worker
     plan = make_plan("shared" if cl.local or shared_fs else "bundle", resolve_scene_path(scene),
                      [r for refs in point_refs for r in refs])
     out = Path(os.path.abspath(out))
-    dask = _Dask(cl, len(combos) * seeds, log)
+    dask = DaskSession(cl, len(combos) * seeds, log)
     try:
         if not cl.local:
             dask.open()                    # other software on the workers: refused before writing
@@ -332,7 +191,7 @@ def sweep(scene: str, grid_args: list[str], *, out: Path, seeds: int = 1, worker
             write_json(mpath, record)
             with sigterm_raises():
                 return _run_sweep(scene, out, keys, combos, point_refs, plan, seeds, base, job, dask, metric,
-                                  progress, retry_failed, log, tqdm, rebuild, sizes, reuse_render)
+                                  progress, retry_failed, log, rebuild, sizes, reuse_render)
     finally:
         dask.close()
 
@@ -360,50 +219,8 @@ def _check_sizes(specs, job: str, seeds: int, toml: Path, yes: bool, out, cl: Cl
     return sizes
 
 
-class _Dask:
-    """The sweep's Dask client, connected on first use (cluster.py): an external scheduler
-    before anything is written, a LocalCluster only when points remain to run. Holds the
-    client's software versions and the threads per point."""
-
-    def __init__(self, cl: ClusterSettings, n_points: int, log):
-        self.cl, self.n_points, self.log = cl, n_points, log
-        self.client = self.cluster = None
-        self.versions: dict[str, str] = {}
-        self.threads = 1
-        self.workers_now = 0
-
-    def open(self):
-        if self.client is not None:
-            return self.client
-        cl = self.cl
-        self.client, self.cluster = connect(scheduler=cl.scheduler, scheduler_file=cl.scheduler_file,
-                                            workers=cl.workers, n_points=self.n_points,
-                                            tls_ca_file=cl.tls_ca_file, tls_cert=cl.tls_cert,
-                                            tls_key=cl.tls_key, require_tls=cl.require_tls)
-        link = dashboard_link(self.client)
-        if link:
-            self.log(f"poevp sweep: Dask dashboard {link}")
-        # only an external cluster's: a LocalCluster's workers are spawned from this interpreter
-        # and its sys.path, the same software by construction (importing torch to say so: 2 s)
-        if self.cluster is None:
-            self.versions = software_versions()
-            self.workers_now = check_workers(self.client, self.versions)
-        if self.cluster is not None:
-            self.threads = cl.threads or max(1, (os.cpu_count() or 1) // max(1, len(self.cluster.workers)))
-        else:
-            self.threads = cl.threads or 1
-        return self.client
-
-    def close(self) -> None:
-        if self.client is not None:
-            self.client.close()
-        if self.cluster is not None:
-            self.cluster.close()
-        self.client = self.cluster = None
-
-
 def _run_sweep(scene, out, keys, combos, point_refs, plan, seeds, base, job, dask, metric, progress,
-               retry_failed, log, tqdm, rebuild=False, sizes=None, reuse_render=False):
+               retry_failed, log, rebuild=False, sizes=None, reuse_render=False):
     import shutil
     import tomllib
 
@@ -450,7 +267,7 @@ def _run_sweep(scene, out, keys, combos, point_refs, plan, seeds, base, job, das
             from poevp_optics.apps.sweep.reuse import RenderReuse, point_render_groups
 
             reuse = RenderReuse(out, point_render_groups(scene, todo, job, log), plan.mode == "shared", log)
-        df = _execute(todo, rows, out, job, plan, dask, progress, log, tqdm, reuse)
+        df = _execute(todo, rows, out, job, plan, dask, progress, log, reuse)
     if df is not None and metric:
         path = plot_metric(df, keys, metric, out / f"plot_{metric.replace('.', '_')}.png")
         if path:
@@ -462,7 +279,8 @@ def _run_sweep(scene, out, keys, combos, point_refs, plan, seeds, base, job, das
 
 def _rows_from_reports(tasks) -> dict:
     """Rows of the points whose folder holds a report.json that reads (`--rebuild`); their
-    `point_seconds` is not recorded there (NaN). Points without one run again."""
+    `point_seconds` is not recorded there (NaN), their render columns come from the stored
+    render the report names (reuse.py). Points without one run again."""
     out = {}
     for row, _ov, _refs, folder in tasks:
         try:
@@ -471,7 +289,7 @@ def _rows_from_reports(tasks) -> dict:
             continue
         if isinstance(report, dict):
             out[row["point_key"]] = {**row, "status": "ok", "error": "", **flatten_report(report),
-                                     "point_seconds": math.nan}
+                                     "point_seconds": math.nan, **columns_from_report(folder, report)}
     return out
 
 
@@ -480,99 +298,25 @@ def run_points(todo, out: Path, job: str, plan: InputPlan, cl: ClusterSettings, 
     """Run points that are not a grid (e.g. apps/train/train_data.py's sequences) on Dask as a sweep
     runs its own: `todo` holds (row with point, seed and point_key; overrides; input refs;
     point folder); returns the table (also written to `out`)."""
-    from tqdm import tqdm
-
-    dask = _Dask(cl, len(todo), log)
+    dask = DaskSession(cl, len(todo), log)
     try:
-        return _execute(todo, [], Path(out), job, plan, dask, progress, log, tqdm)
+        return _execute(todo, [], Path(out), job, plan, dask, progress, log)
     finally:
         dask.close()
 
 
-def _write_point(folder: Path, archive: bytes, job: str) -> None:
-    """A point's outputs, as its worker zipped them, into `folder`: staged, swapped in whole."""
-    with staged_dir(folder, kind=job) as stage:
-        unpack_archive(archive, stage, skip=(MARKER,))
+def _execute(todo, rows, out, job, plan: InputPlan, dask: DaskSession, progress, log, reuse=None):
+    """execute_points with the sweep's table rewritten after every point; returns the table."""
+    table = [None]
 
+    def on_result(task, res):
+        rows.append({**task[0], **res["row"], **reuse_columns(reuse, res)})
+        table[0] = write_table(rows, out)
 
-def _lost_worker_errors() -> tuple[type, ...]:
-    """What a future raises when the worker running it died or dropped off."""
-    from distributed import KilledWorker
-    from distributed.comm.core import CommClosedError
-
-    return KilledWorker, CommClosedError
-
-
-def _execute(todo, rows, out, job, plan: InputPlan, dask: _Dask, progress, log, tqdm, reuse=None):
-    from distributed import as_completed
-    from distributed.client import CancelledError
-
-    lost = _lost_worker_errors()
-    cl = dask.cl
-    df = None
     try:
-        client = dask.open()
-        bundle = None
-        if not cl.local and dask.workers_now == 0:
-            log("poevp sweep: no worker has joined the scheduler yet; waiting for one")
-            client.wait_for_workers(1)
-        if plan.mode == "bundle":
-            b = make_bundle(plan, [r for t in todo for r in t[2]])
-            plan = replace(plan, bundle_sha256=b.sha256)
-            log(f"poevp sweep: {dask.workers_now} workers now; scene bundle of {b.files} files, "
-                f"{len(b.data) / 1e6:.2f} MB (sha256 {b.sha256[:12]}), sent to the workers once")
-            bundle = client.scatter(b.data, broadcast=True, hash=True)
-        elif not cl.local:
-            log(f"poevp sweep: {dask.workers_now} workers now; they read this machine's paths "
-                "(--shared-fs), verified on each worker")
-        run_id = uuid.uuid4().hex[:8]
-
-        def submit(row, ov, refs, attempt, folder):
-            group = reuse.group_of((row, ov, refs, folder)) if reuse else ""
-            task = PointTask(ov, job, dask.threads, plan, refs, dask.versions, group,
-                             reuse.read_dirs() if group else (), folder.name)
-            renders = reuse.payload(client, (row, ov, refs, folder)) if group else []
-            return client.submit(run_point, task, bundle, renders, pure=False,
-                                 key=f"poevp-point-{row['point_key']}-s{row['seed']}-{run_id}-a{attempt}")
-
-        first = reuse.initial(todo) if reuse else todo
-        futs = {submit(row, ov, refs, 0, folder): (row, ov, refs, folder, 0) for row, ov, refs, folder in first}
-        bar = tqdm(total=len(todo), desc="sweep", unit="point", disable=not progress or None)
-        pending = as_completed(list(futs))
-        for f in pending:
-            row, ov, refs, folder, attempt = futs.pop(f)
-            try:
-                res = f.result()
-            except lost as e:
-                if attempt < cl.retries:
-                    log(f"poevp sweep: point {row['point']} seed {row['seed']}: its worker was lost "
-                        f"({type(e).__name__}); running it again (retry {attempt + 1} of {cl.retries})")
-                    nf = submit(row, ov, refs, attempt + 1, folder)
-                    futs[nf] = (row, ov, refs, folder, attempt + 1)
-                    pending.add(nf)
-                    continue
-                res = {"row": {"status": "failed",
-                               "error": f"worker lost {attempt + 1} times ({_one_line(e)})"}}
-            except CancelledError:
-                raise ClusterError("the Dask scheduler cancelled the sweep's tasks (it closed, restarted or "
-                                   f"lost this client); the finished points are in {out}/results.parquet: "
-                                   "run the same command again to resume") from None
-            except Exception as e:  # noqa: BLE001 - the task could not run at all
-                res = {"row": {"status": "failed", "error": _one_line(e)}}
-            if res.get("refused"):
-                client.cancel(list(futs))
-                raise ClusterError(res["refused"])
-            if res.get("archive") is not None:
-                _write_point(folder, res["archive"], job)
-            for t in reuse.finished((row, ov, refs, folder), res) if reuse else ():
-                nf = submit(*t[:3], 0, t[3])
-                futs[nf] = (*t, 0)
-                pending.add(nf)
-            rows.append({**row, **res["row"], **reuse_columns(reuse, res)})
-            df = write_table(rows, out)
-            bar.update(1)
-        bar.close()
+        execute_points(todo, job, plan, dask, on_result=on_result, reuse=reuse, progress=progress, log=log,
+                       resume_hint=f"the finished points are in {out}/results.parquet: ")
     except (Terminated, KeyboardInterrupt):
         log(f"poevp sweep: interrupted; {len(rows)} finished points are in {out}/results.parquet")
         raise
-    return df
+    return table[0]

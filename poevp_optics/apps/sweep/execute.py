@@ -1,0 +1,207 @@
+"""Points on Dask (apps/sweep/sweep.py's docstring): where they run (`ClusterSettings`), the
+client session (`DaskSession`), and `execute_points`, which submits points, runs a point again
+whose worker died, holds back the points that wait for a shared render (reuse.py), writes each
+point's folder as it comes back and hands its result to the caller (the sweep's table, the
+search's trials)."""
+
+from __future__ import annotations
+
+import os
+import uuid
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Callable
+
+from poevp_optics.apps.sweep.bundle import InputPlan, InputRef, make_bundle, unpack_archive
+from poevp_optics.apps.sweep.cluster import ClusterError, check_workers, connect, dashboard_link, software_versions
+from poevp_optics.apps.sweep.point import PointTask, one_line, run_point
+from poevp_optics.core.io import MARKER, staged_dir
+
+
+@dataclass(frozen=True)
+class ClusterSettings:
+    """Where a sweep runs (cluster.py): an embedded LocalCluster of `workers` processes, or the
+    scheduler at `scheduler` (tcp://HOST:PORT) or named by `scheduler_file`.
+
+    shared_fs: the workers read the client's paths (verified) instead of a scene bundle; a
+    LocalCluster always does. retries: how often a point whose worker died runs again
+    elsewhere before it is a failed row. threads: DrJit/torch/OpenCV threads per point
+    (default: cores // workers on a LocalCluster, 1 on a cluster). tls_ca_file, tls_cert,
+    tls_key: PEM file paths for a tls:// scheduler (None: Dask's configuration); require_tls:
+    refuse a plaintext scheduler (cluster.py `connect`)."""
+
+    workers: int | None = None
+    scheduler: str | None = None
+    scheduler_file: str | None = None
+    shared_fs: bool = False
+    retries: int = 2
+    threads: int | None = None
+    tls_ca_file: str | None = None
+    tls_cert: str | None = None
+    tls_key: str | None = None
+    require_tls: bool = False
+
+    @property
+    def local(self) -> bool:
+        return not (self.scheduler or self.scheduler_file)
+
+
+class DaskSession:
+    """A sweep's (or search's) Dask client, connected on first use (cluster.py): an external
+    scheduler before anything is written, a LocalCluster only when points remain to run. Holds
+    the client's software versions, the threads per point and the scene bundle sent to the
+    workers (`bundle_for`)."""
+
+    def __init__(self, cl: ClusterSettings, n_points: int, log):
+        self.cl, self.n_points, self.log = cl, n_points, log
+        self.client = self.cluster = None
+        self.versions: dict[str, str] = {}
+        self.threads = 1
+        self.workers_now = 0
+        self._bundles: dict = {}           # scene -> (bundled files, plan, Dask future of the bytes, refs)
+        self.told_shared = False
+
+    def open(self):
+        if self.client is not None:
+            return self.client
+        cl = self.cl
+        self.client, self.cluster = connect(scheduler=cl.scheduler, scheduler_file=cl.scheduler_file,
+                                            workers=cl.workers, n_points=self.n_points,
+                                            tls_ca_file=cl.tls_ca_file, tls_cert=cl.tls_cert,
+                                            tls_key=cl.tls_key, require_tls=cl.require_tls)
+        link = dashboard_link(self.client)
+        if link:
+            self.log(f"poevp sweep: Dask dashboard {link}")
+        # only an external cluster's: a LocalCluster's workers are spawned from this interpreter
+        # and its sys.path, the same software by construction (importing torch to say so: 2 s)
+        if self.cluster is None:
+            self.versions = software_versions()
+            self.workers_now = check_workers(self.client, self.versions)
+        if self.cluster is not None:
+            self.threads = cl.threads or max(1, (os.cpu_count() or 1) // max(1, len(self.cluster.workers)))
+        else:
+            self.threads = cl.threads or 1
+        return self.client
+
+    def bundle_for(self, plan: InputPlan, refs: list[InputRef], log) -> tuple[InputPlan, object]:
+        """(the plan with its bundle's hash, the Dask future of the bundle's bytes), or (plan,
+        None) for a plan that reads the client's paths: one bundle per scene for every point so
+        far, made again (and sent again) only when a point reads a file it lacks."""
+        if plan.mode != "bundle":
+            return plan, None
+        names = {(r.source, r.sha256) for r in refs if r.kind in ("scene", "assets")}
+        have = self._bundles.get(plan.scene)
+        if have is not None and names <= have[0]:
+            return have[1], have[2]
+        every = [*(have[3] if have else []), *refs]
+        b = make_bundle(plan, every)
+        plan = replace(plan, bundle_sha256=b.sha256)
+        log(f"poevp sweep: {self.workers_now} workers now; scene bundle of {b.files} files, "
+            f"{len(b.data) / 1e6:.2f} MB (sha256 {b.sha256[:12]}), sent to the workers once")
+        fut = self.client.scatter(b.data, broadcast=True, hash=True)
+        self._bundles[plan.scene] = ({(r.source, r.sha256) for r in every if r.kind in ("scene", "assets")},
+                                     plan, fut, every)
+        return plan, fut
+
+    def close(self) -> None:
+        if self.client is not None:
+            self.client.close()
+        if self.cluster is not None:
+            self.cluster.close()
+        self.client = self.cluster = None
+
+
+def write_point(folder: Path, archive: bytes, job: str) -> None:
+    """A point's outputs, as its worker zipped them, into `folder`: staged, swapped in whole."""
+    with staged_dir(folder, kind=job) as stage:
+        unpack_archive(archive, stage, skip=(MARKER,))
+
+
+def lost_worker_errors() -> tuple[type, ...]:
+    """What a future raises when the worker running it died or dropped off."""
+    from distributed import KilledWorker
+    from distributed.comm.core import CommClosedError
+
+    return KilledWorker, CommClosedError
+
+
+def _name(row: dict, folder: Path) -> str:
+    return f"point {row['point']} seed {row['seed']}" if "point" in row and "seed" in row else f"point {folder.name}"
+
+
+def execute_points(todo: list, job: str, plan: InputPlan | Callable, dask: DaskSession, *, on_result: Callable,
+                   reuse=None, progress: bool = True, log=print, resume_hint: str = "") -> None:
+    """Run `todo` [(row, overrides, input refs, point folder)] on Dask with the scene's input plan
+    (`plan`, or `plan(task)` for points of several scenes): each point's folder is
+    written as it comes back (ok points), then `on_result(task, result)` is called with
+    run_point's result ({"row": ..., ...}; a point whose worker died `retries` times, or whose
+    task could not run, is a failed row). reuse: the RenderReuse (reuse.py) that holds points
+    back until their render is stored, or None. A worker that refuses (other software or
+    files) stops everything with ClusterError; so does a scheduler that cancels the tasks
+    (`resume_hint` says where the finished points are)."""
+    from distributed import as_completed
+    from distributed.client import CancelledError
+    from tqdm import tqdm
+
+    lost = lost_worker_errors()
+    cl = dask.cl
+    client = dask.open()
+    if not cl.local and dask.workers_now == 0:
+        log("poevp sweep: no worker has joined the scheduler yet; waiting for one")
+        client.wait_for_workers(1)
+    plan_of = plan if callable(plan) else (lambda task: plan)
+    plans: dict[str, tuple] = {}                    # scene -> (plan with its bundle, bundle future)
+    for t in todo:
+        pl = plan_of(t)
+        if pl.scene not in plans:
+            refs = [r for u in todo if plan_of(u).scene == pl.scene for r in u[2]]
+            plans[pl.scene] = dask.bundle_for(pl, refs, log)
+    if any(pl.mode != "bundle" for pl, _ in plans.values()) and not cl.local and not dask.told_shared:
+        log(f"poevp sweep: {dask.workers_now} workers now; they read this machine's paths "
+            "(--shared-fs), verified on each worker")
+        dask.told_shared = True
+    run_id = uuid.uuid4().hex[:8]
+
+    def submit(row, ov, refs, attempt, folder):
+        group = reuse.group_of((row, ov, refs, folder)) if reuse else ""
+        pl, bundle = plans[plan_of((row, ov, refs, folder)).scene]
+        task = PointTask(ov, job, dask.threads, pl, refs, dask.versions, group,
+                         reuse.read_dirs() if group else (), folder.name)
+        renders = reuse.payload(client, (row, ov, refs, folder)) if group else []
+        return client.submit(run_point, task, bundle, renders, pure=False,
+                             key=f"poevp-point-{folder.name}-{run_id}-a{attempt}")
+
+    first = reuse.initial(todo) if reuse else todo
+    futs = {submit(row, ov, refs, 0, folder): (row, ov, refs, folder, 0) for row, ov, refs, folder in first}
+    bar = tqdm(total=len(todo), desc="sweep", unit="point", disable=not progress or None)
+    pending = as_completed(list(futs))
+    for f in pending:
+        row, ov, refs, folder, attempt = futs.pop(f)
+        try:
+            res = f.result()
+        except lost as e:
+            if attempt < cl.retries:
+                log(f"poevp sweep: {_name(row, folder)}: its worker was lost "
+                    f"({type(e).__name__}); running it again (retry {attempt + 1} of {cl.retries})")
+                nf = submit(row, ov, refs, attempt + 1, folder)
+                futs[nf] = (row, ov, refs, folder, attempt + 1)
+                pending.add(nf)
+                continue
+            res = {"row": {"status": "failed", "error": f"worker lost {attempt + 1} times ({one_line(e)})"}}
+        except CancelledError:
+            raise ClusterError("the Dask scheduler cancelled the sweep's tasks (it closed, restarted or "
+                               f"lost this client); {resume_hint}run the same command again to resume") from None
+        except Exception as e:  # noqa: BLE001 - the task could not run at all
+            res = {"row": {"status": "failed", "error": one_line(e)}}
+        if res.get("refused"):
+            client.cancel(list(futs))
+            raise ClusterError(res["refused"])
+        if res.get("archive") is not None:
+            write_point(folder, res["archive"], job)
+        for t in reuse.finished((row, ov, refs, folder), res) if reuse else ():
+            nf = submit(*t[:3], 0, t[3])
+            futs[nf] = (*t, 0)
+            pending.add(nf)
+        on_result((row, ov, refs, folder), res)
+        bar.update(1)
+    bar.close()
