@@ -69,11 +69,15 @@ import numpy as np
 
 from poevp_optics.core.params import param
 from poevp_optics.core.registry import Registry
+from poevp_optics.sources.plates import PLATE_FORMATS as _PLATES
 
-#: Plate formats: (width, height) in m. EU: EN/DIN 74069 one-line plate; US: 12 x 6 in (AAMVA).
+#: Plate formats: (width, height) in m, the sizes of sources/plates.py's formats (whose textures
+#: the plates carry). EU: EN/DIN 74069 one-line plate; US: 12 x 6 in (AAMVA).
 PLATE_FORMATS = Registry("plate format")
-PLATE_FORMATS.register("eu", (0.520, 0.110), source="DIN 74069 / EU one-line plate, 520 x 110 mm")
-PLATE_FORMATS.register("us", (0.3048, 0.1524), source="AAMVA / US plate, 12 x 6 in (305 x 152 mm)")
+PLATE_FORMATS.register("eu", (_PLATES["eu"].width_mm / 1e3, _PLATES["eu"].height_mm / 1e3),
+                       source="DIN 74069 / EU one-line plate, 520 x 110 mm")
+PLATE_FORMATS.register("us", (_PLATES["us"].width_mm / 1e3, _PLATES["us"].height_mm / 1e3),
+                       source="AAMVA / US plate, 12 x 6 in (305 x 152 mm)")
 #: Recess margin around the plate (per side), recess depth, frame ring width and depth (m).
 RECESS_MARGIN_M, RECESS_DEPTH_M = 0.020, 0.030
 FRAME_WIDTH_M, FRAME_DEPTH_M = 0.012, 0.006
@@ -435,6 +439,5 @@ def xml_params(ident: str, spec: VehicleSpec) -> dict[str, str]:
     if spec.plate_text:
         from poevp_optics.sources.plates import cached_plate_path
 
-        width_px = 1040
-        out[f"{pre}_plate_texture"] = str(cached_plate_path(spec.plate_text, width_px, round(width_px * h / w)))
+        out[f"{pre}_plate_texture"] = str(cached_plate_path(spec.plate_text, plate_format=spec.plate_format))
     return out
