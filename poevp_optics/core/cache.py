@@ -6,7 +6,7 @@ verified load-or-build path for the package's caches:
 | objective/psf-*.npz | SHA-256 of sorted JSON (params, shape, versions, QE table) | name, image shape, node positions; odd square, finite, unit-sum kernels | camera/objective/psfs.py |
 | objective/ri-*.npz | the same recipe | angles 0 .. the image's corner field, rising; RI finite, > 0, 1 on axis | camera/objective/vignetting.py |
 | meshes/car_rear_*.ply | SHA-1 of the mesh's bytes and MESH_VERSION | PLY header and counts, every vertex and face | sources/road.py |
-| plates/plate_*.png | SHA-1 of text, width, height, format, band and "v2", bar-separated | decodes to the plate's size and pixels | sources/plates.py |
+| plates/plate_*.png | SHA-1 of text, width, height, format, band, the font file's SHA-256 (16 hex) and "v2", bar-separated | decodes to the plate's size and pixels | sources/plates.py |
 | predictor_data/seq_*.npz | SHA-1 of JSON (sequences, frames, seed, size) | frames uint8 (sequences, frames, H, W) | apps/train/training_data.py |
 | eval/*.npz | SHA-1 of JSON (scene files' hashes, sequence, poses, settings) | mean, var (frames, nodes, H, W) finite, var >= 0; roi boxes | apps/evaluate/eval_sequences.py |
 | train_data/<scene>-<hash>/ | SHA-256 of the scene's files and the settings | manifest's hash; each split's frames, boxes, draws | apps/train/train_data.py |

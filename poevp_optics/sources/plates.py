@@ -20,13 +20,15 @@ tall), as weight 15/255 = 4/70, the blue-to-white ratio of ASTM D4956 Type I's m
 coefficients of retroreflection (4.0 and 70 cd lx-1 m-2 at 0.2 deg observation), an achromatic
 stand-in for blue sheeting (the country code and stars are not drawn).
 
-Characters use the Go Bold TrueType font (`assets/fonts/Go-Bold.ttf`, Bigelow & Holmes 2016,
-BSD-3-Clause, licence beside it), drawn with Pillow's FreeType renderer. Real plate fonts draw
-the pairs an ALPR system confuses apart: the German FE-Schrift ("fälschungserschwerende
-Schrift", K. Hoefer, on plates since 1994, FZV Anlage 4 Abschnitt 1 Nr. 2) was designed so
-that no character can be altered into another, with a round O against a narrow 0. Go Bold
-keeps the same pairs apart by shape (round O / narrow slashed 0, serifed I / flagged 1, B's
-straight back / 8), and the FE-Schrift itself is not freely licensed. Retroreflective sheeting
+Characters use the Go Regular TrueType font (`assets/fonts/Go-Regular.ttf`, Bigelow & Holmes
+2016, BSD-3-Clause, licence beside it), drawn with Pillow's FreeType renderer. Real plate fonts
+draw the pairs an ALPR system confuses apart: the German FE-Schrift ("fälschungserschwerende
+Schrift", K. Hoefer for the Bundesanstalt für Straßenwesen 1978-80, on plates since 1994, FZV
+Anlage 4 Abschnitt 1 Nr. 2) was designed so that no character can be altered into another and
+machines can read it, with a round O against a narrow 0. The FE-Schrift is not freely licensed;
+Go Regular keeps the same pairs apart by shape (round O / narrow slashed 0, serifed I / flagged
+1, B's straight back / 8), and its stroke, 0.141 of the cap height (10.6 mm at 75 mm), is the
+weight of DIN 1451, the plate font before it (stroke one raster of the seven of the cap height). Retroreflective sheeting
 is glass-bead or micro-prism film; its faint hexagonal cell pattern is drawn as a 2 %
 modulation (its optics are modelled by the sheeting reflectance, not by geometry).
 """
@@ -45,7 +47,7 @@ from poevp_optics.core.params import param as _param
 from poevp_optics.core.paths import ASSETS_DIR
 
 #: The plate font (TrueType), shipped with its licence.
-PLATE_FONT = ASSETS_DIR / "fonts" / "Go-Bold.ttf"
+PLATE_FONT = ASSETS_DIR / "fonts" / "Go-Regular.ttf"
 
 
 @dataclass(frozen=True)
@@ -117,6 +119,14 @@ def _font(size_px: float):
     from PIL import ImageFont
 
     return ImageFont.truetype(str(PLATE_FONT), size_px)
+
+
+@functools.lru_cache(maxsize=1)
+def _font_sha256() -> str:
+    """SHA-256 of the font file (part of the cache key: another font draws other pixels)."""
+    import hashlib
+
+    return hashlib.sha256(PLATE_FONT.read_bytes()).hexdigest()
 
 
 def _cap_ratio() -> float:
@@ -203,7 +213,7 @@ def cached_plate_path(text: str, width_px: int = 0, height_px: int = 0, *, plate
     from poevp_optics.core.io import read_png
 
     width_px, height_px = texture_size(plate_format, width_px, height_px)
-    key = f"{text}|{width_px}|{height_px}|{plate_format}|{int(band)}|v2"
+    key = f"{text}|{width_px}|{height_px}|{plate_format}|{int(band)}|{_font_sha256()[:16]}|v2"
     path = cache_file("plates", f"plate_{digest(key)}.png")
     texture = plate_texture(text, width_px, height_px, plate_format=plate_format, band=band)
 

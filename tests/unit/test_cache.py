@@ -72,12 +72,13 @@ def test_the_users_keep_their_key_recipes(tmp_path, monkeypatch):
     (recomputed here with hashlib from each recipe)."""
     from poevp_optics.camera import objective as ob
     from poevp_optics.core import spectra
-    from poevp_optics.sources.plates import cached_plate_path
+    from poevp_optics.sources.plates import PLATE_FONT, cached_plate_path
     from poevp_optics.sources.road import MESH_VERSION, cached_car_mesh, car_rear_mesh
 
     monkeypatch.setenv("POEVP_CACHE_DIR", str(tmp_path))
     plate = cached_plate_path("AB 123", 104, 22)
-    assert plate == tmp_path / "plates" / f"plate_{hashlib.sha1(b'AB 123|104|22|eu|0|v2').hexdigest()[:16]}.png"
+    font = hashlib.sha256(PLATE_FONT.read_bytes()).hexdigest()[:16]
+    assert plate == tmp_path / "plates" / f"plate_{hashlib.sha1(f'AB 123|104|22|eu|0|{font}|v2'.encode()).hexdigest()[:16]}.png"
     assert plate.is_file()
     verts, tris = car_rear_mesh()
     key = hashlib.sha1(verts.tobytes() + tris.tobytes() + str(MESH_VERSION).encode()).hexdigest()[:16]

@@ -45,8 +45,8 @@ def _ink(glyph: str) -> np.ndarray:
 def test_confusable_glyphs_differ_as_images(a, b):
     """Normalised symmetric difference of the two centred glyphs, sum|ink_a - ink_b| / sum max(ink):
     0 for identical glyphs, 1 for glyphs that share no ink. OpenCV's Hershey duplex font, which
-    drew plates before and reads 'T0' as 'TO', scores 0.16 on 0/O and 0.15 on 8/B; Go Bold scores
-    0.66, 0.35 (1/I) and 0.54. A plate font keeps at least a quarter of the union's ink apart."""
+    drew plates before and reads 'T0' as 'TO', scores 0.16 on 0/O and 0.15 on 8/B; Go Regular scores
+    0.77, 0.46 (1/I) and 0.47. A plate font keeps at least a quarter of the union's ink apart."""
     ia, ib = _ink(a), _ink(b)
     assert ia.sum() > 1000 and ib.sum() > 1000          # both drew something
     assert np.abs(_ink(a) - ia).max() == 0.0            # deterministic: the same glyph twice is 0
@@ -98,3 +98,13 @@ def test_font_file_ships_with_its_licence():
     assert PLATE_FONT.is_file()
     licence = (PLATE_FONT.parent / "LICENSE-Go-fonts.txt").read_text()
     assert "Bigelow & Holmes" in licence and "Redistribution and use" in licence
+
+
+def test_stroke_is_din_1451_weight():
+    """The characters' stroke is DIN 1451's, one raster of the seven of the cap height: 75/7 =
+    10.7 mm on an EU plate; measured across the I's stem at mid-height (2 px/mm, so +-0.5 mm of
+    pixel rounding on each edge, +-1 mm in all)."""
+    tex = plate_texture("I", sheeting_pattern=False)[:, 20:-20]
+    stem = np.flatnonzero(tex[110] < 128)
+    assert stem.size and stem.max() - stem.min() + 1 == stem.size     # one run of ink
+    assert stem.size / 2.0 == pytest.approx(75.0 / 7.0, abs=1.0)
