@@ -7,11 +7,11 @@ ONNX files inside the wheel, so no download happens at run time. Two readings of
 - `alpr_read`, full ALPR (the paper's protocol, Sec. 6: a detector then a recogniser on the captured
   frame, there YOLOv5 + CRNN): PP-OCRv4 detection + recognition on a search region (the whole frame,
   or a vehicle-sized window around the plate, as a two-stage system's vehicle detector would hand
-  over), upscaled 2x; the text counts when the detections whose centres lie over the plate's
-  position, joined left to right, match the label in every character (paper Eq. 4).
+  over) at its own size (not upscaled); the text counts when the detections whose centres lie over
+  the plate's position, joined left to right, match the label in every character (paper Eq. 4).
 - `read_plate`, recognition only: the recogniser on the geometric plate box (the scene knows it:
-  `render.roi_shape`), upscaled 2x, as this package read plates before. No detection can miss,
-  but the box's edges (plate border, neighbouring paint) enter the recogniser's input.
+  `render.roi_shape`), upscaled 2x (`UPSCALE`). No detection can miss, but the box's edges
+  (plate border, neighbouring paint) enter the recogniser's input.
 
 Both sides are upper-cased and stripped of everything but A-Z and 0-9 before comparing.
 """
@@ -24,10 +24,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-#: Detection on the search region at its own size: RapidOCR's default upscales the short side to
-#: 736 px, 4-16x the work on our frames; PP-OCRv4 finds 10 px tall plate text without it.
+#: Detection on the search region at its own size: RapidOCR's default ("min", 736) upscales the
+#: short side to 736 px, 4-16x the work on our frames; PP-OCRv4 finds 10 px tall plate text
+#: without it. In "max" mode RapidOCR 1.4.4 ignores `det_limit_side_len` (ch_ppocr_det/
+#: text_detect.py get_preprocess): it takes the limit from the image's long side (960 px below
+#: 960, 1500 below 1500, else 2000), so a region up to 2000 px long is detected at its own size
+#: (rounded to multiples of 32) and a longer one is scaled down to 2000 px.
 DET_CONFIG = {"det_limit_type": "max", "det_limit_side_len": 1280}
-UPSCALE = 2          # recognition only: the plate crop, upscaled (as before this module's ALPR)
+UPSCALE = 2          # recognition only: the plate crop, upscaled
 
 
 def normalise(text: str) -> str:

@@ -23,7 +23,8 @@ SCENE = SCENES_DIR / "ldr_highlight_demo"
 def test_paper_overrides_set_the_papers_coefficients():
     spec = load_scene(SCENE, paper_overrides(49.0))
     assert (spec.source.e, spec.source.r_px) == (49.0, 50.0)
-    assert (spec.mask.law, spec.mask.vs, spec.mask.a, spec.mask.b) == ("threshold_ratio", 200.0, 0.9, 0.0)
+    # Eq. 2's linear reading by default: the one that reproduces the paper in the paper's camera
+    assert (spec.mask.law, spec.mask.vs, spec.mask.a, spec.mask.b) == ("threshold_linear", 200.0, 0.9, 0.0)
     assert spec.source.e_domain == "display"                  # Eq. 3 on the 8-bit values (Sec. 4.A)
     with pytest.raises(UserError, match="paper-law"):
         check_config(dataclasses.replace(quick_config(SCENE), paper_law="white"))
@@ -44,7 +45,9 @@ def test_paper_protocol_runs_and_ldr_reads_no_more_than_the_oracle(tmp_path):
         assert ldr["alpr"]["read"] <= oracle["alpr"]["read"], e
         assert ldr["entropy_bits"] < oracle["entropy_bits"], e
     md = (tmp_path / "evaluation.md").read_text()
-    assert "94.86" in md and "65.07" in md and "physically rendered" in md and "threshold_ratio" in md
+    # the physical camera's default law is the project's exposure controller, labelled ours
+    assert rep["config"]["paper_law"] == "exposure_controller"
+    assert "94.86" in md and "65.07" in md and "physically rendered" in md and "`exposure_controller` (ours" in md
     assert "JN F9H28" in md                                   # the text comes from the source's CSV
     r = json.loads((tmp_path / "report.json").read_text())
     assert set(r["findings"]["paper_protocol"]) == {"9", "29", "49"}

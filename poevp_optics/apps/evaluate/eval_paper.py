@@ -10,13 +10,18 @@ H = O (E G + 1), formed on the stored 8-bit values as the paper does (Sec. 4.A: 
 sources/ldr_highlight.py), the mask law of Eq. 2 with (Vs, a, b) = (200, 0.9, 0) ("In the
 simulation experiment, the mask coefficients (a, b) are set to (0.9, 0)", Fig. 3 caption; Vs = 200,
 Sec. 3): a and b are Eq. 2's light-suppression coefficients. Eq. 2 is garbled in our copy
-(control/masks.py); `PAPER_LAW` picks the ratio reading, M = 255 (a Vs / x + b) above Vs, the plain
-"dim by Vs/x" law. A prediction is an 8-bit frame, clipped at 255, so this law dims by at most
-a Vs / 255 = 0.71: a pixel of stored value O stays clipped where 0.71 O (E G + 1) > 255, i.e. at
-the highlight's centre any O above 36, 12, 7 at E = 9, 29, 49 (black plate ink is ~45 in the demo);
-the exponential reading sends a clipped prediction to level 0 (only the DMD's leakage and the
-smoothed mask's edge pass) (README, recognition section: both measured). EvalConfig's `paper_law` picks the other reading,
-or one of this project's laws (`PROTOCOL_LAWS`, reported as ours).
+(control/masks.py), which has three readings. `PAPER_LAW`, the linear reading M = 255 (1 - a)
+above Vs (a tenfold dimmer at a = 0.9), is the one that reproduces the paper's Table 2 in the
+paper's camera (benchmarks/results/table2.md: oracle 100 %, the paper's POE-VP 94.86 %). The ratio
+reading, M = 255 (a Vs / x + b), dims a prediction clipped at 255 by at most a Vs / 255 = 0.71: a
+pixel of stored value O stays clipped where 0.71 O (E G + 1) > 255, i.e. at the highlight's centre
+any O above 36, 12, 7 at E = 9, 29, 49 (black plate ink is ~45 in the demo), and the exponential
+reading sends a clipped prediction to level 0 (only the DMD's leakage and the smoothed mask's edge
+pass): both read 0 % with every predictor, the oracle included. Without `paper_law`, the paper's
+camera runs `PAPER_LAW` and the physical camera this project's exposure controller
+(`DEFAULT_LAWS`): in linear light Eq. 3's display-encoded highlight puts the plate 3.1e3x and
+1.05e4x over saturation at E = 29 and 49, beyond the linear reading's tenfold dimming.
+EvalConfig's `paper_law` picks any of `PROTOCOL_LAWS` (this project's reported as ours).
 The scene's mask.smooth_px (the band-limited mask, DESIGN.md) is kept. Loop mode `open` (the
 predictor sees unmasked LDR frames, Fig. 3), first two frames white (not scored).
 Methods and readings are those of apps/evaluate/evaluate.py (LDR, both fusions, every predictor; full ALPR
@@ -47,13 +52,23 @@ PAPER_E = (9.0, 29.0, 49.0)
 PAPER_R_PX = 50.0
 #: Paper Sec. 3 (Vs = 200) and Fig. 3 caption ((a, b) = (0.9, 0) in simulation).
 PAPER_VS, PAPER_A, PAPER_B = 200.0, 0.9, 0.0
-PAPER_LAW = "threshold_ratio"
+#: Eq. 2's reading that reproduces the paper's Table 2 in the paper's camera (module docstring).
+PAPER_LAW = "threshold_linear"
 #: Paper Sec. 4.A: Eq. 3 multiplies the stored 8-bit values ("pixel values ... beyond 255").
 PAPER_E_DOMAIN = "display"
 PAPER_LAWS = ("threshold_ratio", "threshold_exp", "threshold_linear")
 #: Laws the protocol accepts: Eq. 2's two readings, and this project's (labelled ours in the report).
 PROTOCOL_LAWS = (*PAPER_LAWS, "exposure_controller", "target")
+#: The protocol's mask law per camera (evaluate --camera) when none is given: the paper's camera
+#: (code values) runs the reading that reproduces the paper, the physical camera the project's
+#: best law, the exposure controller (control/exposure_control.py).
+DEFAULT_LAWS = {"paper": PAPER_LAW, "physical": "exposure_controller"}
 KIND = "paper"
+
+
+def protocol_law(cfg) -> str:
+    """The protocol's mask law of `cfg`: its `paper_law`, else the camera's default (DEFAULT_LAWS)."""
+    return getattr(cfg, "paper_law", "") or DEFAULT_LAWS[getattr(cfg, "camera", "physical")]
 
 
 def is_paper_scene(scene: Path) -> bool:
@@ -101,10 +116,10 @@ def run_paper(cfg, runner_cls, score, shift_px, log=print) -> list[dict]:
     """Every row of the paper protocol on cfg.scene: one cell per (E, method), frames from
     loop.init_frames on. `runner_cls(cfg, spec, cam)` builds apps/evaluate/evaluate.py's Runner; `score`
     turns one E's images into rows (evaluate.score_rows); `shift_px` measures the plate's speed;
-    cfg.paper_law: Eq. 2's reading."""
+    the mask law: protocol_law(cfg)."""
     rows, runner, t0 = [], None, time.perf_counter()
     for e in PAPER_E:
-        spec = load_scene(cfg.scene, paper_overrides(e, cfg.paper_law))
+        spec = load_scene(cfg.scene, paper_overrides(e, protocol_law(cfg)))
         cam = Camera.from_params(spec.resolved.camera)
         if runner is None:
             runner = runner_cls(dataclasses.replace(cfg, loop_mode="open"), spec, cam)

@@ -184,15 +184,68 @@ def write_tables(out: Path, rows: list[dict], cfg, seconds: float, extra_text: s
              "entropy_bits": round(c["entropy_bits"], 3), "method_ms": round(c["method_ms"], 2),
              "measured_px_per_frame": c["measured_px_per_frame"]} for c in cells.values()]
     _write_csv(out / "evaluation.csv", flat)
+    zero = zero_read_reason(rows)
     text = "\n".join([f"# Plate recognition over speed, over-exposure and motion: LDR vs fusion vs POE-VP\n",
-                      _intro(cfg, rows, seconds, _scene_law(cfg)), *markdown_tables(cells, lag, cfg), "\n## Findings\n",
+                      *([f"**{zero}**\n"] if zero else []), _intro(cfg, rows, seconds, _scene_law(cfg)), *markdown_tables(cells, lag, cfg), "\n## Findings\n",
                       _findings_text(find, cfg), extra_text, *paper_tables(cells, cfg)]) + "\n"
     with atomic_path(out / "evaluation.md") as tmp:
         Path(tmp).write_text(text)
-    report = {"cells": cells, "reversal_lag": lag, "findings": find, "seconds": seconds,
+    report = {"cells": cells, "reversal_lag": lag, "findings": find, "seconds": seconds, "zero_reads": zero,
               "config": {k: (str(v) if isinstance(v, Path) else v) for k, v in dataclasses.asdict(cfg).items()}}
     write_json(out / "report.json", report)
     return report
+
+
+#: A plate box counts as clipped when at least this share of it reads 255, as dark when its 90th
+#: percentile is below DARK_P90 of 255 (a quarter of full scale: glyph contrast of a few codes).
+CLIPPED_SHARE, DARK_P90 = 0.25, 64.0
+#: Eq. 2's readings that cannot dim a prediction clipped at 255 below saturation (control/masks.py).
+UNCLIPPABLE_LAWS = ("threshold_ratio", "threshold_exp")
+
+
+def zero_read_reason(rows: list[dict], law: str = "") -> str | None:
+    """None when a POE-VP frame reads (full ALPR); else one paragraph saying why no method (or no
+    POE-VP method, the oracle included) reads: the plate clipped or dark in most frames of each
+    (medians over its frames), or the plate legible but not found by the detector, or what the
+    OCR read instead."""
+    from poevp_optics.apps.evaluate.evaluate import BASELINES
+
+    poevp = [r for r in rows if r["method"] not in BASELINES]
+    if any(r["alpr_ok"] for r in rows):
+        if not poevp or any(r["alpr_ok"] for r in poevp):
+            return None
+        rows, who = poevp, "Every POE-VP method"
+    else:
+        who = "Every method"
+    if not rows:
+        return None
+    by: dict[str, list[dict]] = defaultdict(list)
+    for r in rows:
+        by[r["method"]].append(r)
+    clipped = {m: float(np.median([r.get("plate_clipped", 0.0) for r in v])) for m, v in by.items()}
+    p90 = {m: float(np.median([r.get("plate_p90", 255.0) for r in v])) for m, v in by.items()}
+    shown = ", ".join(f"{m} {100 * clipped[m]:.0f} %" for m in by)
+    head = f"{who} reads 0 % ({len(rows)} reads of {', '.join(by)}): "
+    if all(c >= CLIPPED_SHARE for c in clipped.values()):
+        why = (f"the plate stays clipped in every method (median share of its box at 255: {shown}), so "
+               "no character survives")
+        if law in UNCLIPPABLE_LAWS:
+            why += (f"; the mask law `{law}` cannot dim a prediction clipped at 255 below saturation "
+                    "(control/masks.py), so even the oracle stays clipped: `--paper-law threshold_linear` is "
+                    "Eq. 2's reading that reproduces the paper, `exposure_controller` the camera's own law")
+        return head + why + "."
+    if all(v < DARK_P90 for v in p90.values()):
+        levels = ", ".join(f"{m} {p90[m]:.0f}" for m in by)
+        return (head + f"the plate is dark in every method (median 90th percentile of its box: {levels} of "
+                "255): its glyphs differ by a few codes, below what the detector finds.")
+    rec = sum(r["rec_ok"] for r in rows)
+    if rec:
+        return (head + f"recognition on the plate box reads {rec} of {len(rows)} frames, so the plate is "
+                "legible, but the detector finds no text over it (full ALPR searches the whole frame).")
+    r = next((r for r in rows if r.get("alpr_text") or r.get("rec_text")), rows[0])
+    return (head + f"the plate is neither clipped nor dark in every method (clipped share {shown}), and the "
+            f"OCR reads other text: e.g. {r['method']} frame {r['frame']} '{r.get('alpr_text', '')}' (ALPR) / "
+            f"'{r.get('rec_text', '')}' (plate box) for '{r['text']}'.")
 
 
 def _write_csv(path: Path, rows: list[dict]) -> None:
@@ -366,8 +419,10 @@ def write_paper_tables(out: Path, rows: list[dict], cfg, seconds: float) -> dict
     texts = sorted({r["text"] for r in rows})
     lines = [f"- E = {e}: LDR {v['ldr_pct']:.0f} %, oracle {v['oracle_pct']:.0f} % (ALPR)"
              + ("" if v["ldr_le_oracle"] else " - LDR above the oracle") for e, v in find["paper_protocol"].items()]
+    zero = zero_read_reason(rows, cfg.paper_law)
     text = "\n".join([
         "# Plate recognition, the paper's simulation protocol (Sec. 6): LDR vs fusion vs POE-VP\n",
+        *([f"**{zero}**\n"] if zero else []),
         f"Scene `{scene_name(cfg.scene)}` (`[source] kind = \"ldr_highlight\"`): its LDR frames with Eq. 3's "
         f"highlight H = O (E G + 1) formed on the stored 8-bit values as the paper does (Sec. 4.A), then "
         f"sRGB-decoded, E = 9, 29, 49, R = 50 px at 720x1280; {law_text(cfg.paper_law)}; loop `open` (paper Fig. 3); "
@@ -379,7 +434,7 @@ def write_paper_tables(out: Path, rows: list[dict], cfg, seconds: float) -> dict
         *_paper_protocol_md(cells, cfg, e_levels, rendered), "\n## Findings\n", "\n".join(lines) + "\n"]) + "\n"
     with atomic_path(out / "evaluation.md") as tmp:
         Path(tmp).write_text(text)
-    report = {"protocol": "paper", "cells": cells, "findings": find, "seconds": seconds,
+    report = {"protocol": "paper", "cells": cells, "findings": find, "seconds": seconds, "zero_reads": zero,
               "config": {k: (str(v) if isinstance(v, Path) else v) for k, v in dataclasses.asdict(cfg).items()}}
     write_json(out / "report.json", report)
     return report

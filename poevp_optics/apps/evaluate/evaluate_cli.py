@@ -53,6 +53,8 @@ def cmd_evaluate(args) -> int:
     out = Path(args.out) if args.out else Path("out") / ("evaluate-quick" if args.quick else "evaluate")
     log = (lambda *a: None) if args.quiet else print
     report = run_in_folder("evaluate", out, args.threads, lambda stage: evaluate(stage, cfg, log=log))
+    if report.get("zero_reads"):
+        print(f"poevp: {report['zero_reads']}")
     for e, v in report["findings"]["separating_speed_px"].items():
         print(f"poevp: E = {e}: " + (f"hold < 50 % while flow/dmvfn > 80 % from {v:g} px/frame" if v is not None
                                       else "no separating speed in the sweep"))
@@ -64,7 +66,7 @@ def add_evaluate_parser(sub, add_job_options) -> None:
     """`poevp evaluate`'s flags (apps/evaluate/evaluate.py EvalConfig holds the defaults)."""
     p = sub.add_parser("evaluate", help="plate recognition (full ALPR) over speed, E and motion: LDR vs fusion vs POE-VP")
     p.add_argument("scene", nargs="?", help="a scene with a plate (render.roi_shape); default highbeam_plate")
-    p.add_argument("--quick", action="store_true", help="CI size: 1 text, 4 and 24 px/frame at E = 9, lateral and reversal, "
+    p.add_argument("--quick", action="store_true", help="CI size: 1 text, 4 and 40 px/frame at E = 9, lateral and reversal, "
                    "predictors hold, flow, oracle (about a minute)")
     p.add_argument("--texts", help="comma-separated plate texts (default: 4 held-out texts)")
     p.add_argument("--texts-file", help="plate texts, one a line")
@@ -77,7 +79,8 @@ def add_evaluate_parser(sub, add_job_options) -> None:
     p.add_argument("--search", choices=("frame", "vehicle"), help="ALPR search region (default frame)")
     p.add_argument("--paper-law", dest="paper_law",
                    choices=("threshold_ratio", "threshold_exp", "threshold_linear", "exposure_controller", "target"),
-                   help="ldr_highlight scenes: Eq. 2's reading (default threshold_ratio) or one of ours")
+                   help="ldr_highlight scenes: Eq. 2's reading or one of ours (default: threshold_linear in "
+                        "the paper's camera, the reading that reproduces the paper; exposure_controller in ours)")
     p.add_argument("--camera", choices=("physical", "paper"),
                    help="ldr_highlight scenes: this project's camera (default) or the paper's code-value simulation "
                         "(noiseless Hadamard product, clip at 255: Table 2 like for like)")
