@@ -10,11 +10,19 @@ squared length, plus log speed, the correlation responses and which displacement
 prediction turns with the motion: no preferred direction, by construction. Missing displacements
 (a region followed back fewer than three frames) have their coefficients forced to zero.
 
+A region whose newest displacement is under `STOP_PX` has stopped: its next displacement is its
+newest (it stands), whatever the network says. Trained on stops, standing lights and reversals
+of many ramps, the network alone still put a light that stops after moving 32 px/frame 3 px on
+(2-4 px at 16-48 px/frame, more than the 2 px a stop may cost): the chain (0, v, v) lies next to
+smooth reversals (0, a, 2a) -> -a in its inputs, and a coefficient model cannot return exactly
+zero there. A stopped light reverses within a frame only in a collision, so the rule costs nothing.
+
 Architecture (ours): MLP 15 -> 64 -> 64 -> 3 with GELU, outputs added to the constant-velocity
 coefficients (1, 0, 0), so an untrained network is `flow`'s motion model. 5.4 k parameters,
 well under a millisecond per region on a CPU. Trained by apps/train/train_track.py on measured chains
-(the tracker's own measurement noise) against the true next displacement, loss L1 in px: the
-centroid error of the mask's highlight, the quantity the mask needs (not pixel PSNR).
+(the tracker's own measurement noise) against the true next displacement, loss what the mask
+needs: 1 - the IoU of the region's box with itself moved by the error, plus 0.01 per px of
+centroid error (not pixel PSNR). The growth of a region (track.py) is `track`'s closed form.
 Weights: safetensors with the config and the training record in the metadata (never pickle).
 """
 
@@ -33,6 +41,8 @@ from poevp_optics.control.predictors.track import MAX_CHAIN, RegionTrack, Region
 from poevp_optics.core.paths import ASSETS_DIR
 
 N_FEATURES = 15
+#: A newest displacement shorter than this (px) is a stop: predicted to stand (module docstring).
+STOP_PX = 1.0
 
 
 @dataclass(frozen=True)
@@ -80,11 +90,14 @@ class TrackNet(nn.Module):
         nn.init.zeros_(self.net[-1].bias)
 
     def forward(self, disp: torch.Tensor, valid: torch.Tensor, resp: torch.Tensor) -> torch.Tensor:
-        """(N, 2) next displacement (px) from (N, 3, 2) chains."""
+        """(N, 2) next displacement (px) from (N, 3, 2) chains; a stopped region's (newest
+        displacement under STOP_PX) is its newest."""
         base = torch.zeros_like(valid)
         base[:, 0] = 1.0
         coef = (base + self.net(invariant_features(disp, valid, resp))) * valid
-        return (coef[..., None] * disp).sum(1)
+        out = (coef[..., None] * disp).sum(1)
+        stopped = (disp[:, 0].norm(dim=-1) < STOP_PX)[:, None]
+        return torch.where(stopped, disp[:, 0] * valid[:, :1], out)
 
 
 # ----------------------------------------------------------------------------- weights
