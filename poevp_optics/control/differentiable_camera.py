@@ -1,0 +1,234 @@
+"""A differentiable camera for one frame: the gradient of a smooth objective (the plate's white
+against the band) with respect to the paper's Eq. 2 mask-law coefficients (Vs, a, b), through
+the law, the DMD's bit-plane PWM exposure, the mirror-to-sensor registration, the relay PSF and
+the sensor's transfer, by DrJit's automatic differentiation (reverse mode, `drjit.llvm.ad`,
+float64). It lives in control/ because it runs a mask law (masks.py) through the camera.
+
+Which parts of the camera run in AD-capable DrJit: none as they are. The DMD gather, the
+registration taps and the sensor run in DrJit on `drjit.auto.Float` (no AD graph), the mask
+law, the relay PSF (OpenCV / FFT convolution) and the objective's blur in NumPy. This module
+rebuilds the chain after the objective on `drjit.llvm.ad.Float64` from the camera's own tables
+and kernels (camera.py `capture` is the reference; the test checks the electrons equal its
+`signal`), with these relaxations, each a smooth stand-in for a step the exact camera takes:
+
+| stage | exact camera | here (for the gradient) |
+|---|---|---|
+| law's threshold at Vs | M = 255 below Vs | weight sigmoid((x - Vs) / step_dn) between 255 and the attenuated branch |
+| law at x -> 255 | limit a^inf = 0 | 255 - x floored at `edge_dn` (0.5: a^((255 - b Vs) / 0.5), effectively 0) |
+| mask levels | rounded to integers | continuous; the per-level PWM table (dmd.py `transmission_table`, exact) interpolated by a C1 cubic (Catmull-Rom) between levels |
+| sensor | full-well and ADC clip, rounding, noise | mean response, no rounding; clips replaced by soft minima of width `clip_width` (DN) |
+
+The objective is J = (w - t)^2 with w the mean of DN / max DN over the plate's box on the
+sensor grid (a smooth stand-in for the report's 90th percentile) and t the middle of the band
+[band_low, band_high]. The radiance (the objective's image on the mirrors, `Camera.dmd_image`)
+and the predicted frame (its smooth envelope, masks.py) do not depend on (Vs, a, b): they enter
+as constants.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from poevp_optics.camera.dmd import transmission_table
+
+#: Parameter names, in the order of `value_and_grad`'s vector.
+COEFFICIENTS = ("vs", "a", "b")
+
+
+@dataclass(frozen=True)
+class Relaxation:
+    """Widths of the smooth stand-ins (module docstring): step_dn for the law's threshold (8-bit
+    DN), edge_dn the floor of 255 - x, clip_width the soft clips' width (DN)."""
+
+    step_dn: float = 2.0
+    edge_dn: float = 0.5
+    clip_width: float = 2.0
+
+
+def _soft_min(x, c: float, width: float):
+    """min(x, c) smoothed over `width`: x - width softplus((x - c) / width) (exact far from c)."""
+    import drjit as dr
+
+    z = (x - c) / width
+    softplus = dr.select(z > 30.0, z, dr.log(1.0 + dr.exp(dr.minimum(z, 30.0))))
+    return x - width * softplus
+
+
+class FrameModel:
+    """One frame of `camera` as a function of (Vs, a, b): build once (the constants), then
+    `value_and_grad(theta)` or `value(theta)`.
+
+    subframes: the frame's K radiance samples (render grid, as RenderedExposure.subframes);
+    times_s: their times (None: K uniform nodes); pred_8bit: the predicted frame on the mirror
+    grid (8-bit scale) the law reads; box: the plate's box on the sensor grid (y0, x0, y1, x1);
+    band: (low, high) fractions of full scale; smooth_px, min_level: the law's own keys."""
+
+    def __init__(self, camera, subframes, frame_index: int, pred_8bit, box, band=(0.4, 0.9), *,
+                 times_s=None, smooth_px: float = 4.0, relax: Relaxation = Relaxation()):
+        from drjit.llvm.ad import Float64
+
+        from poevp_optics.control.masks import smooth_envelope
+
+        self.camera, self.relax, self.box = camera, relax, tuple(int(v) for v in box)
+        self.target = 0.5 * (band[0] + band[1])
+        k = len(subframes)
+        self.nodes = [Float64(np.asarray(camera.dmd_image(s), np.float64).ravel()) for s in subframes]
+        env = smooth_envelope(np.clip(np.asarray(pred_8bit, np.float64), 0.0, 255.0), smooth_px)
+        self.env_np = np.asarray(env, np.float64)
+        self.env = Float64(self.env_np.ravel())
+        rel = camera.nodes_rel(frame_index, k, times_s)
+        self.table = transmission_table(np.arange(camera.top_level + 1), camera.dmd_spec,
+                                        camera.schedule(frame_index), rel)          # (levels + 1, K), s
+        self.smooth_px = smooth_px
+
+    # ------------------------------------------------------------------ stages
+    def levels(self, vs, a, b, exact: bool = False):
+        """Mirror levels from the law (continuous, or the camera's rounded ones with exact)."""
+        import drjit as dr
+
+        r, x, top = self.relax, self.env, self.camera.top_level
+        expo = (x - b * vs) / dr.maximum(255.0 - x, r.edge_dn)
+        att = dr.exp(expo * dr.log(a))
+        att = dr.minimum(att, 1.0)
+        if exact:
+            from poevp_optics.control.masks import threshold_exp
+
+            m255 = threshold_exp(self.env_np, float(vs[0]), float(a[0]), float(b[0]))
+            return np.clip(np.rint(m255 * top / 255.0), 0, top)
+        step = 1.0 / (1.0 + dr.exp(-(x - vs) / r.step_dn))
+        m255 = 255.0 * ((1.0 - step) + step * att)
+        return m255 * (top / 255.0)
+
+    def weights(self, v):
+        """Each node's exposure (s) per mirror at continuous levels v: Catmull-Rom in the level."""
+        import drjit as dr
+        from drjit.llvm.ad import Float64, UInt32
+
+        top = self.camera.top_level
+        v = dr.clip(v, 0.0, float(top))
+        l0 = dr.clip(dr.floor(dr.detach(v)), 0.0, float(top - 1))
+        f = v - l0
+        li = UInt32(l0)
+        idx = [dr.select(li > 0, li - 1, li), li, li + 1, dr.minimum(li + 2, UInt32(top))]
+        f2, f3 = f * f, f * f * f
+        h00, h10, h01, h11 = 2 * f3 - 3 * f2 + 1, f3 - 2 * f2 + f, -2 * f3 + 3 * f2, f3 - f2
+        out = []
+        for j in range(self.table.shape[1]):
+            col = Float64(self.table[:, j])
+            pm, p0, p1, p2 = (dr.gather(Float64, col, i) for i in idx)
+            m0 = dr.select(li > 0, 0.5 * (p1 - pm), p1 - p0)
+            m1 = dr.select(li + 2 <= top, 0.5 * (p2 - p0), p1 - p0)
+            out.append(h00 * p0 + h10 * m0 + h01 * p1 + h11 * m1)
+        return out
+
+    def electrons(self, v):
+        """Signal electrons on the sensor grid (flattened) for levels v (AD Float64 or NumPy)."""
+        import drjit as dr
+        from drjit.llvm.ad import Float64, UInt32
+
+        cam = self.camera
+        if isinstance(v, np.ndarray):              # exact integer levels: the table's own rows
+            w = [Float64(self.table[np.asarray(v, np.int64).ravel(), j]) for j in range(self.table.shape[1])]
+        else:
+            w = self.weights(v)
+        plane = w[0] * self.nodes[0]
+        for j in range(1, len(w)):
+            plane = dr.fma(w[j], self.nodes[j], plane)
+        if cam.taps is not None:
+            idx, tw = cam.taps
+            acc = None
+            for j in range(idx.shape[1]):
+                g = dr.gather(Float64, plane, UInt32(idx[:, j].astype(np.uint32))) * Float64(tw[:, j])
+                acc = g if acc is None else acc + g
+            plane = acc
+        if cam.psf is not None:
+            plane = self._convolve(plane, cam.psf.kernel)
+        plane = self._crop(plane)
+        return plane * float(cam.electrons_per_radiance())
+
+    def _convolve(self, plane, kernel: np.ndarray):
+        """Same-size convolution, the image continued by reflection (OpenCV BORDER_REFLECT, as
+        camera/convolution.py convolve_reflect), as gathers: linear in `plane`."""
+        import drjit as dr
+        from drjit.llvm.ad import Float64, UInt32
+
+        h, w = self.camera.extended_shape
+        c = kernel.shape[0] // 2
+        ys, xs = np.divmod(np.arange(h * w), w)
+
+        def reflect(i, n):
+            i = np.where(i < 0, -i - 1, i)
+            return np.where(i >= n, 2 * n - i - 1, i)
+
+        out = None
+        for dy in range(kernel.shape[0]):
+            for dx in range(kernel.shape[1]):
+                kv = float(kernel[dy, dx])
+                if kv == 0.0:
+                    continue
+                src = reflect(ys - (dy - c), h) * w + reflect(xs - (dx - c), w)
+                g = dr.gather(Float64, plane, UInt32(src.astype(np.uint32))) * kv
+                out = g if out is None else out + g
+        return dr.maximum(out, 0.0)
+
+    def _crop(self, plane):
+        import drjit as dr
+        from drjit.llvm.ad import Float64, UInt32
+
+        g, (h, w) = self.camera.sensor_guard_px, self.camera.shape
+        eh, ew = self.camera.extended_shape
+        if g == 0 and (eh, ew) == (h, w):
+            return plane
+        ys, xs = np.divmod(np.arange(h * w), w)
+        return dr.gather(Float64, plane, UInt32(((ys + g) * ew + xs + g).astype(np.uint32)))
+
+    def dn(self, e):
+        """Mean DN with soft clips (full well, ADC top) for the gradient."""
+        p, r = self.camera.params, self.relax
+        dark = (p.dark_current_e_per_s * self.camera.timing.exposure_s
+                if self.camera.sensor.switches.dark_current else 0.0)
+        e = _soft_min(e + dark, float(p.full_well_e), r.clip_width / p.gain_dn_per_e)
+        return _soft_min(p.offset_dn + p.gain_dn_per_e * e, float(p.max_dn), r.clip_width)
+
+    def objective(self, dn):
+        """(w - t)^2, w = the box's mean DN / max DN (module docstring)."""
+        import drjit as dr
+        from drjit.llvm.ad import Float64, UInt32
+
+        h, w = self.camera.shape
+        y0, x0, y1, x1 = self.box
+        yy, xx = np.mgrid[y0:y1, x0:x1]
+        inside = dr.gather(Float64, dn, UInt32((yy * w + xx).ravel().astype(np.uint32)))
+        white = dr.sum(inside) / float(inside.shape[0] * self.camera.params.max_dn)
+        return (white - self.target) ** 2
+
+    # ------------------------------------------------------------------ value and gradient
+    def value_and_grad(self, theta) -> tuple[float, np.ndarray]:
+        """J and dJ/d(Vs, a, b) at theta = (Vs, a, b) (reverse-mode AD)."""
+        import drjit as dr
+        from drjit.llvm.ad import Float64
+
+        vs, a, b = (Float64(float(t)) for t in theta)
+        for t in (vs, a, b):
+            dr.enable_grad(t)
+        j = self.objective(self.dn(self.electrons(self.levels(vs, a, b))))
+        dr.backward(j)
+        return float(j[0]), np.array([float(dr.grad(t)[0]) for t in (vs, a, b)])
+
+    def value(self, theta) -> float:
+        """J at theta without the AD graph."""
+        from drjit.llvm.ad import Float64
+
+        vs, a, b = (Float64(float(t)) for t in theta)
+        return float(self.objective(self.dn(self.electrons(self.levels(vs, a, b))))[0])
+
+    def exact_electrons(self, theta) -> np.ndarray:
+        """Signal electrons (sensor grid) at the camera's own rounded levels: the reference the
+        test compares with `Camera.capture`'s."""
+        from drjit.llvm.ad import Float64
+
+        vs, a, b = (Float64(float(t)) for t in theta)
+        v = self.levels(vs, a, b, exact=True)
+        return np.array(self.electrons(v)).reshape(self.camera.shape)
