@@ -1,6 +1,7 @@
-"""`poevp` command line: render, validate, compare, chart, sweep, evaluate, train-predictor, schema, info.
+"""`poevp` command line: render, validate, compare, chart, sweep, search, evaluate, train-predictor, schema, info.
 
-Exit status: 0 done; 1 a sweep finished with failed points (`--allow-failed`: 0), or the
+Exit status: 0 done; 1 a sweep finished with failed points (`--allow-failed`: 0), a search
+with no trial meeting its constraints, or the
 environment failed (disk full, out of memory, too many open files) or an internal error (one
 line; `--debug` or POEVP_DEBUG=1 shows the traceback); 2 bad input (one line on stderr naming
 the file and key, or the flag, or the path; nothing written); 130 Ctrl-C; 143 SIGTERM (both: a
