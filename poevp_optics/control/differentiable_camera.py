@@ -232,3 +232,65 @@ class FrameModel:
         vs, a, b = (Float64(float(t)) for t in theta)
         v = self.levels(vs, a, b, exact=True)
         return np.array(self.electrons(v)).reshape(self.camera.shape)
+
+
+# ---------------------------------------------------------------------------- gradient refinement
+@dataclass(frozen=True)
+class Refinement:
+    """What `refine` did: the start and end coefficients and objective, the start's gradient
+    (per unit of each bound's width), the optimiser's iterations, and `note`: why it could not
+    move when the objective is flat there ("" when it moved)."""
+
+    theta0: tuple[float, float, float]
+    theta: tuple[float, float, float]
+    value0: float
+    value: float
+    grad0: tuple[float, float, float]
+    iterations: int
+    note: str = ""
+
+
+def refine(model: FrameModel, theta0, bounds, *, max_iter: int = 50, flat_rel: float = 1e-9) -> Refinement:
+    """Minimise the model's smooth objective from `theta0` within `bounds` ((low, high) per
+    coefficient, COEFFICIENTS order) by L-BFGS-B (SciPy) on its reverse-mode gradient, the
+    coefficients scaled to [0, 1] by their bounds. A start whose scaled gradient is below
+    `flat_rel` x the objective in every coefficient is flat: the result says why (no plate pixel
+    above Vs, or the plate clipped) instead of moving."""
+    from scipy.optimize import minimize
+
+    lo = np.array([b[0] for b in bounds], np.float64)
+    span = np.array([b[1] - b[0] for b in bounds], np.float64)
+    theta0 = np.clip(np.asarray(theta0, np.float64), lo, lo + span)
+    value0, g0 = model.value_and_grad(theta0)
+    g0s = g0 * span
+    if np.all(np.abs(g0s) <= flat_rel * max(abs(value0), 1e-300)):
+        return Refinement(tuple(theta0), tuple(theta0), value0, value0, tuple(g0s), 0, _flat_reason(model, theta0))
+
+    def fun(u):
+        v, g = model.value_and_grad(lo + u * span)
+        return v, g * span
+
+    res = minimize(fun, (theta0 - lo) / span, jac=True, method="L-BFGS-B", bounds=[(0.0, 1.0)] * len(bounds),
+                   options={"maxiter": max_iter})
+    theta = lo + np.clip(res.x, 0.0, 1.0) * span
+    value = model.value(theta)
+    if value > value0:                        # never worse than the start
+        theta, value = theta0, value0
+    return Refinement(tuple(theta0), tuple(theta), value0, value, tuple(g0s), int(res.nit))
+
+
+def _flat_reason(model: FrameModel, theta) -> str:
+    """Why the objective does not move at `theta`: the plate's predicted values against Vs, or
+    its capture at the top of the sensor's range."""
+    from drjit.llvm.ad import Float64
+
+    cam = model.camera
+    y0, x0, y1, x1 = model.box
+    dn = np.array(model.dn(model.electrons(model.levels(*(Float64(float(t)) for t in theta))))).reshape(cam.shape)
+    if np.mean(dn[y0:y1, x0:x1] >= cam.params.max_dn - model.relax.clip_width) > 0.99:
+        return "flat: the plate is clipped at the top of the sensor's range for every nearby setting"
+    above = np.mean(model.env_np >= float(theta[0]) - 6 * model.relax.step_dn)
+    if above == 0:
+        return (f"flat: no predicted value reaches Vs = {float(theta[0]):.4g} (the law leaves every mirror "
+                "white), so no coefficient changes the capture")
+    return "flat: the capture does not depend on the coefficients here"

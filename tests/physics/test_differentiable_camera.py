@@ -64,3 +64,21 @@ def test_gradient_matches_central_differences(frame, theta):
         down[i] -= h
         fd = (model.value(up) - model.value(down)) / (2 * h)
         assert grad[i] == pytest.approx(fd, rel=1e-3), (i, grad[i], fd)
+
+
+def test_refinement_lowers_the_objective_or_says_why_it_cannot(frame):
+    from poevp_optics.control.differentiable_camera import refine
+
+    _, _, model = frame
+    bounds = [(100.0, 250.0), (0.3, 1.0), (0.0, 0.4)]
+    r = refine(model, (190.0, 0.6, 0.3), bounds)
+    assert r.value < r.value0 and not r.note
+    assert all(lo <= t <= hi for t, (lo, hi) in zip(r.theta, bounds))
+    # a prediction of 100 everywhere, Vs >= 200: the law keeps every mirror white (sigmoid
+    # weight e^-50 at 100 DN below the threshold), so no coefficient moves the capture
+    camera, ex, _ = frame
+    dark = FrameModel(camera, list(ex.subframes), ex.index, np.full(camera.mirror_shape, 100.0), model.box,
+                      times_s=ex.subframe_times_s, smooth_px=1.0)
+    flat = refine(dark, (220.0, 0.6, 0.3), [(200.0, 250.0), (0.3, 1.0), (0.0, 0.4)])
+    assert flat.note.startswith("flat: no predicted value reaches Vs") and flat.theta == flat.theta0
+    assert flat.value == flat.value0 and flat.iterations == 0
