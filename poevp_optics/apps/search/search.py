@@ -195,7 +195,8 @@ def evaluated(study) -> list:
 
 
 def requeue_interrupted(study, log) -> int:
-    """Trials left running by a killed search: marked failed and asked again with their values."""
+    """Trials left running by a killed search: marked failed and asked again with their values
+    (those drawn before the kill; a trial stopped before its values were drawn is asked anew)."""
     from optuna.trial import TrialState
 
     stale = [t for t in study.trials if t.state == TrialState.RUNNING]
