@@ -28,6 +28,7 @@ scene's metric, the constraints, the point folders, whether their radiance was r
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import math
@@ -41,7 +42,7 @@ from poevp_optics.apps.sweep.execute import ClusterSettings, DaskSession, execut
 from poevp_optics.apps.sweep.sweep_grid import canonical, point_key
 from poevp_optics.core.exceptions import SceneError
 from poevp_optics.core.io import locked_dir, write_json
-from poevp_optics.core.runtime import Terminated, sigterm_raises
+from poevp_optics.core.runtime import Terminated
 from poevp_optics.scene.load import apply_overrides, load_scene, resolve_scene_path
 
 JOB = "render"
@@ -287,11 +288,16 @@ def run_batch(study, scenes, q: Question, out: Path, k: int, ctx) -> list[dict]:
                 seen.add(task[3].name)
                 todo.append(task)
     results: dict[str, dict] = {}
+
+    def on_result(task, res):
+        results[task[3].name] = res
+        _stop_if_terminated(ctx)
+
     if todo:
         if ctx.reuse is not None:
             ctx.reuse.add_groups(_groups(scenes, todo))
         execute_points(todo, JOB, lambda t: ctx.plans[t[0]["scene"]], ctx.dask,
-                       on_result=lambda task, res: results.__setitem__(task[3].name, res), reuse=ctx.reuse,
+                       on_result=on_result, reuse=ctx.reuse,
                        progress=ctx.progress, log=ctx.log,
                        resume_hint=f"the finished trials are in {out}/trials.parquet: ")
     rows = []
@@ -321,6 +327,36 @@ class _Context:
     reuse: object
     progress: bool
     log: object
+    term: dict
+
+
+@contextlib.contextmanager
+def _sigterm_noted():
+    """SIGTERM raises Terminated (core.runtime.sigterm_raises) and is also noted in the yielded
+    dict (`term`), which the search checks after every point and batch: a SIGTERM that arrives
+    while a library swallows exceptions (Dask's garbage-collection callback) still stops it."""
+    import signal
+    import threading
+
+    noted = {"term": False}
+    if threading.current_thread() is not threading.main_thread():
+        yield noted
+        return
+
+    def handler(signum, frame):
+        noted["term"] = True
+        raise Terminated()
+
+    old = signal.signal(signal.SIGTERM, handler)
+    try:
+        yield noted
+    finally:
+        signal.signal(signal.SIGTERM, old)
+
+
+def _stop_if_terminated(ctx) -> None:
+    if ctx.term.get("term"):
+        raise Terminated()
 
 
 def rows_from_study(study, q: Question, known: dict[int, dict]) -> list[dict]:
@@ -365,9 +401,9 @@ def search(scenes: list[str], bases: list[list[str]], q: Question, *, out: Path,
         with locked_dir(out, kind="search", protect=tuple(p for s in sc for p in (s.toml, s.toml.parent))):
             _check_record(out, record)
             write_json(out / "search.json", record)
-            with sigterm_raises():
-                return _search_loop(sc, q, out, _Context(dask, plans, hashes, None, progress, log), reuse_render,
-                                    read_trials, write_trials, write_best)
+            with _sigterm_noted() as term:
+                return _search_loop(sc, q, out, _Context(dask, plans, hashes, None, progress, log, term),
+                                    reuse_render, read_trials, write_trials, write_best)
     finally:
         dask.close()
 
@@ -398,6 +434,7 @@ def _search_loop(sc, q: Question, out: Path, ctx: _Context, reuse_render: bool, 
             rows += new
             n_done = len(evaluated(study))
             df = write_trials(rows, out)
+            _stop_if_terminated(ctx)
             best = df[df["state"] == "ok"]["objective"]
             log(f"poevp search: trials {new[0]['trial']}-{new[-1]['trial']} done in {time.perf_counter() - t0:.1f} s; "
                 f"best so far {(best.max() if q.objective.direction == 'maximize' else best.min()) if len(best) else 'none'}")
