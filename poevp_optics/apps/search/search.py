@@ -28,7 +28,6 @@ scene's metric, the constraints, the point folders, whether their radiance was r
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
 import json
 import math
@@ -38,7 +37,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from poevp_optics.apps.search.space import Objective, Param, metric_value, parse_param
-from poevp_optics.apps.sweep.execute import ClusterSettings, DaskSession, execute_points
+from poevp_optics.apps.sweep.execute import (ClusterSettings, DaskSession, execute_points, sigterm_noted,
+                                             stop_if_terminated)
 from poevp_optics.apps.sweep.sweep_grid import canonical, point_key
 from poevp_optics.core.exceptions import SceneError
 from poevp_optics.core.io import locked_dir, write_json
@@ -330,33 +330,8 @@ class _Context:
     term: dict
 
 
-@contextlib.contextmanager
-def _sigterm_noted():
-    """SIGTERM raises Terminated (core.runtime.sigterm_raises) and is also noted in the yielded
-    dict (`term`), which the search checks after every point and batch: a SIGTERM that arrives
-    while a library swallows exceptions (Dask's garbage-collection callback) still stops it."""
-    import signal
-    import threading
-
-    noted = {"term": False}
-    if threading.current_thread() is not threading.main_thread():
-        yield noted
-        return
-
-    def handler(signum, frame):
-        noted["term"] = True
-        raise Terminated()
-
-    old = signal.signal(signal.SIGTERM, handler)
-    try:
-        yield noted
-    finally:
-        signal.signal(signal.SIGTERM, old)
-
-
 def _stop_if_terminated(ctx) -> None:
-    if ctx.term.get("term"):
-        raise Terminated()
+    stop_if_terminated(ctx.term)
 
 
 def rows_from_study(study, q: Question, known: dict[int, dict]) -> list[dict]:
@@ -401,7 +376,7 @@ def search(scenes: list[str], bases: list[list[str]], q: Question, *, out: Path,
         with locked_dir(out, kind="search", protect=tuple(p for s in sc for p in (s.toml, s.toml.parent))):
             _check_record(out, record)
             write_json(out / "search.json", record)
-            with _sigterm_noted() as term:
+            with sigterm_noted() as term:
                 return _search_loop(sc, q, out, _Context(dask, plans, hashes, None, progress, log, term),
                                     reuse_render, read_trials, write_trials, write_best)
     finally:

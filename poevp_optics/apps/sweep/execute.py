@@ -6,6 +6,7 @@ search's trials)."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 import uuid
 from dataclasses import dataclass, replace
@@ -16,6 +17,7 @@ from poevp_optics.apps.sweep.bundle import InputPlan, InputRef, make_bundle, unp
 from poevp_optics.apps.sweep.cluster import ClusterError, check_workers, connect, dashboard_link, software_versions
 from poevp_optics.apps.sweep.point import PointTask, one_line, run_point
 from poevp_optics.core.io import MARKER, staged_dir
+from poevp_optics.core.runtime import Terminated
 
 
 @dataclass(frozen=True)
@@ -109,6 +111,37 @@ class DaskSession:
         if self.cluster is not None:
             self.cluster.close()
         self.client = self.cluster = None
+
+
+@contextlib.contextmanager
+def sigterm_noted():
+    """SIGTERM raises Terminated (as core.runtime.sigterm_raises) and is also noted in the
+    yielded dict (`term`), which a sweep or search checks after every point (`stop_if_terminated`):
+    a SIGTERM that arrives while a library swallows exceptions (Dask's garbage-collection
+    callback) still stops it."""
+    import signal
+    import threading
+
+    noted = {"term": False}
+    if threading.current_thread() is not threading.main_thread():
+        yield noted
+        return
+
+    def handler(signum, frame):
+        noted["term"] = True
+        raise Terminated()
+
+    old = signal.signal(signal.SIGTERM, handler)
+    try:
+        yield noted
+    finally:
+        signal.signal(signal.SIGTERM, old)
+
+
+def stop_if_terminated(noted: dict | None) -> None:
+    """Raise Terminated when `sigterm_noted` saw a SIGTERM."""
+    if noted and noted.get("term"):
+        raise Terminated()
 
 
 def write_point(folder: Path, archive: bytes, job: str) -> None:

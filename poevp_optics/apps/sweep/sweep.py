@@ -52,7 +52,8 @@ import numpy as np
 
 from poevp_optics.apps.sweep.bundle import InputPlan, make_plan, scene_inputs, with_hashes
 from poevp_optics.apps.sweep.cluster import ClusterError, check_local_flags
-from poevp_optics.apps.sweep.execute import ClusterSettings, DaskSession, execute_points
+from poevp_optics.apps.sweep.execute import (ClusterSettings, DaskSession, execute_points, sigterm_noted,
+                                             stop_if_terminated)
 from poevp_optics.apps.sweep.point import PointTask, flatten_report, run_point  # noqa: F401
 from poevp_optics.apps.run.runner import sweep_jobs
 from poevp_optics.apps.sweep.reuse import columns_from_report, reuse_columns
@@ -64,7 +65,7 @@ from poevp_optics.apps.sweep.sweep_state import (RECORD_KEYS, TABLE_COLUMNS, Swe
 from poevp_optics.apps.run.run_size import MAX_SEEDS, MAX_SWEEP_RUNS, RunTooLarge
 from poevp_optics.core.exceptions import SceneError
 from poevp_optics.core.io import atomic_path, locked_dir, write_json
-from poevp_optics.core.runtime import Terminated, sigterm_raises
+from poevp_optics.core.runtime import Terminated
 from poevp_optics.scene.load import apply_overrides, load_scene, resolve_scene_path
 
 # ---------------------------------------------------------------------------- one point
@@ -189,9 +190,9 @@ def sweep(scene: str, grid_args: list[str], *, out: Path, seeds: int = 1, worker
                                      f"it started ({'; '.join(diffs)}); give another --out, or remove "
                                      f"{out} to start over")
             write_json(mpath, record)
-            with sigterm_raises():
+            with sigterm_noted() as term:
                 return _run_sweep(scene, out, keys, combos, point_refs, plan, seeds, base, job, dask, metric,
-                                  progress, retry_failed, log, rebuild, sizes, reuse_render)
+                                  progress, retry_failed, log, rebuild, sizes, reuse_render, term)
     finally:
         dask.close()
 
@@ -220,7 +221,7 @@ def _check_sizes(specs, job: str, seeds: int, toml: Path, yes: bool, out, cl: Cl
 
 
 def _run_sweep(scene, out, keys, combos, point_refs, plan, seeds, base, job, dask, metric, progress,
-               retry_failed, log, rebuild=False, sizes=None, reuse_render=False):
+               retry_failed, log, rebuild=False, sizes=None, reuse_render=False, term=None):
     import shutil
     import tomllib
 
@@ -267,7 +268,7 @@ def _run_sweep(scene, out, keys, combos, point_refs, plan, seeds, base, job, das
             from poevp_optics.apps.sweep.reuse import RenderReuse, point_render_groups
 
             reuse = RenderReuse(out, point_render_groups(scene, todo, job, log), plan.mode == "shared", log)
-        df = _execute(todo, rows, out, job, plan, dask, progress, log, reuse)
+        df = _execute(todo, rows, out, job, plan, dask, progress, log, reuse, term)
     if df is not None and metric:
         path = plot_metric(df, keys, metric, out / f"plot_{metric.replace('.', '_')}.png")
         if path:
@@ -305,13 +306,14 @@ def run_points(todo, out: Path, job: str, plan: InputPlan, cl: ClusterSettings, 
         dask.close()
 
 
-def _execute(todo, rows, out, job, plan: InputPlan, dask: DaskSession, progress, log, reuse=None):
+def _execute(todo, rows, out, job, plan: InputPlan, dask: DaskSession, progress, log, reuse=None, term=None):
     """execute_points with the sweep's table rewritten after every point; returns the table."""
     table = [None]
 
     def on_result(task, res):
         rows.append({**task[0], **res["row"], **reuse_columns(reuse, res)})
         table[0] = write_table(rows, out)
+        stop_if_terminated(term)
 
     try:
         execute_points(todo, job, plan, dask, on_result=on_result, reuse=reuse, progress=progress, log=log,
