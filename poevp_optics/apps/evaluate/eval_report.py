@@ -201,6 +201,8 @@ def write_tables(out: Path, rows: list[dict], cfg, seconds: float, extra_text: s
 CLIPPED_SHARE, DARK_P90 = 0.25, 64.0
 #: Eq. 2's readings that cannot dim a prediction clipped at 255 below saturation (control/masks.py).
 UNCLIPPABLE_LAWS = ("threshold_ratio", "threshold_exp")
+#: The methods that are not POE-VP: the LDR twin and the two exposure fusions (evaluate.py runs them).
+BASELINES = ("ldr", "fusion_classic", "fusion_deghost")
 
 
 def zero_read_reason(rows: list[dict], law: str = "") -> str | None:
@@ -208,8 +210,6 @@ def zero_read_reason(rows: list[dict], law: str = "") -> str | None:
     POE-VP method, the oracle included) reads: the plate clipped or dark in most frames of each
     (medians over its frames), or the plate legible but not found by the detector, or what the
     OCR read instead."""
-    from poevp_optics.apps.evaluate.evaluate import BASELINES
-
     poevp = [r for r in rows if r["method"] not in BASELINES]
     if any(r["alpr_ok"] for r in rows):
         if not poevp or any(r["alpr_ok"] for r in poevp):

@@ -45,6 +45,7 @@ import numpy as np
 
 from poevp_optics.analysis.metrics import crop, entropy_8bit, to_8bit
 from poevp_optics.analysis.recognition import alpr_read, correct, read_plate, search_window
+from poevp_optics.apps.evaluate.eval_report import BASELINES
 from poevp_optics.apps.evaluate.eval_paper import PROTOCOL_LAWS, is_paper_scene, protocol_law, run_paper
 from poevp_optics.apps.evaluate.eval_sequences import (E_READINGS, KINDS, SequenceSpec, calibrate, eval_overrides,
                                               peak_gain, render_sequences)
@@ -62,7 +63,6 @@ BASE = SCENES_DIR / "highbeam_plate"
 #: random_plate_text) are all 7 characters ("LL D" + 4), so no test text was ever trained on.
 TEXTS = ("KA 7391", "MH 2046", "TN 0952", "DL 3817")
 FUSION_EXPOSURES = (1 / 8, 1 / 5, 1.0)
-BASELINES = ("ldr", "fusion_classic", "fusion_deghost")
 @dataclass(frozen=True)
 class EvalConfig:
     """What one `poevp evaluate` run measures (defaults: the benchmark in benchmarks/results)."""
