@@ -20,14 +20,15 @@ theta the heading (deg, 0 = right, 90 = down: image axes):
 
 The event is at u = `event_frac` (frames - 1). e(theta) is the heading's unit vector, n(theta)
 its normal. Defaults (`PathSpec`): event at the middle frame, a 2-frame reversal ramp, a 6-frame
-lane change of 2 v, a 16-frame swerve; the training set (apps/train/train_track.py) draws each
+lane change of 2 v, a 16-frame swerve, no growth; the training set (apps/train/train_track.py) draws each
 from `TRAINING_SHAPES`, and the held-out traffic benchmark (analysis/traffic_paths.py) uses
 another generator whose shapes lie outside these ranges.
 
-The sequence: a textured car body (grey, 0.35 x the frame's width) carrying a white plate whose light is E times over saturation
-in a Gaussian highlight (paper Eq. 3, H = O (E G + 1), G peak 1), on a textured road, each frame
-rendered by an exact sub-pixel translation of the HDR layer, clipped at 255 and rounded as an
-8-bit camera would (no noise unless `noise_dn` > 0).
+The sequence: a textured car body (grey, 0.35 x the frame's width) carrying a white plate whose
+light is E times over saturation in a Gaussian highlight (paper Eq. 3, H = O (E G + 1), G peak 1),
+on a textured road, each frame rendered by an exact sub-pixel translation (and scaling, when the
+car grows) of the HDR layer, clipped at 255 and rounded as an 8-bit camera would (no noise
+unless `noise_dn` > 0).
 
 The default swerve's period, 16 frames, is 0.53 s at 30 fps: a hard evasive swerve (a lane
 change and back takes 2-4 s on the road); its peak lateral speed is v / 2. The default lane
@@ -49,7 +50,7 @@ KINDS = ("straight", "curved", "accelerating", "braking", "swerve", "lane_change
 #: outside them (analysis/traffic_paths.py, tests/unit/test_traffic_paths.py).
 TRAINING_SHAPES = {"turn_rad": (0.04, 0.25), "event_frac": (0.3, 0.7), "reversal_ramp_frames": (2.5, 8.0),
                    "stop_ramp_frames": (0.25, 6.0), "width_frames": (3.0, 10.0), "lane_per_v": (1.0, 3.0),
-                   "period_frames": (10.0, 24.0)}
+                   "period_frames": (10.0, 24.0), "growth_per_frame": (0.95, 1.025)}
 
 
 @dataclass(frozen=True)
@@ -57,7 +58,9 @@ class PathSpec:
     """One image-space path: kind, speed v (px/frame), heading (deg), frames, and the kinds'
     shape parameters (module docstring): turn rate (curved, rad/frame), the event's place as a
     fraction of the path (reversal, stop, go, lane change), the ramp of a reversal, stop or go
-    (frames), a lane change's width (frames) and offset (x v), a swerve's period (frames)."""
+    (frames), a lane change's width (frames) and offset (x v), a swerve's period (frames); and
+    the car's growth per frame (size ratio, any kind: 1 keeps its size; the size is 1 at the
+    middle frame)."""
 
     kind: str
     speed_px: float
@@ -69,12 +72,13 @@ class PathSpec:
     width_frames: float = 6.0
     lane_per_v: float = 2.0
     period_frames: float = SWERVE_PERIOD_FRAMES
+    growth_per_frame: float = 1.0
 
     def __post_init__(self):
         if self.kind not in KINDS:
             raise ValueError(f"motion kind {self.kind!r}: choose one of {', '.join(KINDS)}")
-        if self.ramp_frames <= 0 or self.width_frames <= 0 or self.period_frames <= 0:
-            raise ValueError(f"{self}: ramp_frames, width_frames and period_frames must be > 0")
+        if min(self.ramp_frames, self.width_frames, self.period_frames, self.growth_per_frame) <= 0:
+            raise ValueError(f"{self}: ramp_frames, width_frames, period_frames and growth_per_frame must be > 0")
 
 
 def _integrated(u: np.ndarray, knots_u, knots_v, n: float) -> np.ndarray:
@@ -172,17 +176,17 @@ def render_sequence(path: PathSpec, shape=(368, 640), e_over: float = 9.0, text:
     c = centres(path, u)
     span = (c.max(0) + c.min(0)) / 2
     c = c - span + np.array([w / 2.0, h / 2.0])
+    size = path.growth_per_frame ** (u - (path.frames - 1) / 2.0)
     frames = []
-    for cx, cy in c:
-        x0, y0 = cx - cw / 2.0, cy - ch / 2.0
-        m = np.float32([[1, 0, x0], [0, 1, y0]])
+    for (cx, cy), sz in zip(c, size):
+        m = np.float32([[sz, 0, cx - sz * cw / 2.0], [0, sz, cy - sz * ch / 2.0]])
         layer = cv2.warpAffine(body, m, (w, h), flags=cv2.INTER_LINEAR, borderValue=0)
         cover = cv2.warpAffine(alpha, m, (w, h), flags=cv2.INTER_LINEAR, borderValue=0)
         img = road * (1 - cover) + layer
         if noise_dn > 0:
             img = img + rng.normal(0, noise_dn, img.shape)
         frames.append(np.clip(np.rint(img), 0, 255).astype(np.float32))
-    plate_c = c + np.array([0.0, (py0 + ph / 2.0) - ch / 2.0])
+    plate_c = c + size[:, None] * np.array([0.0, (py0 + ph / 2.0) - ch / 2.0])
     return HighlightSequence(np.stack(frames), plate_c, path)
 
 

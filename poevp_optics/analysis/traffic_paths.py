@@ -17,9 +17,9 @@ lights (a street lamp, a parked car's lamps). Each scene follows one motion fami
 | shake        | straight-driving vehicles and our camera's pitch bounce (1-3 Hz) and yaw drift: every light moves together |
 
 Disjoint from training (`BENCH_SHAPES` against motion_paths.TRAINING_SHAPES, checked by
-`check_disjoint` and tests/unit/test_traffic_paths.py): the turn rates, lane-change widths and
-braking ramps lie outside the training ranges, and the other families (growth, IDM, edges, two
-vehicles, global motion) have no training counterpart; the highlights are other shapes (lamps 200-600x,
+`check_disjoint` and tests/unit/test_traffic_paths.py): the turn rates, lane-change widths,
+braking ramps and growth rates lie outside the training ranges, and the other families (IDM,
+edges, two vehicles, global motion) have no training counterpart; the highlights are other shapes (lamps 200-600x,
 plates 55-70x over saturation against training's 5-50x); the seeds come from their own stream
 (`BENCH_SEED`). The scene's frame rate is 10 or 15 fps (the scene library's night_road runs at 10).
 """
@@ -38,12 +38,14 @@ HEADLAMP_E = (200.0, 600.0)
 PLATE_E = (55.0, 70.0)
 #: Shape parameters of the families (low, high), each outside motion_paths.TRAINING_SHAPES' range of
 #: the same motion (`check_disjoint`): turn rate (rad/frame) against turn_rad, lane-change width
-#: (frames) against width_frames, the leader's braking ramp (frames) against stop_ramp_frames.
+#: (frames) against width_frames, the leader's braking ramp (frames) against stop_ramp_frames, the
+#: approach's growth per frame against growth_per_frame.
 BENCH_SHAPES = {"turn_rad": (0.27, 0.45), "width_frames": (12.0, 24.0), "stop_ramp_frames": (8.0, 20.0),
                 "growth_per_frame": (1.03, 1.09), "lane_px": (30.0, 90.0), "shake_px": (4.0, 12.0),
                 "shake_cycles_per_frame": (0.07, 0.3)}
 #: Which training shape each benchmark shape stands against.
-_COUNTERPART = {"turn_rad": "turn_rad", "width_frames": "width_frames", "stop_ramp_frames": "stop_ramp_frames"}
+_COUNTERPART = {"turn_rad": "turn_rad", "width_frames": "width_frames", "stop_ramp_frames": "stop_ramp_frames",
+                "growth_per_frame": "growth_per_frame"}
 FRAMES = 12
 #: Heights of the lamps' and the plate's centres below the body's centre (x the body's height).
 LAMP_Y, PLATE_Y = -0.05, 0.3

@@ -23,7 +23,7 @@ scale with constant velocity), here without the filter: the last two frames set 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -35,6 +35,10 @@ MAX_AREA_RATIO = 2.0
 #: Claims on one previous region whose overlaps (IoU) lie this close are a tie, settled by the
 #: smaller shift (a light appearing beside a standing one is new: the standing one keeps its match).
 IOU_TIE = 0.1
+#: A region whose claim lost tries the shifts of this many matched regions nearest it ...
+RETRY_NEIGHBOURS = 3
+#: ... and takes one that moves it back onto an unclaimed region with at least this IoU.
+RETRY_IOU = 0.5
 
 
 def components(bright: np.ndarray):
@@ -49,17 +53,48 @@ def components(bright: np.ndarray):
 class RegionMatch:
     """A region of the later frame (its label) and the region of the earlier frame it is the
     same light as (`prev_label`, 0 = none: a new region), with the measured shift (px, from the
-    earlier frame to the later) and its correlation response (1 where no correlation is made)."""
+    earlier frame to the later) and its correlation response (1 where no correlation is made);
+    `growth`: the linear size ratio sqrt(area later / area earlier) of a matched pair, 1 where
+    either region touches the frame's edge (its visible area is not its size) or unmatched."""
 
     label: int
     prev_label: int
     shift: tuple[float, float]
     response: float
+    growth: float = 1.0
 
 
 def _touches_edge(stat, shape) -> bool:
     x, y, w, h = (int(v) for v in stat[:4])
     return x == 0 or y == 0 or x + w >= shape[1] or y + h >= shape[0]
+
+
+def _claim(k: int, dx: float, dy: float, labels, stats, prev_labels, prev_stats) -> tuple[int, float]:
+    """(earlier region, IoU) that later region k, moved back by (dx, dy), overlaps most; (0, 0)
+    where it overlaps none or leaves the frame."""
+    h, w = labels.shape
+    x, y, bw, bh, area = (int(v) for v in stats[k])
+    ox, oy = x - int(round(dx)), y - int(round(dy))
+    y0, x0, y1, x1 = max(oy, 0), max(ox, 0), min(oy + bh, h), min(ox + bw, w)      # clipped to the frame
+    if y1 <= y0 or x1 <= x0:
+        return 0, 0.0
+    moved = (labels[y:y + bh, x:x + bw] == k)[y0 - oy:y1 - oy, x0 - ox:x1 - ox]
+    under = prev_labels[y0:y1, x0:x1][moved]
+    ids, counts = np.unique(under[under > 0], return_counts=True)
+    if ids.size == 0:
+        return 0, 0.0
+    iou = counts / (area + prev_stats[ids, 4] - counts)
+    return int(ids[np.argmax(iou)]), float(iou.max())
+
+
+def _pair(k: int, j: int, stats, prev_stats, shape) -> float | None:
+    """Growth (linear size ratio) of later region k against earlier region j when their areas
+    are alike (1 when either is cut by the frame's edge: its visible area changes as it enters
+    or leaves), None when they are not."""
+    if _touches_edge(stats[k], shape) or _touches_edge(prev_stats[j], shape):
+        return 1.0
+    a, b = float(stats[k, 4]), float(prev_stats[j, 4])
+    return float(np.sqrt(a / b)) if max(a, b) <= MAX_AREA_RATIO * min(a, b) else None
 
 
 def match_regions(prev_labels: np.ndarray, prev_stats: np.ndarray, labels: np.ndarray, stats: np.ndarray,
@@ -73,39 +108,38 @@ def match_regions(prev_labels: np.ndarray, prev_stats: np.ndarray, labels: np.nd
     of the highest IoU, ties (within `IOU_TIE`) going to the smaller shift. A claim stands when
     it won, its response is at least `min_response`, and the two areas differ by at most
     `MAX_AREA_RATIO` (not checked for a region cut by the frame's edge: its visible area changes
-    as it enters or leaves). Every other region is new (prev_label 0)."""
-    h, w = labels.shape
+    as it enters or leaves). A region whose claim lost tries the shifts of the matched regions
+    nearest it (a car's lamps move together: the outline correlation of one lamp of a pair
+    may land on its twin) and is matched by one that moves it back onto an unclaimed region
+    of alike area with IoU >= `RETRY_IOU`. Every other region is new (prev_label 0)."""
+    shape = labels.shape
     claims: dict[int, list[tuple[float, float, int]]] = {}
-    best: dict[int, tuple[int, float]] = {}
+    best: dict[int, int] = {}
     for k, (dx, dy, resp) in shifts.items():
-        x, y, bw, bh, area = (int(v) for v in stats[k])
-        region = (labels[y:y + bh, x:x + bw] == k).astype(np.uint8)
-        ox, oy = x - int(round(dx)), y - int(round(dy))
-        # the region moved back, clipped to the frame
-        y0, x0, y1, x1 = max(oy, 0), max(ox, 0), min(oy + bh, h), min(ox + bw, w)
-        if resp < min_response or y1 <= y0 or x1 <= x0:
-            continue
-        moved = region[y0 - oy:y1 - oy, x0 - ox:x1 - ox].astype(bool)
-        under = prev_labels[y0:y1, x0:x1][moved]
-        ids, counts = np.unique(under[under > 0], return_counts=True)
-        if ids.size == 0:
-            continue
-        iou = counts / (area + prev_stats[ids, 4] - counts)
-        j = int(ids[np.argmax(iou)])
-        best[k] = (j, float(iou.max()))
-        claims.setdefault(j, []).append((float(iou.max()), float(np.hypot(dx, dy)), k))
-    out = {}
-    for k, (dx, dy, resp) in shifts.items():
-        prev = 0
-        if k in best:
-            j, _ = best[k]
-            top = max(c[0] for c in claims[j])
-            winner = min((c for c in claims[j] if c[0] >= top - IOU_TIE), key=lambda c: (c[1], -c[0]))[2]
-            a, b = float(stats[k, 4]), float(prev_stats[j, 4])
-            alike = max(a, b) <= MAX_AREA_RATIO * min(a, b)
-            if winner == k and (alike or _touches_edge(stats[k], (h, w)) or _touches_edge(prev_stats[j], (h, w))):
-                prev = j
-        out[k] = RegionMatch(k, prev, (float(dx), float(dy)), float(resp))
+        j, iou = _claim(k, dx, dy, labels, stats, prev_labels, prev_stats) if resp >= min_response else (0, 0.0)
+        if j:
+            best[k] = j
+            claims.setdefault(j, []).append((iou, float(np.hypot(dx, dy)), k))
+    out = {k: RegionMatch(k, 0, (float(dx), float(dy)), float(resp)) for k, (dx, dy, resp) in shifts.items()}
+    taken = set()
+    for k, j in best.items():
+        top = max(c[0] for c in claims[j])
+        winner = min((c for c in claims[j] if c[0] >= top - IOU_TIE), key=lambda c: (c[1], -c[0]))[2]
+        growth = _pair(k, j, stats, prev_stats, shape)
+        if winner == k and growth is not None:
+            out[k] = replace(out[k], prev_label=j, growth=growth)
+            taken.add(j)
+    centre = lambda st: np.array([st[0] + st[2] / 2.0, st[1] + st[3] / 2.0])
+    matched = [m for m in out.values() if m.prev_label]
+    for k in [k for k in best if not out[k].prev_label]:
+        near = sorted(matched, key=lambda m: float(np.hypot(*(centre(stats[m.label]) - centre(stats[k])))))
+        for m in near[:RETRY_NEIGHBOURS]:
+            j, iou = _claim(k, *m.shift, labels, stats, prev_labels, prev_stats)
+            growth = _pair(k, j, stats, prev_stats, shape) if j and j not in taken and iou >= RETRY_IOU else None
+            if growth is not None:
+                out[k] = replace(out[k], prev_label=j, shift=m.shift, growth=growth)
+                taken.add(j)
+                break
     return out
 
 

@@ -112,3 +112,18 @@ def test_extrapolate_leaves_a_split_off_region_in_place():
     out = extrapolate(prev, cur, 0.5)
     assert out[:, 40:].sum() == 0                        # the small split-off piece: no match
     assert out[:, :40].any()
+
+
+def test_a_lamp_whose_correlation_landed_on_its_twin_takes_its_neighbours_shift():
+    """A pair of like boxes moving 10 px right; the second box's own shift (40 px) moves it back
+    onto the first box's old place (what the outline correlation can do with twin lamps): both
+    claim that box, the smaller shift keeps it, and the second box, trying its neighbour's shift,
+    lands on its own old place (unclaimed, IoU 1): matched with (10, 0)."""
+    prev = _boxes((10, 10, 8, 8), (10, 40, 8, 8))
+    cur = _boxes((10, 20, 8, 8), (10, 50, 8, 8))
+    lp, sp = components(prev)
+    lc, sc = components(cur)
+    a, b = lc[12, 22], lc[12, 52]
+    m = match_regions(lp, sp, lc, sc, {a: (10.0, 0.0, 1.0), b: (40.0, 0.0, 1.0)})
+    assert m[a].prev_label == lp[12, 12] and m[b].prev_label == lp[12, 42]
+    assert m[b].shift == (10.0, 0.0)

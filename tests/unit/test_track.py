@@ -166,3 +166,54 @@ def test_track_net_splits_hold_other_data():
     assert h(train) != h(test) and h(train) == h(again)
     chains = lambda samples: {to_tensors([x])["disp"].numpy().tobytes() for x in samples}
     assert not chains(train) & chains(test) and chains(train) == chains(again)
+
+
+def test_closed_form_growth():
+    """Constant growth continues (geometric mean of the last two ratios); one ratio, ratios
+    that disagree, or ratios within the 1 % deadband (outline noise) are no growth; limited to
+    1.25 a frame."""
+    from poevp_optics.control.predictors.track import closed_form_growth
+
+    assert closed_form_growth((1.1, 1.1, 1.1)) == pytest.approx(1.1)
+    assert closed_form_growth((1.21, 1.0 / 0.9)) == pytest.approx(np.sqrt(1.21 / 0.9))
+    assert closed_form_growth((0.9, 0.9)) == pytest.approx(0.9)
+    assert closed_form_growth((1.1,)) == 1.0 and closed_form_growth((1.1, 0.95)) == 1.0
+    assert closed_form_growth((1.005, 1.005)) == 1.0 and closed_form_growth((1.5, 1.5)) == 1.25
+
+
+@pytest.mark.parametrize("name", ["track", "track_net"])
+def test_a_growing_light_is_predicted_grown(name):
+    """A clipped lamp growing 10 % a frame about a fixed centre (an approaching car's lamp):
+    the prediction's saturated region is the next frame's, IoU >= 0.9, where `flow` and `hold`
+    (no growth) keep last frame's size (IoU 1/1.21 = 0.83 at best for an ellipse scaled 1.1)."""
+    from poevp_optics.analysis.prediction_metrics import saturated_iou
+    from tests.unit.test_region_matching import lamps
+
+    frames = [lamps([(160.0, 92.0)], axes=(14.0 * 1.1 ** t, 8.0 * 1.1 ** t)) for t in range(5)]
+    got = saturated_iou(make_predictor(name)(frames[:4]), frames[4])
+    held = saturated_iou(make_predictor("flow")(frames[:4]), frames[4])
+    assert got >= 0.9 and held < 0.85, (got, held)
+
+
+def test_track_net_numpy_forward_equals_the_model():
+    """The loop's NumPy inference equals the torch model (float32 rounding), stopped chains
+    (newest displacement under STOP_PX: predicted to stand) and missing displacements included."""
+    from poevp_optics.control.predictors.track_net import STOP_PX, numpy_forward
+
+    torch.manual_seed(1)
+    net = TrackNet()
+    for p in net.parameters():
+        torch.nn.init.normal_(p, std=0.3)
+    disp = torch.randn(200, 3, 2) * 20
+    disp[:20, 0] *= 0.5 / disp[:20, 0].norm(dim=-1, keepdim=True)   # newest displacement 0.5 px: stopped
+    valid = (torch.rand(200, 3) > 0.2).float()
+    valid[:, 0] = 1
+    resp = torch.rand(200, 3)
+    with torch.no_grad():
+        want = net(disp, valid, resp).numpy()
+    layers = [(m.weight.detach().numpy(), m.bias.detach().numpy()) for m in net.net if isinstance(m, torch.nn.Linear)]
+    got = numpy_forward(layers, disp.numpy(), valid.numpy(), resp.numpy())
+    np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-3)
+    stopped = disp[:, 0].norm(dim=-1).numpy() < STOP_PX
+    assert stopped.sum() == 20
+    np.testing.assert_array_equal(got[stopped], disp[:, 0].numpy()[stopped])

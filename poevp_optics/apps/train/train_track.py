@@ -1,8 +1,10 @@
 """Train `track_net` (control/predictors/track_net.py): the motion model over region tracks.
 
 Data: highlight sequences on image-space paths of every motion kind (analysis/motion_paths.py:
-straight, curved, accelerating, braking, swerve, lane change, reversal; speed 4-48 px/frame, any
-heading, E 5-50 over saturation, 0-2 DN noise), each sample the tracker's measured displacement
+straight, curved, accelerating, braking, swerve, lane change, reversal, stop, go, standing; speed
+4-48 px/frame, any heading, each kind's shape (event time, ramps, widths, periods) and half the
+cars' growth drawn from motion_paths.TRAINING_SHAPES, E 5-50 over saturation, 0-2 DN noise),
+each sample the tracker's measured displacement
 chain at frame t (track.py `region_tracks` on frames t-3..t, as the loop runs it) and the true
 next displacement of the plate's highlight. Or (`train_track_net_scene`, `poevp train-predictor
 SCENE --name track_net`) sequences rendered from a scene (apps/train/train_data.py): there the target
@@ -12,12 +14,12 @@ t to t+1, the quantity the mask's alignment is scored on.
 Training (`fit`): checkpoints (model, AdamW moments, the batch generator's state, the run's state)
 in safetensors every `checkpoint_every` steps; `--resume` continues bit for bit (a killed run
 resumed ends with the uninterrupted run's weights); a tqdm bar shows the loss and the validation
-median centroid error and region IoU; `--device auto` trains on CUDA when torch sees it. The
-shipped weights (the command below) are unchanged by this: same data hash, same steps.
+median centroid error and region IoU; `--device auto` trains on CUDA when torch sees it.
 
 Splits: train, val and test differ by seeds, plate texts and paths (every parameter drawn
-afresh from its own seed stream: `SPLIT_SEEDS`). Loss: L1 of the predicted displacement (px),
-i.e. the centroid error of the highlight the mask must cover. AdamW, cosine learning rate,
+afresh from its own seed stream: `SPLIT_SEEDS`). Loss (`mask_loss`): 1 - the IoU of the
+region's box with itself moved by the displacement error (the saturated pixels the mask would
+dim wrongly or leave white), plus 0.01 per px of centroid error. AdamW, cosine learning rate,
 deterministic (seeded init and batches). The record (command, data hash, split, budget, val and
 test metrics beside `flow`'s constant velocity and `track`'s closed form) goes into the weights'
 metadata and a JSON beside them.
@@ -66,7 +68,8 @@ def random_path(rng: np.random.Generator, frames: int) -> tuple[PathSpec, dict]:
                                                              else "stop_ramp_frames"]),
              "width_frames": float(rng.uniform(*TRAINING_SHAPES["width_frames"])),
              "lane_per_v": float(rng.uniform(*TRAINING_SHAPES["lane_per_v"])),
-             "period_frames": float(rng.uniform(*TRAINING_SHAPES["period_frames"]))}
+             "period_frames": float(rng.uniform(*TRAINING_SHAPES["period_frames"])),
+             "growth_per_frame": 1.0 if rng.random() < 0.5 else float(rng.uniform(*TRAINING_SHAPES["growth_per_frame"]))}
     path = PathSpec(kind, speed, heading, frames, turn, **shape)
     text = f"{''.join(rng.choice(list(LETTERS), 2))} {''.join(rng.choice(list(string.digits), 4))}"
     return path, {"text": text, "e_over": float(np.exp(rng.uniform(np.log(5.0), np.log(50.0)))),
@@ -195,6 +198,22 @@ def validation_metric(model: TrackNet, v: dict[str, torch.Tensor]) -> dict[str, 
     return out
 
 
+#: Weight of the centroid error (per px) beside the region IoU in `mask_loss`: 10 px cost 0.1.
+L1_WEIGHT_PER_PX = 0.01
+
+
+def mask_loss(err: torch.Tensor, sizes: torch.Tensor | None) -> torch.Tensor:
+    """What the mask needs from a predicted displacement with error err (N, 2) px: 1 - the
+    IoU of the region's box with itself moved by err (`box_iou_after_error`: the saturated
+    pixels the law dims that it should not, and those it leaves white), plus L1_WEIGHT_PER_PX x
+    the centroid error (px; it keeps a gradient where the boxes no longer overlap). Without the
+    regions' sizes: the centroid error alone (px)."""
+    dist = err.norm(dim=-1)
+    if sizes is None:
+        return dist.mean()
+    return (1.0 - box_iou_after_error(sizes, err)).mean() + L1_WEIGHT_PER_PX * dist.mean()
+
+
 _CKPT = "checkpoint.safetensors"
 
 
@@ -242,8 +261,8 @@ def fit(train: dict[str, torch.Tensor], val: dict[str, torch.Tensor], *, steps: 
         resume: bool = False, checkpoint_every: int = 500, run_id: dict | None = None,
         progress: bool = True, stop_after: int | None = None) -> tuple[TrackNet, dict]:
     """Train a TrackNet: AdamW, cosine learning rate over `steps`, batches drawn by a seeded CPU
-    generator (the same batches on any device), loss the mean centroid error (px) of the
-    predicted displacement. Every `checkpoint_every` steps (and at the end) the whole state goes
+    generator (the same batches on any device), loss `mask_loss` (region IoU and centroid error
+    where `train` holds the regions' sizes, else the centroid error). Every `checkpoint_every` steps (and at the end) the whole state goes
     to checkpoint_dir/checkpoint.safetensors; `resume` continues from it (refused when its
     `run_id`, the data hash and budget, differs), so a killed run resumed ends with the weights
     an uninterrupted one would. stop_after: stop (as a kill would) after that many steps,
@@ -279,7 +298,7 @@ def fit(train: dict[str, torch.Tensor], val: dict[str, torch.Tensor], *, steps: 
             g["lr"] = lr * (0.02 + 0.98 * 0.5 * (1 + np.cos(np.pi * step / steps)))
         idx = torch.randint(0, n, (batch,), generator=gen).to(device)
         pred = model(tr["disp"][idx], tr["valid"][idx], tr["resp"][idx])
-        loss = (pred - tr["target"][idx]).norm(dim=-1).mean()
+        loss = mask_loss(pred - tr["target"][idx], tr["size"][idx] if "size" in tr else None)
         opt.zero_grad()
         loss.backward()
         opt.step()
@@ -316,7 +335,7 @@ def train_track_net(*, train_sequences: int = 1200, val_sequences: int = 200, te
     splits = {name: synthetic_split(name, n, frames, progress=progress)
               for name, n in (("train", train_sequences), ("val", val_sequences), ("test", test_sequences))}
     data_s, data_cpu_s = time.perf_counter() - t0, time.process_time() - cpu0
-    tensors = {name: to_tensors(s) for name, (s, _) in splits.items()}
+    tensors = {name: {**to_tensors(s), "size": region_sizes(s)} for name, (s, _) in splits.items()}
     model, state = fit(tensors["train"], tensors["val"], steps=steps, batch=batch, lr=lr, seed=seed,
                        progress=progress)
     train_s, losses = state["train_seconds"], state["losses"]
@@ -326,12 +345,15 @@ def train_track_net(*, train_sequences: int = 1200, val_sequences: int = 200, te
               "data": {name: {"sequences": len(m), "samples": int(tensors[name]["target"].shape[0]),
                               "sha256": data_hash(tensors[name]), "seed_offset": SPLIT_SEEDS[name]}
                        for name, (_, m) in splits.items()},
-              "split": "train / val / test: disjoint seed streams (texts, paths, E, noise all drawn per seed), "
-                       "frames 368x640, analysis/motion_paths.py kinds " + ", ".join(KINDS),
+              "split": "train / val / test: disjoint seed streams (texts, paths, shapes, E, noise all drawn per "
+                       "seed), frames 368x640, analysis/motion_paths.py kinds " + ", ".join(KINDS)
+                       + ", shapes from motion_paths.TRAINING_SHAPES",
+              "loss": "1 - region box IoU after the displacement error + 0.01 / px x centroid error",
               "budget": {"steps": steps, "batch": batch, "lr": lr, "seed": seed, "device": "cpu",
                          "train_seconds": train_s, "data_seconds": data_s, "data_cpu_seconds": data_cpu_s,
                          "torch_threads": torch.get_num_threads()},
               "loss_first_200": float(np.mean(losses[:200])), "loss_last_200": float(np.mean(losses[-200:])),
+              "val_metric": state.get("val"), "test_metric": validation_metric(model, tensors["test"]),
               "val": metrics(splits["val"][0], model), "test": metrics(splits["test"][0], model)}
     if weights_out is not None:
         save_track_net(model, Path(weights_out), record)

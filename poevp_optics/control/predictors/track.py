@@ -23,9 +23,14 @@ Per frame t (history oldest first, up to four frames):
    takes the coefficients from a small trained network (track_net.py) fed only with quantities
    that do not change under rotation or mirroring of the image (lengths and dot products of the
    displacements), so it has no preferred direction by construction.
+   A region's growth (linear size ratio frame to frame, from the matched regions' areas) is
+   continued when the last two agree (`closed_form_growth`): an approaching light grows about
+   its centroid (the shift of a growing region is its centroid's: flow.py `region_matches`).
 3. **Move.** Dense DIS flow (flow.py) moves the rest of the frame as `flow` does; each region's
-   pixels are forward-splatted by its extrapolated displacement, brightest wins, values moved
-   exactly (a clipped pixel lands clipped: the clip marker survives the prediction).
+   pixels are forward-splatted by its extrapolated displacement (plus (g - 1) times their offset
+   from its centroid when it grows by g), brightest wins, values moved exactly (a clipped pixel
+   lands clipped: the clip marker survives the prediction); a growing region's spread pixels
+   are joined by pasting it scaled (`grow_region`). A new region stays where it is.
 
 Closed-form extrapolation (`track`) with the chain length available:
 
@@ -51,8 +56,8 @@ import cv2
 import numpy as np
 
 from poevp_optics.control.predictors.base import Predictor
-from poevp_optics.control.predictors.flow import MIN_REGION_PX, SATURATED, forward_splat, log_8bit, region_matches
-from poevp_optics.control.region_motion import components
+from poevp_optics.control.predictors.flow import (MIN_REGION_PX, SATURATED, forward_splat, log_8bit, region_matches,
+                                                  saturated_components)
 
 #: Longest chain of displacements followed back (four frames of history: the loop keeps four).
 MAX_CHAIN = 3
@@ -60,42 +65,51 @@ MAX_CHAIN = 3
 ACCEL_GATE = 1.0
 
 
+#: Per-frame growth ratios within this of 1 are read as no growth (the outline's pixel noise on a
+#: region of ~1000 px moves its area by a few per cent).
+GROWTH_DEADBAND = 0.01
+#: Largest growth (and its inverse, shrink) per frame that is extrapolated.
+MAX_GROWTH = 1.25
+
+
 @dataclass(frozen=True)
 class RegionTrack:
     """One saturated region of the last frame and its measured displacements (px, newest
-    first: d_t, d_{t-1}, ...), each with its phase-correlation response."""
+    first: d_t, d_{t-1}, ...), each with its phase-correlation response, and its growth
+    (linear size ratio frame to frame, newest first; region_motion.py `RegionMatch.growth`)."""
 
     label: int                              # the region's label in `region_tracks`' labels
     box: tuple[int, int, int, int]          # (y0, x0, y1, x1) in frame t
     area_px: int
     displacements: tuple[tuple[float, float], ...]
     responses: tuple[float, ...]
+    growths: tuple[float, ...] = ()
 
 
 def region_tracks(history: list[np.ndarray], max_chain: int = MAX_CHAIN) -> tuple[list[RegionTrack], np.ndarray]:
     """(tracks, labels): every saturated region of the last frame with its displacement chain
     (module docstring, step 1), and the last frame's region labels (0 = none)."""
-    sats = [np.asarray(f) >= SATURATED for f in history]
+    sats = [np.asarray(f) >= SATURATED for f in history[-(max_chain + 1):]]
+    cc = [saturated_components(s) for s in sats]
     # pairs[j]: frame t-j's regions, each with its shift from frame t-j-1 and its match there
-    pairs = [region_matches(sats[-2 - j], sats[-1 - j]) for j in range(min(max_chain, len(history) - 1))]
-    if pairs:
-        labels, stats, _ = pairs[0]
-    else:
-        labels, stats = components(sats[-1])
+    pairs = [region_matches(sats[-2 - j], sats[-1 - j], cc[-2 - j], cc[-1 - j])
+             for j in range(min(max_chain, len(sats) - 1))]
+    labels, stats = cc[-1][1], cc[-1][2]
     tracks = []
     for k in range(1, len(stats)):
         x, y, bw, bh, area = (int(v) for v in stats[k])
         if area < MIN_REGION_PX:
             continue
-        disp, resp, label = [], [], k
+        disp, resp, grow, label = [], [], [], k
         for _, _, matches in pairs:
             m = matches.get(label)
             if m is None or not m.prev_label:
                 break                                    # new in this frame, or too small to follow
             disp.append(m.shift)
             resp.append(m.response)
+            grow.append(m.growth)
             label = m.prev_label
-        tracks.append(RegionTrack(k, (y, x, y + bh, x + bw), area, tuple(disp), tuple(resp)))
+        tracks.append(RegionTrack(k, (y, x, y + bh, x + bw), area, tuple(disp), tuple(resp), tuple(grow)))
     return tracks, labels
 
 
@@ -114,6 +128,39 @@ def closed_form_displacement(displacements) -> np.ndarray:
     if np.hypot(*(d[1] - d[2])) > ACCEL_GATE * max(float(np.hypot(*d[1])), 1.0):
         return 2 * d[0] - d[1]
     return (4 * d[0] + d[1] - 2 * d[2]) / 3.0
+
+
+def closed_form_growth(growths) -> float:
+    """Next frame's growth (linear size ratio) from the measured ones (newest first): constant
+    growth, the geometric mean of the last two, when both grow or both shrink beyond
+    GROWTH_DEADBAND; else 1 (one ratio, or ratios that disagree: outline noise, not growth).
+    Limited to [1 / MAX_GROWTH, MAX_GROWTH]."""
+    g = np.asarray(growths[:2], dtype=np.float64)
+    if len(g) < 2 or not (np.all(g > 1 + GROWTH_DEADBAND) or np.all(g < 1 - GROWTH_DEADBAND)):
+        return 1.0
+    return float(np.clip(np.sqrt(g[0] * g[1]), 1.0 / MAX_GROWTH, MAX_GROWTH))
+
+
+def grow_region(out: np.ndarray, frame: np.ndarray, region: np.ndarray, box, d, growth: float) -> None:
+    """Paste the region's pixels of `frame` (`region`: bool in `box` (y0, x0, y1, x1)) into
+    `out`, scaled by `growth` about its centroid and moved by d (px), brightest wins (in place):
+    the forward splat of a growing region leaves holes between its spread pixels; this fills them
+    with the region's own values (nearest neighbour: a clipped pixel lands clipped)."""
+    y0, x0, y1, x1 = box
+    h, w = out.shape
+    ys, xs = np.nonzero(region)
+    cy, cx = ys.mean() + y0, xs.mean() + x0
+    ny0, nx0 = int(np.floor(cy + d[1] - growth * (cy - y0))) - 1, int(np.floor(cx + d[0] - growth * (cx - x0))) - 1
+    ny1, nx1 = int(np.ceil(cy + d[1] + growth * (y1 - cy))) + 1, int(np.ceil(cx + d[0] + growth * (x1 - cx))) + 1
+    ny0, nx0, ny1, nx1 = max(ny0, 0), max(nx0, 0), min(ny1, h), min(nx1, w)
+    if ny1 <= ny0 or nx1 <= nx0:
+        return
+    crop = np.where(region, frame[y0:y1, x0:x1], 0.0).astype(np.float32)
+    # crop pixel x lands at g (x + x0 - cx) + cx + dx, i.e. g x + (g x0 + (1 - g) cx + dx - nx0) in the output box
+    m = np.float32([[growth, 0, growth * x0 + (1 - growth) * cx + d[0] - nx0],
+                    [0, growth, growth * y0 + (1 - growth) * cy + d[1] - ny0]])
+    moved = cv2.warpAffine(crop, m, (nx1 - nx0, ny1 - ny0), flags=cv2.INTER_NEAREST, borderValue=0)
+    np.maximum(out[ny0:ny1, nx0:nx1], moved, out=out[ny0:ny1, nx0:nx1])
 
 
 class RegionTracker(Predictor):
@@ -135,14 +182,26 @@ class RegionTracker(Predictor):
         p8, c8 = log_8bit(frames[-2], frames[-1])
         flow = self.dis.calc(p8, c8, None)
         tracks, labels = region_tracks(frames)
+        grown = []
         for tr, d in zip(tracks, self.next_displacement(tracks)):
             if not tr.displacements:
                 d = (0.0, 0.0)                         # new (no match back): predicted where it is
             y0, x0, y1, x1 = tr.box
             inside = labels[y0:y1, x0:x1] == tr.label
-            flow[y0:y1, x0:x1, 0][inside] = d[0]
-            flow[y0:y1, x0:x1, 1][inside] = d[1]
-        return forward_splat(frames[-1], flow)
+            g = closed_form_growth(tr.growths)
+            if g != 1.0:                               # each pixel moves by d + (g - 1)(p - centroid)
+                ys, xs = np.nonzero(inside)
+                flow[y0:y1, x0:x1, 0][inside] = d[0] + (g - 1) * (xs - xs.mean())
+                flow[y0:y1, x0:x1, 1][inside] = d[1] + (g - 1) * (ys - ys.mean())
+                grown.append((inside, tr.box, d, g))
+            else:
+                flow[y0:y1, x0:x1, 0][inside] = d[0]
+                flow[y0:y1, x0:x1, 1][inside] = d[1]
+        out = forward_splat(frames[-1], flow)
+        for inside, box, d, g in grown:
+            if g > 1.0:
+                grow_region(out, frames[-1], inside, box, d, g)
+        return out
 
     def describe(self) -> dict:
         return {"name": self.name, "context_frames": MAX_CHAIN + 1}
