@@ -350,7 +350,7 @@ def default_weights(name: str) -> Path:
 
 def load_predictor(name: str, weights: Path | None) -> DMVFNPredictor:
     """`dmvfn` runs the full network with full weights only: with none given and none shipped
-    (they are trained on a GPU: `poevp train-predictor --model dmvfn`) it refuses in one line,
+    (they are trained on a GPU: `poevp train-predictor --name dmvfn`) it refuses in one line,
     never falling back to another model under its name."""
     cfg = FULL if name == "dmvfn" else LITE
     path = weights or default_weights(name)
