@@ -57,6 +57,8 @@ SHELL_WORDS = {"poevp", "make", "python", "python3", "pip", "cp", "mv", "rm", "m
 #: Executables of the venv a newcomer runs by name once .venv/bin is on PATH (first-render.md).
 ON_PATH = ("poevp", "dask")
 #: Folders .gitignore keeps out of the repository: new files there are outputs.
+#: Variables a parent make exports to its children.
+MAKE_VARS = ("MAKELEVEL", "MAKEFLAGS", "MFLAGS", "MAKEOVERRIDES", "MAKE_TERMOUT", "MAKE_TERMERR")
 IGNORED = ("out/", "site/", "build/", ".venv/", ".pytest_cache/")
 MARKER = re.compile(r"^<!--\s*docs-test:\s*(skip|run-with|edit)\s*:\s*(.*?)\s*-->\s*$")
 FENCE = re.compile(r"^(`{3,}|~{3,})\s*([\w+-]*)")
@@ -184,7 +186,10 @@ class PageRun:
         self.bin.mkdir()
         for name in ON_PATH:
             (self.bin / name).symlink_to(VENV / "bin" / name)
-        self.env = {**os.environ, "PATH": f"{self.bin}{os.pathsep}{os.environ.get('PATH', '')}",
+        # A newcomer's shell, not the `make test` that may run this suite: no MAKELEVEL/MAKEFLAGS
+        # (under them a nested make prints "make[1]: Entering directory ...").
+        shell = {k: v for k, v in os.environ.items() if k not in MAKE_VARS}
+        self.env = {**shell, "PATH": f"{self.bin}{os.pathsep}{os.environ.get('PATH', '')}",
                     "PYTHONPATH": str(self.repo), "POEVP_SCALE": SCALE}
         self.done = -1               # index into the page's blocks of the last block run
         self.named: set[str] = set()  # paths the page's commands name (outputs they may write)
@@ -257,7 +262,7 @@ def runs_python_or_poevp(cmd: str) -> bool:
 
 def make_recipe(run: PageRun, cmd: str) -> list[str]:
     """The commands `make ... TARGET` runs (its recipe, `install` taken as done)."""
-    r = subprocess.run(["bash", "-c", cmd.replace("make ", "make -n -o install ", 1)], cwd=run.repo, env=run.env,
+    r = subprocess.run(["bash", "-c", cmd.replace("make ", "make -n --no-print-directory -o install ", 1)], cwd=run.repo, env=run.env,
                        capture_output=True, text=True)
     assert r.returncode == 0, f"`{cmd}`: no such make target?\n{r.stdout}{r.stderr}"
     return [ln for ln in r.stdout.splitlines() if ln.strip()]
