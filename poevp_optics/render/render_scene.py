@@ -29,6 +29,7 @@ if TYPE_CHECKING:
     from poevp_optics.sources.plates import PlateSpec
     from poevp_optics.render.materials.road_marking import MarkingSpec
     from poevp_optics.sources.road import RoadSpec
+    from poevp_optics.sources.furniture import FurnitureSpec
     from poevp_optics.sources.vehicles import VehicleSpec
     from poevp_optics.sources.weather import WeatherSpec
 
@@ -57,6 +58,7 @@ class RenderScene:
     weather: "WeatherSpec | None" = None     # [weather] (sources/weather.py); None: none given
     marking: Mapping[str, "MarkingSpec"] = field(default_factory=lambda: MappingProxyType({}))  # [marking.<param>]
     vehicle: Mapping[str, "VehicleSpec"] = field(default_factory=lambda: MappingProxyType({}))  # [vehicle.<id>]
+    furniture: Mapping[str, "FurnitureSpec"] = field(default_factory=lambda: MappingProxyType({}))  # [furniture.<id>]
 
     @property
     def geometry_static(self) -> bool:

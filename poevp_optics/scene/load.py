@@ -171,7 +171,7 @@ def build_spec(raw: dict, path: Path, ctx: Where | None = None, *, cross_checks:
     for ident, s in tables["spectra"].items():
         validate.check_spectrum(ctx, f"spectra.{ident}", s)
     validate.check_plugin_tables(ctx, path, tables["spectra"], tables["sheeting"])
-    validate.check_world(ctx, tables["marking"], tables["vehicle"])
+    validate.check_world(ctx, tables["marking"], tables["vehicle"], tables["furniture"])
     if "road" in raw:
         validate.check_road(ctx, sec["road"], tables["spectra"], tables["sheeting"])
     validate.check_controller_prior(ctx, sec["mask"], sec["road"], tables["spectra"], "road" in raw)
@@ -194,6 +194,7 @@ def build_spec(raw: dict, path: Path, ctx: Where | None = None, *, cross_checks:
                      description=description, motion=tables["motion"], spectra=spectra_,
                      flicker=tables["flicker"], sheeting=tables["sheeting"],
                      marking=tables["marking"], vehicle=tables["vehicle"],
+                     furniture=tables["furniture"],
                      raw=MappingProxyType(user_raw), origin=ctx.origin, defaults_applied=defaults_applied,
                      **sec)
 

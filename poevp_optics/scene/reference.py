@@ -131,7 +131,8 @@ NOTES = {
     "flicker.duty": "on fraction of each period",
     "flicker.phase_s": "start of the first on-phase",
     "flicker.off_fraction": "drive level during the off-phase (0: fully off)",
-    "sheeting.source": "R_A table: `astm_d4956:I`, `:II`, `:III`, or `file:<csv>`",
+    "sheeting.source": "R_A table: `astm_d4956:I`, `:II`, `:III`, `en12899_1:RA1`, `:RA2` (signs), "
+                       "`en1463_1:PRP1` (road studs), or `file:<csv>`",
     "sheeting.efficiency": "retroreflective efficiency bound (NaN: the preset's, 10 %)",
 }
 

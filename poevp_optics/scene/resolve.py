@@ -88,7 +88,8 @@ def resolve(spec) -> ResolvedScene:
         render=spec.render, timing=spec.timing, clock=exposure_clock(spec), motion=spec.motion,
         spectra=spec.spectra, flicker=spec.flicker, sheeting=spec.sheeting, plate=spec.plate, road=spec.road,
         has_road=has_road, source=spec.source, sensor_qe=resolve_sensor(spec.sensor).qe, accuracy=accuracy,
-        weather=spec.weather if "weather" in spec.raw else None, marking=spec.marking, vehicle=spec.vehicle)
+        weather=spec.weather if "weather" in spec.raw else None, marking=spec.marking, vehicle=spec.vehicle,
+        furniture=spec.furniture)
     camera = CameraParams(spec.sensor, spec.dmd, spec.relay, spec.objective, spec.timing,
                           tuple(spec.render.resolution), accuracy, base_dir=spec.toml_path.parent,
                           flicker=spec.flicker)

@@ -14,6 +14,7 @@
 | [marking.<param>]    | MarkingSpec      | render/materials/road_marking.py (EN 1436 lane markings) |
 | [weather]            | WeatherSpec      | sources/weather.py (fog, wet road) |
 | [vehicle.<id>]       | VehicleSpec      | sources/vehicles.py (parametric vehicle meshes and plates) |
+| [furniture.<id>]     | FurnitureSpec    | sources/furniture.py (guard rails, delineators, studs, signs, kerbs, trees, buildings) |
 | [objective]          | ObjectiveSpec    | camera/objective/   |
 | [attenuator]         | AttenuatorSpec   | camera/attenuator.py (global variable ND before the DMD) |
 | [dmd]                | DMDSpec          | camera/dmd.py (registration: camera/registration.py) |
@@ -58,6 +59,7 @@ from poevp_optics.render.materials.road_marking import MarkingSpec
 from poevp_optics.render.renderer import RenderSpec
 from poevp_optics.scene.outputs import OutputsSpec
 from poevp_optics.sources.flicker import FlickerSpec
+from poevp_optics.sources.furniture import FurnitureSpec
 from poevp_optics.sources.kinds import SourceSpec
 from poevp_optics.sources.motion import MotionSpec
 from poevp_optics.sources.plates import PlateSpec
@@ -102,6 +104,7 @@ class SceneSpec:
     weather: WeatherSpec = WeatherSpec()
     marking: Mapping[str, MarkingSpec] = field(default_factory=lambda: MappingProxyType({}))
     vehicle: Mapping[str, VehicleSpec] = field(default_factory=lambda: MappingProxyType({}))
+    furniture: Mapping[str, FurnitureSpec] = field(default_factory=lambda: MappingProxyType({}))
     origin: str = ""               # the file and the --set overrides it was read with (messages)
     defaults_applied: tuple[str, ...] = ()  # "section.key=value" of the best loop the scene did not choose (defaults.py)
 
@@ -159,5 +162,6 @@ SECTIONS = {
     "source": SourceSpec, "road": RoadSpec, "attenuator": AttenuatorSpec, "weather": WeatherSpec,
 }
 TABLE_SECTIONS = {"motion": MotionSpec, "spectra": SpectrumSpec, "flicker": FlickerSpec,
-                  "sheeting": SheetingSpec, "marking": MarkingSpec, "vehicle": VehicleSpec}
+                  "sheeting": SheetingSpec, "marking": MarkingSpec, "vehicle": VehicleSpec,
+                  "furniture": FurnitureSpec}
 TOP_KEYS = {"description"}

@@ -372,9 +372,12 @@ def check_attenuator(ctx, sec: dict):
                        f"setting would arrive late")
 
 
-def check_world(ctx, marking, vehicle) -> None:
+def check_world(ctx, marking, vehicle, furniture) -> None:
     """[marking.<param>] sources parse (render/materials/road_marking.py); each [vehicle.<id>]'s
-    shape is buildable (sources/vehicles.py: parts fit the body, the plate its recess)."""
+    shape is buildable (sources/vehicles.py: parts fit the body, the plate its recess); each
+    [furniture.<id>] fits together (sources/furniture.py)."""
+    from poevp_optics.sources.furniture import FurnitureError, resolve as resolve_furniture
+
     from poevp_optics.render.materials.retroreflective import SheetingError
     from poevp_optics.render.materials.road_marking import parse_marking
     from poevp_optics.sources.vehicles import VehicleShapeError, shape_of
@@ -389,3 +392,8 @@ def check_world(ctx, marking, vehicle) -> None:
             shape_of(v)
         except VehicleShapeError as e:
             raise ctx.fail(f"vehicle.{ident}.{e.key}", str(e)) from None
+    for ident, fu in furniture.items():
+        try:
+            resolve_furniture(fu)
+        except FurnitureError as e:
+            raise ctx.fail(f"furniture.{ident}.{e.key}", str(e)) from None

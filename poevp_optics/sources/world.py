@@ -1,11 +1,13 @@
-"""The XML parameters of the road-world sections: [weather] (sources/weather.py) and
-[vehicle.<id>] (sources/vehicles.py), checked against the XML's declared parameters.
+"""The XML parameters of the road-world sections: [weather] (sources/weather.py),
+[vehicle.<id>] (sources/vehicles.py) and [furniture.<id>] (sources/furniture.py), checked against
+the XML's declared parameters.
 
 [weather] binds the `$weather_*` parameters the XML declares, and requires the fog ones when
 fog_visibility_m > 0 and the water ones when wetness > 0. Each [vehicle.<id>] requires its parts'
 meshes and `$vehicle_<id>_matrix`, and with a plate_text its plate's matrix and texture; the
 headlamps' emitter matrices (and a plate's matrix without a text) are bound where declared. Each
-missing one is one line naming the file and the key.
+[furniture.<id>] requires its parts' meshes, `$furniture_<id>_matrix`, and for a sign its face's
+matrix and texture. Each missing one is one line naming the file and the key.
 """
 
 from __future__ import annotations
@@ -40,4 +42,12 @@ def world_xml_params(scene, defaults: frozenset[str]) -> dict[str, str]:
                 raise SceneError(f"{file}: vehicle.{ident}.plate_text: the XML {xml.name} declares no "
                                  f"<default name=\"{name}\"> (the plate's rectangle and texture)")
         params.update({k: v for k, v in values.items() if k in defaults})
+    for ident, spec in getattr(scene, "furniture", {}).items():
+        from poevp_optics.sources.furniture import required_params, xml_params as furniture_params
+
+        for name in required_params(ident, spec):
+            if name not in defaults:
+                raise SceneError(f"{file}: furniture.{ident}: the XML {xml.name} declares no "
+                                 f"<default name=\"{name}\">")
+        params.update(furniture_params(ident, spec))
     return params

@@ -216,9 +216,12 @@ def parse_sheeting(text: str, base_dir: Path | None = None) -> SheetingTable:
         if found is None:
             raise SheetingError(f"sheeting {text!r}: table file not found")
         return _read_csv_table(found.resolve(), efficiency)
-    if head not in SHEETINGS:
-        raise SheetingError(f"sheeting {head!r}: unknown preset (known: {', '.join(SHEETINGS)}, file:<csv>)")
-    table = SHEETINGS[head]
+    from poevp_optics.render.materials.furniture_sheeting import FURNITURE_SHEETINGS   # signs, studs
+
+    presets = {**SHEETINGS, **FURNITURE_SHEETINGS}
+    if head not in presets:
+        raise SheetingError(f"sheeting {head!r}: unknown preset (known: {', '.join(presets)}, file:<csv>)")
+    table = presets[head]
     if efficiency is None:
         return table
     return SheetingTable(table.name, table.alpha_deg, table.beta_deg, table.ra_cd_per_lx_m2,
