@@ -14,12 +14,13 @@ lights (a street lamp, a parked car's lamps). Each scene follows one motion fami
 | lane_change  | a lateral move of 30-90 px over 12-24 frames (smoothstep) while driving on     |
 | entering     | a vehicle driving in from the frame's edge (its lamps cut by the edge at first) |
 | crossing     | two vehicles in opposite directions passing each other (their lamps merge and part) |
-| shake        | straight-driving vehicles and our camera's pitch bounce (1-3 Hz) and yaw drift: every light moves together |
+| shake        | camera shake: straight-driving vehicles and our camera's pitch bounce (period 3-9 frames, 4-12 px) and yaw drift: every light moves together by one global shift |
 
 Disjoint from training (`BENCH_SHAPES` against motion_paths.TRAINING_SHAPES, checked by
 `check_disjoint` and tests/unit/test_traffic_paths.py): the turn rates, lane-change widths,
-braking ramps and growth rates lie outside the training ranges, and the other families (IDM,
-edges, two vehicles, global motion) have no training counterpart; the highlights are other shapes (lamps 200-600x,
+braking ramps, growth rates and the camera's pitch period (against the training swerve's) lie
+outside the training ranges, and the other families (IDM, edges, two vehicles, global motion)
+have no training counterpart; the highlights are other shapes (lamps 200-600x,
 plates 55-70x over saturation against training's 5-50x); the seeds come from their own stream
 (`BENCH_SEED`). The scene's frame rate is 10 or 15 fps (the scene library's night_road runs at 10).
 """
@@ -39,13 +40,14 @@ PLATE_E = (55.0, 70.0)
 #: Shape parameters of the families (low, high), each outside motion_paths.TRAINING_SHAPES' range of
 #: the same motion (`check_disjoint`): turn rate (rad/frame) against turn_rad, lane-change width
 #: (frames) against width_frames, the leader's braking ramp (frames) against stop_ramp_frames, the
-#: approach's growth per frame against growth_per_frame.
+#: approach's growth per frame against growth_per_frame, the camera's pitch period (frames) against
+#: the swerve's period_frames (training's only oscillation).
 BENCH_SHAPES = {"turn_rad": (0.27, 0.45), "width_frames": (12.0, 24.0), "stop_ramp_frames": (8.0, 20.0),
                 "growth_per_frame": (1.03, 1.09), "lane_px": (30.0, 90.0), "shake_px": (4.0, 12.0),
-                "shake_cycles_per_frame": (0.07, 0.3)}
+                "shake_period_frames": (3.0, 9.0)}
 #: Which training shape each benchmark shape stands against.
 _COUNTERPART = {"turn_rad": "turn_rad", "width_frames": "width_frames", "stop_ramp_frames": "stop_ramp_frames",
-                "growth_per_frame": "growth_per_frame"}
+                "growth_per_frame": "growth_per_frame", "shake_period_frames": "period_frames"}
 FRAMES = 12
 #: Heights of the lamps' and the plate's centres below the body's centre (x the body's height).
 LAMP_Y, PLATE_Y = -0.05, 0.3
@@ -163,13 +165,16 @@ def family_track(family: str, rng: np.random.Generator, v: float, n: int, fps: f
 
 def camera_shift(family: str, rng: np.random.Generator, n: int, draws: dict) -> np.ndarray:
     """(n, 2) px the whole image moves by (the camera's pitch bounce and yaw drift): zero but
-    for `shake`."""
+    for `shake`. Pitch: a sinusoid of amplitude `shake_px` and period `shake_period_frames`
+    (3-9 frames: 1.1-5 Hz at 10-15 fps, the body's pitch and the camera mount's shake over road
+    bumps; a car body's ride frequency is 1-1.5 Hz, Gillespie, Fundamentals of Vehicle Dynamics,
+    1992, ch. 5); yaw: a random walk of 0.5-2 px a frame (small steering corrections)."""
     if family != "shake":
         return np.zeros((n, 2))
     amp = draws["shake_px"] = float(rng.uniform(*BENCH_SHAPES["shake_px"]))
-    f = draws["shake_cycles_per_frame"] = float(rng.uniform(*BENCH_SHAPES["shake_cycles_per_frame"]))
+    period = draws["shake_period_frames"] = float(rng.uniform(*BENCH_SHAPES["shake_period_frames"]))
     u = np.arange(n, dtype=np.float64)
-    pitch = amp * np.sin(2 * np.pi * f * u + rng.uniform(0, 2 * np.pi))
+    pitch = amp * np.sin(2 * np.pi * u / period + rng.uniform(0, 2 * np.pi))
     yaw = np.cumsum(rng.normal(0.0, rng.uniform(0.5, 2.0), n))
     return np.stack([yaw - yaw[0], pitch - pitch[0]], 1)
 

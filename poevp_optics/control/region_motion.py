@@ -39,6 +39,12 @@ IOU_TIE = 0.1
 RETRY_NEIGHBOURS = 3
 #: ... and takes one that moves it back onto an unclaimed region with at least this IoU.
 RETRY_IOU = 0.5
+#: Matched regions whose shifts lie within this of a candidate shift (px, Euclidean) agree with it:
+#: a few times the outline correlation's spread on one light (0.1-0.5 px), well under one lamp's size.
+GLOBAL_TOL_PX = 1.5
+#: Fewest matched regions that must agree on one shift for it to be the frame's global motion: a
+#: car's two lamps and its plate move together, so fewer cannot tell the camera's motion from a car's.
+MIN_GLOBAL_REGIONS = 3
 
 
 def components(bright: np.ndarray):
@@ -141,6 +147,41 @@ def match_regions(prev_labels: np.ndarray, prev_stats: np.ndarray, labels: np.nd
                 taken.add(j)
                 break
     return out
+
+
+@dataclass(frozen=True)
+class GlobalShift:
+    """The shift (px, x and y, earlier frame to later) that the most matched regions share, the
+    number that share it (`support`, 0: no global motion found, shift 0) and their median
+    correlation response."""
+
+    shift: tuple[float, float]
+    support: int
+    response: float
+
+
+def global_shift(shifts, responses=None, tol_px: float = GLOBAL_TOL_PX,
+                 min_regions: int = MIN_GLOBAL_REGIONS) -> GlobalShift:
+    """The frame's global motion from its matched regions' shifts ((N, 2) px): a consensus (as
+    RANSAC's, Fischler & Bolles 1981, with every region's shift tried as the model): each shift
+    gathers the regions within `tol_px` of it; the largest gathering (ties: the one whose shift
+    is smallest, a standing scene) gives the per-axis median of its members' shifts, when it
+    holds at least `min_regions` regions. Fewer: no global motion (shift 0, support 0). The
+    camera's own pitch and yaw move every light by one shift, so the standing lights and the
+    lights of vehicles that move with the traffic agree on it; a lone independent mover does
+    not pull it (the median of the agreeing set, not the mean of all)."""
+    s = np.asarray(shifts, dtype=np.float64).reshape(-1, 2)
+    if len(s) < min_regions:
+        return GlobalShift((0.0, 0.0), 0, 0.0)
+    near = np.hypot(*(s[:, None, :] - s[None, :, :]).transpose(2, 0, 1)) <= tol_px
+    count = near.sum(1)
+    best = max(range(len(s)), key=lambda i: (count[i], -float(np.hypot(*s[i]))))
+    if count[best] < min_regions:
+        return GlobalShift((0.0, 0.0), 0, 0.0)
+    members = near[best]
+    g = np.median(s[members], axis=0)
+    resp = float(np.median(np.asarray(responses, np.float64)[members])) if responses is not None else 1.0
+    return GlobalShift((float(g[0]), float(g[1])), int(count[best]), resp)
 
 
 def _axis_map(p0: float, pn: float, c0: float, cn: float) -> tuple[float, float]:

@@ -16,10 +16,18 @@ Per frame t (history oldest first, up to four frames):
    lands on only when that match is mutual and the areas are alike (region_motion.py
    `match_regions`); that region is followed on to frame t-2 the same way, and so on:
    displacements d_t, d_{t-1}, d_{t-2} (px, x and y), each with its correlation response. A
-   weak response or a lost match ends the chain; a region with no match at all is new and is
-   predicted where it is.
-2. **Extrapolate.** The next displacement is a combination of the measured ones,
-   d_{t+1} = c_0 d_t + c_1 d_{t-1} + c_2 d_{t-2}: `track` uses the closed forms below; `track_net`
+   weak response or a lost match ends the chain; a region with no match at all is new.
+   **Global motion.** Our camera pitches over road bumps and yaws as we steer, and that moves
+   every light by one shift. Per frame pair, the shift most matched regions share is the
+   global shift g (region_motion.py `global_shift`: a consensus of at least three regions within
+   1.5 px, their median; none found: 0). Each region's own motion is its displacements less g
+   of the same pair, r = d - g (`RegionTrack.relative`), whatever its chain's length; the
+   global chain g_t, g_{t-1}, g_{t-2} is the frame's, from all its regions.
+2. **Extrapolate.** d_{t+1} = the region's own motion extrapolated + the global motion
+   extrapolated (`closed_form_global`: a pitch bounce is continued as a sinusoid, steady motion
+   by the table below). A new region, or one whose own chain is short, thus still moves with
+   the camera. The own motion's next step is a combination of the measured ones,
+   r_{t+1} = c_0 r_t + c_1 r_{t-1} + c_2 r_{t-2}: `track` uses the closed forms below; `track_net`
    takes the coefficients from a small trained network (track_net.py) fed only with quantities
    that do not change under rotation or mirroring of the image (lengths and dot products of the
    displacements), so it has no preferred direction by construction.
@@ -30,7 +38,8 @@ Per frame t (history oldest first, up to four frames):
    pixels are forward-splatted by its extrapolated displacement (plus (g - 1) times their offset
    from its centroid when it grows by g), brightest wins, values moved exactly (a clipped pixel
    lands clipped: the clip marker survives the prediction); a growing region's spread pixels
-   are joined by pasting it scaled (`grow_region`). A new region stays where it is.
+   are joined by pasting it scaled (`grow_region`). A new region moves by the global motion
+   alone (where there is none: it stays where it is).
 
 Closed-form extrapolation (`track`) with the chain length available:
 
@@ -84,16 +93,49 @@ class RegionTrack:
     displacements: tuple[tuple[float, float], ...]
     responses: tuple[float, ...]
     growths: tuple[float, ...] = ()
+    #: the frame's global shift per frame pair (px, newest first: g_t, g_{t-1}, ...; one per pair
+    #: of the history, whatever this region's own chain; (0, 0) where no global motion was found)
+    #: and its response: `global_chain`; the same for every region of a frame
+    global_shifts: tuple[tuple[float, float], ...] = ()
+    global_responses: tuple[float, ...] = ()
+
+    def relative(self) -> np.ndarray:
+        """(len(displacements), 2) px: the region's own displacements less the frame's global
+        shift of the same frame pair (its motion relative to the scene's common motion)."""
+        d = np.asarray(self.displacements, np.float64).reshape(-1, 2)
+        g = np.zeros_like(d)
+        k = min(len(d), len(self.global_shifts))
+        if k:
+            g[:k] = np.asarray(self.global_shifts[:k], np.float64)
+        return d - g
+
+
+def global_chain(pairs) -> tuple[tuple[tuple[float, float], ...], tuple[float, ...]]:
+    """(shifts, responses) newest first: each frame pair's global shift (region_motion.py
+    `global_shift` over the pair's matched regions: the camera's pitch and yaw, or whatever
+    most regions share; (0, 0) where fewer than MIN_GLOBAL_REGIONS agree). pairs: `region_tracks`'
+    (labels, stats, matches) per frame pair, newest first."""
+    from poevp_optics.control.region_motion import global_shift
+
+    shifts, resp = [], []
+    for _, _, matches in pairs:
+        got = [m for m in matches.values() if m.prev_label]
+        g = global_shift([m.shift for m in got], [m.response for m in got])
+        shifts.append(g.shift)
+        resp.append(g.response)
+    return tuple(shifts), tuple(resp)
 
 
 def region_tracks(history: list[np.ndarray], max_chain: int = MAX_CHAIN) -> tuple[list[RegionTrack], np.ndarray]:
     """(tracks, labels): every saturated region of the last frame with its displacement chain
-    (module docstring, step 1), and the last frame's region labels (0 = none)."""
+    (module docstring, step 1) and the frame's global chain (`global_chain`), and the last
+    frame's region labels (0 = none)."""
     sats = [np.asarray(f) >= SATURATED for f in history[-(max_chain + 1):]]
     cc = [saturated_components(s) for s in sats]
     # pairs[j]: frame t-j's regions, each with its shift from frame t-j-1 and its match there
     pairs = [region_matches(sats[-2 - j], sats[-1 - j], cc[-2 - j], cc[-1 - j])
              for j in range(min(max_chain, len(sats) - 1))]
+    gshift, gresp = global_chain(pairs)
     labels, stats = cc[-1][1], cc[-1][2]
     tracks = []
     for k in range(1, len(stats)):
@@ -109,7 +151,8 @@ def region_tracks(history: list[np.ndarray], max_chain: int = MAX_CHAIN) -> tupl
             resp.append(m.response)
             grow.append(m.growth)
             label = m.prev_label
-        tracks.append(RegionTrack(k, (y, x, y + bh, x + bw), area, tuple(disp), tuple(resp), tuple(grow)))
+        tracks.append(RegionTrack(k, (y, x, y + bh, x + bw), area, tuple(disp), tuple(resp), tuple(grow),
+                                  gshift, gresp))
     return tracks, labels
 
 
@@ -128,6 +171,38 @@ def closed_form_displacement(displacements) -> np.ndarray:
     if np.hypot(*(d[1] - d[2])) > ACCEL_GATE * max(float(np.hypot(*d[1])), 1.0):
         return 2 * d[0] - d[1]
     return (4 * d[0] + d[1] - 2 * d[2]) / 3.0
+
+
+#: Largest harmonic coefficient c = 2 cos(2 pi / P) read as an oscillation of the global motion:
+#: P <= 12 frames (a body pitch of 0.8-1.25 Hz and faster at 10-15 fps; a car's ride frequency is
+#: 1-1.5 Hz, Gillespie, Fundamentals of Vehicle Dynamics, 1992, ch. 5). Above it the chain is read
+#: as steady motion (c = 2: constant velocity or acceleration) and `closed_form_displacement` runs.
+HARMONIC_MAX_C = 2.0 * float(np.cos(2.0 * np.pi / 12.0))
+#: Regularisation (px^2) of the harmonic fit: the global shift's measurement noise (~0.2 px, the
+#: median of the agreeing regions' outline correlations) squared; a middle displacement near it
+#: holds no oscillation to fit (c shrinks toward 0), a steady 1 px a frame still reads c = 1.9.
+HARMONIC_RIDGE_PX2 = 0.05
+
+
+def closed_form_global(shifts) -> np.ndarray:
+    """Next global shift (px, x and y) from the frame's global chain g_t, g_{t-1}, g_{t-2} (newest
+    first). Per image axis (the camera pitches about its horizontal axis and yaws about its vertical
+    one): harmonic linear prediction, g_{t+1} = c g_t - g_{t-1}, exact for a sampled sinusoid of any
+    phase with c = 2 cos(2 pi / period) (the second-order recurrence of a sinusoid; Prony's method
+    with one mode), c fitted to the three displacements by least squares, c = (g_t + g_{t-2})
+    g_{t-1} / (g_{t-1}^2 + HARMONIC_RIDGE_PX2), and limited to [-2, 2]. Where c exceeds
+    HARMONIC_MAX_C the axis is not oscillating and takes `closed_form_displacement`'s row (its
+    acceleration gate included); shorter chains too."""
+    g = np.asarray(shifts, dtype=np.float64).reshape(-1, 2)
+    steady = closed_form_displacement(g)
+    if len(g) < 3:
+        return steady
+    out = steady.copy()
+    for a in range(2):
+        c = float(np.clip((g[0, a] + g[2, a]) * g[1, a] / (g[1, a] ** 2 + HARMONIC_RIDGE_PX2), -2.0, 2.0))
+        if c <= HARMONIC_MAX_C:
+            out[a] = c * g[0, a] - g[1, a]
+    return out
 
 
 def closed_form_growth(growths) -> float:
@@ -175,7 +250,13 @@ class RegionTracker(Predictor):
         self.dis = cv2.DISOpticalFlow_create(preset)
 
     def next_displacement(self, tracks: list[RegionTrack]) -> list[np.ndarray]:
-        return [closed_form_displacement(t.displacements) for t in tracks]
+        """d_{t+1} (px) per track: its own motion relative to the frame's global motion,
+        extrapolated, plus the global motion extrapolated (module docstring, step 2); a new
+        region (no chain) moves with the global motion alone."""
+        if not tracks:
+            return []
+        g = closed_form_global(tracks[0].global_shifts)
+        return [closed_form_displacement(t.relative()) + g for t in tracks]
 
     def __call__(self, history):
         frames = [np.asarray(f, dtype=np.float32) for f in history[-(MAX_CHAIN + 1):]]
@@ -184,8 +265,6 @@ class RegionTracker(Predictor):
         tracks, labels = region_tracks(frames)
         grown = []
         for tr, d in zip(tracks, self.next_displacement(tracks)):
-            if not tr.displacements:
-                d = (0.0, 0.0)                         # new (no match back): predicted where it is
             y0, x0, y1, x1 = tr.box
             inside = labels[y0:y1, x0:x1] == tr.label
             g = closed_form_growth(tr.growths)

@@ -38,7 +38,7 @@ import torch
 from torch import nn
 
 from poevp_optics.control.predictors.dmvfn import WeightsError, weights_identity
-from poevp_optics.control.predictors.track import MAX_CHAIN, RegionTrack, RegionTracker
+from poevp_optics.control.predictors.track import MAX_CHAIN, RegionTrack, RegionTracker, closed_form_global
 from poevp_optics.core.paths import ASSETS_DIR
 
 N_FEATURES = 15
@@ -52,8 +52,9 @@ class TrackNetConfig:
     chain: int = MAX_CHAIN
 
 
-def chain_arrays(tracks) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(disp (N, 3, 2) px newest first, zero-padded; valid (N, 3); responses (N, 3)) of tracks."""
+def chain_arrays(tracks, relative: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(disp (N, 3, 2) px newest first, zero-padded; valid (N, 3); responses (N, 3)) of tracks;
+    relative: each region's displacements less the frame's global shifts (`RegionTrack.relative`)."""
     n = len(tracks)
     disp = np.zeros((n, MAX_CHAIN, 2), np.float32)
     valid = np.zeros((n, MAX_CHAIN), np.float32)
@@ -61,9 +62,22 @@ def chain_arrays(tracks) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     for i, t in enumerate(tracks):
         k = min(len(t.displacements), MAX_CHAIN)
         if k:
-            disp[i, :k] = np.asarray(t.displacements[:k], np.float32)
+            disp[i, :k] = (t.relative() if relative else np.asarray(t.displacements, np.float64))[:k]
             valid[i, :k] = 1.0
             resp[i, :k] = np.asarray(t.responses[:k], np.float32)
+    return disp, valid, resp
+
+
+def global_arrays(track) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`chain_arrays` of the frame's global chain (one row; the same for every region of a frame)."""
+    disp = np.zeros((1, MAX_CHAIN, 2), np.float32)
+    valid = np.zeros((1, MAX_CHAIN), np.float32)
+    resp = np.zeros((1, MAX_CHAIN), np.float32)
+    k = min(len(track.global_shifts), MAX_CHAIN)
+    if k:
+        disp[0, :k] = np.asarray(track.global_shifts[:k], np.float32)
+        valid[0, :k] = 1.0
+        resp[0, :k] = np.asarray(track.global_responses[:k], np.float32)
     return disp, valid, resp
 
 
@@ -194,8 +208,15 @@ class TrackNetPredictor(RegionTracker):
                        for m in model.net if isinstance(m, nn.Linear)]
 
     def next_displacement(self, tracks: list[RegionTrack]) -> list[np.ndarray]:
-        disp, valid, resp = chain_arrays(tracks)
-        return list(numpy_forward(self.layers, disp, valid, resp).astype(np.float64))
+        """The model on each region's relative chain (its displacements less the frame's global
+        shifts), plus the frame's global motion extrapolated as `track` does (track.py
+        `closed_form_global`: the camera's pitch oscillation, which the model's training paths
+        do not hold)."""
+        if not tracks:
+            return []
+        disp, valid, resp = chain_arrays(tracks, relative=True)
+        g = closed_form_global(tracks[0].global_shifts)
+        return list(numpy_forward(self.layers, disp, valid, resp).astype(np.float64) + g)
 
     def describe(self) -> dict:
         held = {k: v["track_net"] for k, v in self.meta.get("test", {}).items() if "track_net" in v}
