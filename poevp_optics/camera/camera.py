@@ -17,8 +17,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from poevp_optics.camera.dmd import (DMD, DMDSpec, Schedule, interval_transmission, node_time_weights_s,
-                                     throughput_on, transmission_table)
+from poevp_optics.camera.dmd import (DMD, DMDSpec, Schedule, displayed_levels, frame_schedule, interval_transmission,
+                                     node_time_weights_s, throughput_on, transmission_table)
 from poevp_optics.camera.layout import image_plane_pitch_m, layout_of
 from poevp_optics.camera import objective as obj
 from poevp_optics.camera.objective import ObjectiveParams, ObjectiveSpec
@@ -54,6 +54,7 @@ class Capture:
     seconds: dict = field(default_factory=dict)
     exposure_blurred_s: np.ndarray | None = None   # exposure seen through the relay PSF (None: delta)
     grid: Grid | None = None          # the sensor grid the arrays are on (core/grids.py)
+    frame_exposure: object | None = None   # the frame's exposure choice (control/exposure_time.py), None: the scene's
 
     def on_grid(self, name: str = "dn") -> OnGrid:
         """One of the capture's arrays (`dn`, `exposure_s`, `signal_e`, ...) tagged with its grid."""
@@ -264,33 +265,42 @@ class Camera:
     def top_level(self) -> int:
         return self.dmd.levels if self.dmd else 255
 
-    def schedule(self, frame_index: int) -> Schedule:
-        return Schedule.for_frame(self.dmd_spec, self.timing, self.timing.frame_start_s(frame_index))
+    def schedule(self, frame_index: int, exposure=None) -> Schedule:
+        """Frame's bit-plane schedule: the scene's [timing], or the frame's exposure choice
+        `exposure` (control/exposure_time.py FrameExposure: its T_e and B, dmd.frame_schedule)."""
+        return frame_schedule(self.dmd_spec, self.timing, self.timing.frame_start_s(frame_index), exposure)
 
-    def level_exposure_s(self, frame_index: int) -> np.ndarray:
-        """Effective exposure (s) of every mask level over the whole exposure (float64)."""
-        levels = np.arange(self.top_level + 1)
-        return transmission_table(levels, self.dmd_spec, self.schedule(frame_index), 1)[:, 0]
+    def exposure_time_s(self, exposure=None) -> float:
+        """The sensor's exposure (s): timing.exposure_s, or the frame's choice."""
+        return self.timing.exposure_s if exposure is None or exposure.nominal else float(exposure.exposure_s)
 
-    def white_exposure_s(self, frame_index: int) -> float:
+    def level_exposure_s(self, frame_index: int, exposure=None) -> np.ndarray:
+        """Effective exposure (s) of every mask level over the whole exposure (float64), under the
+        scene's schedule or the frame's exposure choice (a mirror shows its level's top B bits)."""
+        sched = self.schedule(frame_index, exposure)
+        levels = displayed_levels(np.arange(self.top_level + 1), self.dmd_spec.bits, sched.bits)
+        return transmission_table(levels, self.dmd_spec, sched, 1)[:, 0]
+
+    def white_exposure_s(self, frame_index: int, exposure=None) -> float:
         if not self.dmd:
             return self.timing.exposure_s
-        return float(self.level_exposure_s(frame_index)[-1])
+        return float(self.level_exposure_s(frame_index, exposure)[-1])
 
     def electrons_per_radiance(self) -> float:
         """Electrons per (e- s-1 m-2 sr-1) per second of effective exposure."""
         return self.etendue_m2_sr * self.throughput
 
-    def basis_tables(self, frame_index: int, basis: tuple[str, ...], lit: bool) -> list[np.ndarray]:
+    def basis_tables(self, frame_index: int, basis: tuple[str, ...], lit: bool, exposure=None) -> list[np.ndarray]:
         """Exposure (s) per DMD level of each emitter-group image: 'rest' sees the whole
         exposure; a PWM lamp only its drive: the exact integral over the lamp's on-intervals
-        (plus off_fraction of the rest). `lit`: DMD levels in use (False: DMD off / absent)."""
+        (plus off_fraction of the rest). `lit`: DMD levels in use (False: DMD off / absent);
+        exposure: the frame's exposure choice (None: the scene's)."""
         from poevp_optics.core.flicker import on_intervals
 
-        sched = self.schedule(frame_index)
+        sched = self.schedule(frame_index, exposure)
         t0, t1 = sched.exposure_start_s, sched.exposure_start_s + sched.exposure_s
         if lit:
-            levels = np.arange(self.top_level + 1)
+            levels = displayed_levels(np.arange(self.top_level + 1), self.dmd_spec.bits, sched.bits)
             span = lambda a, b: interval_transmission(levels, self.dmd_spec, sched, a, b)  # noqa: E731
         else:
             thr = throughput_on(self.dmd_spec) if self.dmd is not None else 1.0
@@ -334,11 +344,16 @@ class Camera:
             switch = (grid.take(switch[0], "Camera.capture's late mask levels"), switch[1])
         return grid.take(mask_levels, "Camera.capture's mask levels"), switch
 
-    def nodes_rel(self, frame_index: int, k: int, times_s=None) -> np.ndarray | int:
-        """Radiance node times relative to the frame's exposure start (s), or K (uniform)."""
+    def nodes_rel(self, frame_index: int, k: int, times_s=None, exposure=None) -> np.ndarray | int:
+        """Radiance node times relative to the frame's exposure start (s), or K (uniform). With a
+        shortened exposure (`exposure`) the scene's nodes reach beyond it on both sides and the
+        capture integrates their piecewise-linear radiance over the exposure alone (camera/dmd.py);
+        K uniform nodes (times_s None) are then taken over the shortened exposure."""
         if times_s is None:
             return k
-        rel = np.asarray(times_s, dtype=np.float64) - self.timing.exposure_window_s(frame_index)[0]
+        start = (self.timing.exposure_window_s(frame_index)[0] if exposure is None or exposure.nominal
+                 else self.schedule(frame_index, exposure).exposure_start_s)
+        rel = np.asarray(times_s, dtype=np.float64) - start
         if rel.size != k:
             raise ValueError(f"frame {frame_index}: {k} radiance samples but {rel.size} sample times")
         return rel
@@ -348,10 +363,11 @@ class Camera:
         `levels`, its late mask `switch` and the attenuator's `transmission`); timing: `basis` or
         `times_s` as for `capture`."""
         return self.capture(subframes, command.levels, frame_index, seed, switch=command.switch,
-                            transmission=command.transmission, **timing)
+                            transmission=command.transmission, exposure=command.exposure, **timing)
 
     def capture(self, subframes, mask_levels, frame_index: int, seed: int,
-                basis: tuple[str, ...] = (), times_s=None, switch=None, transmission: float = 1.0) -> Capture:
+                basis: tuple[str, ...] = (), times_s=None, switch=None, transmission: float = 1.0,
+                exposure=None) -> Capture:
         """Expose the sensor to K radiance samples (mirror grid) through `mask_levels` (mirror grid,
         `_mirror_levels`; None: no DMD or all white without one). times_s: the samples' absolute
         times (the scene's `subframe_times_s`); None: K uniform nodes over the exposure.
@@ -362,7 +378,9 @@ class Camera:
         the bit-planes starting at or after switch_s (absolute, s; dmd.late_schedules).
         transmission: the global attenuator's setting for the frame (camera/attenuator.py): every
         mirror's exposure x transmission, in the capture's `exposure_s` too (so the
-        reconstruction divides it out)."""
+        reconstruction divides it out). exposure: the frame's exposure choice (control/exposure_time.py
+        FrameExposure: the sensor's T_e and the DMD's B planes in a window equal to it); None or
+        nominal: the scene's [timing]."""
         import drjit as dr
         from drjit.auto import Float
 
@@ -381,18 +399,18 @@ class Camera:
             raise ValueError(f"frame {frame_index}: a late mask needs a DMD and time samples, not "
                              "emitter-group images (flickering lamps)")
         if switch is not None:
-            weights, _ = self.dmd.late_exposure_weights(mask_levels, switch[0], self.schedule(frame_index),
-                                                        self.nodes_rel(frame_index, k, times_s), switch[1])
+            weights, _ = self.dmd.late_exposure_weights(mask_levels, switch[0], self.schedule(frame_index, exposure),
+                                                        self.nodes_rel(frame_index, k, times_s, exposure), switch[1])
         elif basis:
             lit = self.dmd is not None and mask_levels is not None
-            tables = self.basis_tables(frame_index, tuple(basis), lit)
+            tables = self.basis_tables(frame_index, tuple(basis), lit, exposure)
             if lit:
                 weights = self.dmd.table_weights(mask_levels, tables)
             else:
                 weights = [dr.full(Float, float(t[0]), n_mirrors) for t in tables]
         elif self.dmd is not None and mask_levels is not None:
-            weights, _ = self.dmd.exposure_weights(mask_levels, self.schedule(frame_index),
-                                                   self.nodes_rel(frame_index, k, times_s))
+            weights, _ = self.dmd.exposure_weights(mask_levels, self.schedule(frame_index, exposure),
+                                                   self.nodes_rel(frame_index, k, times_s, exposure))
         else:
             thr = throughput_on(self.dmd_spec) if self.dmd is not None else 1.0
             dt = node_time_weights_s(self.timing.exposure_s, self.nodes_rel(frame_index, k, times_s))
@@ -425,19 +443,21 @@ class Camera:
         secs["relay"] = time.perf_counter() - t1
         t2 = time.perf_counter()
         signal = plane * float(self.electrons_per_radiance())
-        dn, _ = self.sensor.capture(signal, self.timing.exposure_s, seed)
+        dn, _ = self.sensor.capture(signal, self.exposure_time_s(exposure), seed)
         _sync(dn)
         secs["sensor"] = time.perf_counter() - t2
         return Capture(np.array(dn).reshape(h, w), np.ascontiguousarray(self._crop(expo_np)),
-                       np.array(signal).reshape(h, w), secs, expo_blur, self.sensor_grid)
+                       np.array(signal).reshape(h, w), secs, expo_blur, self.sensor_grid,
+                       exposure if exposure is not None and not exposure.nominal else None)
 
     def reconstruct(self, cap: Capture, frame_index: int):
         """(radiance estimate, flags, signal electrons) of a capture (reconstruct.py)."""
         from poevp_optics.camera.reconstruct import reconstruct
 
+        fx = cap.frame_exposure
         return reconstruct(cap.dn, cap.exposure_s, self.params, self.etendue_m2_sr, self.throughput,
-                           self.timing.exposure_s, self.sensor.switches.dark_current,
-                           white_exposure_s=self.white_exposure_s(frame_index),
+                           self.exposure_time_s(fx), self.sensor.switches.dark_current,
+                           white_exposure_s=self.white_exposure_s(frame_index, fx),
                            exposure_blurred_s=cap.exposure_blurred_s,
                            crosstalk_tolerance=self.relay_spec.crosstalk_tolerance)
 

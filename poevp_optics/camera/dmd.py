@@ -113,6 +113,20 @@ def timing_problem(dmd: DMDSpec, timing: TimingSpec) -> tuple[str, str] | None:
     return None
 
 
+def frame_schedule(dmd_spec, timing, frame_start_s: float, fx) -> Schedule:
+    """Frame's bit-plane schedule under an exposure choice `fx` (control/exposure_time.py
+    FrameExposure: exposure_s, bits, window_s, nominal; None or nominal: the scene's own,
+    `Schedule.for_frame`): exposure of fx.exposure_s centred on the scene's exposure, the
+    window of fx.window_s centred on it too (= the exposure unless a binary pattern outlasts it),
+    fx.bits planes."""
+    if fx is None or fx.nominal:
+        return Schedule.for_frame(dmd_spec, timing, frame_start_s)
+    mid = frame_start_s + timing.exposure_offset_s + 0.5 * timing.exposure_s
+    return Schedule(mid - 0.5 * fx.exposure_s, fx.exposure_s, mid - 0.5 * fx.window_s, fx.window_s,
+                    timing.outside_window == "white", fx.bits, dmd_spec.bit_order == "msb_first",
+                    dmd_spec.settle_s)
+
+
 def _segments(levels: np.ndarray, sched: Schedule):
     """Piecewise-linear m(t) for each grey level: arrays (V, S) of t0, t1, m0, m1."""
     v = levels.astype(np.int64)
@@ -149,27 +163,66 @@ def _segments(levels: np.ndarray, sched: Schedule):
 
 
 def _nodes_rel(sched: "Schedule", nodes) -> np.ndarray:
-    """Node times relative to the exposure start (s): an int K means K uniform nodes."""
+    """Node times relative to the exposure start (s): an int K means K uniform nodes. Nodes
+    given as times must include both ends of the exposure, or reach beyond them on both sides
+    (the scene's nodes around a per-frame shortened exposure, control/exposure_time.py)."""
     if np.isscalar(nodes):
         return node_times_s(0.0, sched.exposure_s, int(nodes))
     rel = np.asarray(nodes, dtype=np.float64)
     if rel.ndim != 1 or rel.size < 1 or np.any(np.diff(rel) <= 0):
         raise ValueError("radiance nodes must be a non-empty increasing array of times")
-    if rel.size > 1 and (abs(rel[0]) > 1e-9 * sched.exposure_s
-                         or abs(rel[-1] - sched.exposure_s) > 1e-9 * sched.exposure_s):
+    tol = 1e-9 * sched.exposure_s
+    if rel.size > 1 and (rel[0] > tol or rel[-1] < sched.exposure_s - tol):
         raise ValueError("radiance nodes must include both ends of the exposure")
     return rel
+
+
+def _covers_beyond(sched: "Schedule", rel: np.ndarray) -> bool:
+    """True when the nodes reach beyond the exposure (a shortened exposure inside the scene's)."""
+    tol = 1e-9 * sched.exposure_s
+    return rel.size > 1 and (rel[0] < -tol or rel[-1] > sched.exposure_s + tol)
+
+
+def node_weights_s(sched: "Schedule", rel: np.ndarray) -> np.ndarray:
+    """Integral over the exposure [0, exposure_s] of each node's hat function (s): the
+    trapezoid weights (`node_time_weights_s`) when the nodes span the exposure exactly, else
+    the hats cut at the exposure's ends (exact: int over [c0, c1] of the linear hat pieces)."""
+    if not _covers_beyond(sched, rel):
+        return node_time_weights_s(sched.exposure_s, rel)
+    lo, hi = rel[:-1], rel[1:]
+    h = hi - lo
+    c0, c1 = np.clip(0.0, lo, hi), np.clip(sched.exposure_s, lo, hi)
+    a = c1 - c0                                            # int 1 dt over the interval's part
+    b = 0.5 * ((c1 - lo) ** 2 - (c0 - lo) ** 2)            # int (t - t_j) dt
+    w = np.zeros(rel.size)
+    w[:-1] += a - b / h
+    w[1:] += b / h
+    return w
+
+
+def displayed_levels(levels, mask_bits: int, plane_bits: int) -> np.ndarray:
+    """The level each mirror shows when a `mask_bits` mask is displayed with `plane_bits`
+    bit-planes: its `plane_bits` most significant bits (the DLPC900 takes a B-bit pattern from
+    a bit field of the stored image; DLPU018, pattern display LUT), v >> (mask_bits - plane_bits);
+    the mask itself when the depths agree."""
+    v = np.asarray(levels)
+    shift = mask_bits - plane_bits
+    if shift <= 0:
+        return v
+    return (v.astype(np.int64) >> shift)
 
 
 #: Cells (levels x segments x intervals) evaluated per block, bounding the memory of the tables.
 _BLOCK_CELLS = 1 << 21
 
 
-def _interval_moments(levels: np.ndarray, sched: Schedule, edges_rel: np.ndarray):
+def _interval_moments(levels: np.ndarray, sched: Schedule, edges_rel: np.ndarray, shutter: bool = False):
     """Zeroth and first moments of the mirror level m(t) over each interval [e_i, e_i+1]
     (times relative to the exposure start, s): A_i = int m dt and B_i = int m (t - e_i) dt,
     arrays (len(levels), len(edges) - 1), float64. m is piecewise linear, so A is exact by the
-    trapezoid rule and B (quadratic integrand) by Simpson's rule."""
+    trapezoid rule and B (quadratic integrand) by Simpson's rule. shutter: the sensor integrates
+    only over the exposure [0, exposure_s], which intervals may reach beyond (nodes around a
+    shortened exposure): each interval is cut to it."""
     levels = np.asarray(levels)
     t0, t1, m0, m1 = _segments(levels, sched)
     t0, t1 = t0 - sched.exposure_start_s, t1 - sched.exposure_start_s
@@ -188,8 +241,13 @@ def _interval_moments(levels: np.ndarray, sched: Schedule, edges_rel: np.ndarray
             i1 = min(i0 + step_i, n_int)
             lo = edges_rel[None, None, i0:i1]
             hi = edges_rel[None, None, i0 + 1:i1 + 1]
-            c0 = np.clip(a0, lo, hi)
-            c1 = np.clip(a1, lo, hi)
+            if shutter:
+                lo_c = np.maximum(lo, 0.0)
+                hi_c = np.maximum(np.minimum(hi, sched.exposure_s), lo_c)
+                c0, c1 = np.clip(a0, lo_c, hi_c), np.clip(a1, lo_c, hi_c)
+            else:
+                c0 = np.clip(a0, lo, hi)
+                c1 = np.clip(a1, lo, hi)
             w = c1 - c0
             mc0 = am0 + asl * (c0 - a0)
             mc1 = am0 + asl * (c1 - a0)
@@ -215,7 +273,7 @@ def on_time_table(levels: np.ndarray, sched: Schedule, nodes) -> np.ndarray:
     rel = _nodes_rel(sched, nodes)
     if rel.size == 1:
         return _interval_moments(levels, sched, np.array([0.0, sched.exposure_s]))[0]
-    A, B = _interval_moments(levels, sched, rel)
+    A, B = _interval_moments(levels, sched, rel, _covers_beyond(sched, rel))
     h = np.diff(rel)[None, :]
     out = np.zeros((A.shape[0], rel.size))
     out[:, :-1] += A - B / h            # falling half of hat j over [t_j, t_j+1]
@@ -242,7 +300,7 @@ def transmission_table(levels: np.ndarray, dmd: DMDSpec, sched: Schedule, nodes)
     throughput * (W_j + (w_j - W_j) / contrast_ratio), W from `on_time_table`, w_j the node's
     time weight. `nodes` as in `on_time_table`. Array (len(levels), K), float64."""
     t_on = on_time_table(levels, sched, nodes)
-    dt = node_time_weights_s(sched.exposure_s, _nodes_rel(sched, nodes))[None, :]
+    dt = node_weights_s(sched, _nodes_rel(sched, nodes))[None, :]
     return throughput_on(dmd) * (t_on + (dt - t_on) / dmd.contrast_ratio)
 
 
@@ -325,9 +383,14 @@ class DMD:
                round(sched.planes_from_s - sched.window_start_s, 15),
                round(sched.planes_until_s - sched.window_start_s, 15))
         if key not in self._cache:
-            table = transmission_table(np.arange(self.levels + 1), self.spec, sched, rel)
+            table = transmission_table(self.shown(np.arange(self.levels + 1), sched), self.spec, sched, rel)
             self._cache = {key: (Float(table.T.astype(np.float32).ravel()), table)}
         return self._cache[key]
+
+    def shown(self, levels: np.ndarray, sched: Schedule) -> np.ndarray:
+        """The levels the mirrors show under `sched`: the mask's top sched.bits bits when the
+        frame's window holds fewer planes than the mask has bits (`displayed_levels`)."""
+        return displayed_levels(levels, self.spec.bits, sched.bits)
 
     def _level_index(self, mask_levels: np.ndarray) -> np.ndarray:
         """Mask levels as uint32 indices (flattened); out-of-range or non-finite is an error."""
@@ -361,7 +424,7 @@ class DMD:
             u = self.levels + 1
             return [dr.gather(Float, flat, idx + j * u) for j in range(k)], table
         uniq, inverse = np.unique(mi, return_inverse=True)
-        table = transmission_table(uniq, self.spec, sched, rel)        # (U, K)
+        table = transmission_table(self.shown(uniq, sched), self.spec, sched, rel)        # (U, K)
         idx = UInt32(inverse.astype(np.uint32))
         flat = Float(table.T.astype(np.float32).ravel())               # K blocks of U
         u = len(uniq)
@@ -378,7 +441,7 @@ class DMD:
 
         sa, sb = late_schedules(sched, switch_s)
         rel = _nodes_rel(sched, nodes)
-        levels = np.arange(self.levels + 1)
+        levels = self.shown(np.arange(self.levels + 1), sched)
         ta = transmission_table(levels, self.spec, sa, rel)                     # with leakage
         tb = throughput_on(self.spec) * (1 - 1 / self.spec.contrast_ratio) * on_time_table(levels, sb, rel)
         ia, ib = UInt32(self._level_index(old_levels)), UInt32(self._level_index(new_levels))

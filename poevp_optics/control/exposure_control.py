@@ -41,6 +41,13 @@ the camera has: its previous masks and captures.
 - `clip_frames`: consecutive frames each region has been clipped (dilated with the region),
   reported per frame; a clipped pixel with clip_frames = 0 before is a new region.
 
+Exposure time (exposure_time.py): before the mask, the controller picks the frame's sensor
+exposure T_e and the DMD's bit depth B (the largest whose PWM fits T_e) so that the brightest
+regions sit at the mask's fine levels (a step of a few per cent) rather than at levels 1-6 of
+255: the coarse attenuation is in T_e, the shaping in the mask. With it, the bracket after a
+repeated clip is `mask.time_clip_step` (100) instead of k (T_e is continuous, so a capture far
+below the band is still a measurement: exposure_time.py).
+
 The `exposure_controller` mask law (masks.py) takes where the highlight will be from the
 prediction and how bright it is from D, then picks per mirror the DMD level that puts the
 signal in the target band (`mask.band_low` .. `mask.band_high` of the sensor's full scale, aim

@@ -29,8 +29,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from poevp_optics.camera.attenuator import AttenuatorSpec, AttenuatorState, choose_transmission
+from poevp_optics.camera.dmd import displayed_levels
+from poevp_optics.control import exposure_time
 from poevp_optics.control.exposure_control import ExposureController
-from poevp_optics.control.masks import ATTENUATED_LAWS, MaskSpec, mask_levels, predicted_electrons, reach_electrons
+from poevp_optics.control.masks import (ATTENUATED_LAWS, MaskInput, MaskSpec, controller_demand_e, mask_levels,
+                                        predicted_electrons, reach_electrons, smooth_envelope)
 from poevp_optics.control.timing_budget import BudgetSpec, MaskClock
 from poevp_optics.control.predictors import PREDICTORS, PredictorSpec, checked_prediction, make_predictor
 from poevp_optics.core.grids import Grid, GridError, OnGrid
@@ -132,10 +135,48 @@ def predictor_input(mode: str, camera, ldr, enc, est, flags, index: int, clipped
     return LOOP_MODES[mode](camera, ldr, enc, est, flags, index, clipped_gain)
 
 
+def levels_and_exposure(camera, mask: MaskSpec, index: int, g: float, controller=None, **kw):
+    """(levels, exposure choice) of the mask law for frame `index` with the ND at `g`; kw: the
+    law's inputs (mask_levels' pred_8bit, pred_electrons, full_well_e, sensor, pred_masked). Under
+    the exposure controller's law the frame's sensor exposure and DMD bit depth are chosen first
+    (control/exposure_time.py) from the envelope the law reads, and the law then reads that
+    frame's level table, the shortening taken as a transmission; other laws: (levels, None)."""
+    level_exposure = camera.level_exposure_s(index)
+    fx, t = None, g
+    if exposure_time.is_active(mask, camera):
+        x = MaskInput(kw.get("pred_8bit"), kw.get("pred_electrons"), kw.get("full_well_e"), level_exposure,
+                      kw.get("sensor"), controller, kw.get("pred_masked", False), g)
+        env = smooth_envelope(controller_demand_e(mask, x), mask.smooth_px)
+        fx = exposure_time.choose(camera, mask, env, index, g)
+        if not fx.nominal:
+            white_nom = float(level_exposure[-1])
+            level_exposure = camera.level_exposure_s(index, fx)
+            t = g * float(level_exposure[-1]) / white_nom
+    bits = camera.dmd.spec.bits
+    levels = mask_levels(mask, bits, level_exposure=level_exposure, controller=controller, transmission=t, **kw)
+    if fx is not None and fx.bits < bits:     # each B-bit level by its nearest mask level (same light)
+        q = displayed_levels(levels, bits, fx.bits)
+        levels = np.rint(q * ((1 << bits) - 1) / ((1 << fx.bits) - 1)).astype(np.float64)
+    return levels, fx
+
+
+def oracle_choice(camera, mask: MaskSpec, radiance_mean: np.ndarray, index: int,
+                  attenuator: AttenuatorSpec = AttenuatorSpec()) -> tuple[np.ndarray, float, object]:
+    """(levels, attenuator transmission, exposure choice or None) of the mask law applied to the
+    true frame (mirror grid): the upper bound of any predictor; the transmission from the true
+    all-white electrons; the exposure time from the true frame (`levels_and_exposure`)."""
+    white_e = radiance_mean.astype(np.float64) * camera.electrons_per_radiance() * camera.white_exposure_s(index)
+    g = attenuator_transmission(camera, mask, attenuator, white_e, index)
+    ldr8 = to_8bit(camera.noise_free_dn(white_e), camera.params.max_dn)
+    levels, fx = levels_and_exposure(camera, mask, index, g, pred_8bit=ldr8, pred_electrons=white_e,
+                                     full_well_e=camera.params.full_well_e, sensor=camera.params)
+    return levels, g, fx
+
+
 def oracle_decision(camera, mask: MaskSpec, radiance_mean: np.ndarray, index: int,
                     attenuator: AttenuatorSpec = AttenuatorSpec()) -> tuple[np.ndarray, float]:
-    """(levels, attenuator transmission) of the mask law applied to the true frame (mirror
-    grid): the upper bound of any predictor; the transmission from the true all-white electrons."""
+    """(levels, attenuator transmission) of the mask law applied to the true frame at the
+    scene's exposure (no exposure-time choice: `oracle_choice` has it)."""
     white_e = radiance_mean.astype(np.float64) * camera.electrons_per_radiance() * camera.white_exposure_s(index)
     g = attenuator_transmission(camera, mask, attenuator, white_e, index)
     ldr8 = to_8bit(camera.noise_free_dn(white_e), camera.params.max_dn)
@@ -177,16 +218,30 @@ def predicted_decision(camera, mask: MaskSpec, pred_8bit: np.ndarray | OnGrid, i
     with its measured size: camera/attenuator.py serves only highlights of serve_min_mirrors or
     more), or from the prediction without a controller; then the levels through it.
     pred_8bit: on the sensor grid (an `OnGrid` on another grid is refused by camera.to_mirror)."""
+    levels, g, _ = predicted_choice(camera, mask, pred_8bit, index, controller, pred_masked, attenuator,
+                                    exposure_control=False)
+    return levels, g
+
+
+def predicted_choice(camera, mask: MaskSpec, pred_8bit: np.ndarray | OnGrid, index: int, controller=None,
+                     pred_masked: bool = False, attenuator: AttenuatorSpec = AttenuatorSpec(),
+                     exposure_control: bool = True) -> tuple[np.ndarray, float, object]:
+    """(levels, attenuator transmission, exposure choice or None) from a predicted frame:
+    `predicted_decision` with the frame's exposure time and DMD bit depth chosen under the
+    exposure controller's law (`levels_and_exposure`; exposure_control=False: the scene's)."""
     pred = camera.mirror_grid.take(camera.to_mirror(pred_8bit), "the placed prediction").astype(np.float64)
     e = predicted_electrons(pred, camera.params, mask.clipped_gain)
-    kw = dict(pred_8bit=pred, pred_electrons=e, full_well_e=camera.params.full_well_e,
-              level_exposure=camera.level_exposure_s(index), sensor=camera.params,
-              controller=controller, pred_masked=pred_masked)
+    kw = dict(pred_8bit=pred, pred_electrons=e, full_well_e=camera.params.full_well_e, sensor=camera.params,
+              pred_masked=pred_masked)
     g = 1.0
     if attenuator.enabled:     # global: where does not matter, only how bright and how large
         measured = controller is not None and controller.demand_e is not None
         g = attenuator_transmission(camera, mask, attenuator, controller.demand_e if measured else e, index)
-    return mask_levels(mask, camera.dmd.spec.bits, transmission=g, **kw), g
+    if not exposure_control:
+        return mask_levels(mask, camera.dmd.spec.bits, transmission=g, level_exposure=camera.level_exposure_s(index),
+                           controller=controller, **kw), g, None
+    levels, fx = levels_and_exposure(camera, mask, index, g, controller, **kw)
+    return levels, g, fx
 
 
 def controller_view(camera, enc, est, flags, index: int):
@@ -214,6 +269,7 @@ class MaskDecision:
     predict_seconds: float | None    # predictor + mask law (causal predictors)
     fallback_px: int = 0             # prediction pixels that were NaN/Inf and fell back to hold
     transmission: float = 1.0        # the global attenuator's commanded setting (camera/attenuator.py)
+    exposure: object | None = None   # the frame's exposure time and DMD bit depth (control/exposure_time.py)
 
 
 @dataclass(frozen=True)
@@ -231,6 +287,7 @@ class DMDCommand:
     transmission: float
     record: dict
     decision: MaskDecision
+    exposure: object | None = None   # the frame's T_e and B (control/exposure_time.py); None: the scene's
 
     def __post_init__(self):
         for name in ("levels", "late_levels"):
@@ -285,8 +342,18 @@ class LoopStep:
         p = camera.params
         self.clock = MaskClock(budget, camera.timing, camera.shape, p.bits, camera.mirror_shape,
                                camera.dmd.spec.bits) if camera.dmd else None
-        self.controller = ExposureController(mask.first_guess, mask.clip_step, int(np.ceil(3 * mask.smooth_px)),
+        self.controller = ExposureController(mask.first_guess, exposure_time.clip_step(mask, camera),
+                                             int(np.ceil(3 * mask.smooth_px)),
                                              p.saturation_capacity_e, mask.carry == "extrapolate") if camera.dmd else None
+
+    @property
+    def lift(self) -> float:
+        """The demodulated loop's assumption for a pixel clipped behind a dimmed mirror (x its
+        lower bound): mask.clipped_gain, or where the exposure time is chosen per frame the
+        same bracket as the controller's (exposure_time.clip_step)."""
+        if exposure_time.is_active(self.mask, self.camera) and self.mask.exposure_time_s <= 0:
+            return exposure_time.clip_step(self.mask, self.camera)
+        return self.mask.clipped_gain
 
     @classmethod
     def from_params(cls, camera, p: LoopParams, model=None) -> "LoopStep":
@@ -301,14 +368,14 @@ class LoopStep:
         if index < self.loop.init_frames or len(self.history) < needs:
             return MaskDecision(self.camera.white_mask(), True, None)
         if self.needs_truth:
-            levels, g = oracle_decision(self.camera, self.mask, truth, index, self.attenuator)
-            return MaskDecision(levels, False, None, transmission=g)
+            levels, g, fx = oracle_choice(self.camera, self.mask, truth, index, self.attenuator)
+            return MaskDecision(levels, False, None, transmission=g, exposure=fx)
         t0 = time.perf_counter()
         pred, n_bad = checked_prediction(self.model, [h.on(self.predictor_grid).array for h in self.history])
         pred_s = resize_onto(OnGrid(pred, self.predictor_grid), self.camera.sensor_grid)
-        levels, g = predicted_decision(self.camera, self.mask, pred_s, index,
-                                       self.controller, self.loop.mode in MASKED_MODES, self.attenuator)
-        return MaskDecision(levels, False, time.perf_counter() - t0, n_bad, transmission=g)
+        levels, g, fx = predicted_choice(self.camera, self.mask, pred_s, index,
+                                         self.controller, self.loop.mode in MASKED_MODES, self.attenuator)
+        return MaskDecision(levels, False, time.perf_counter() - t0, n_bad, transmission=g, exposure=fx)
 
     def command(self, index: int, truth: np.ndarray | None = None) -> DMDCommand:
         """The DMD command of frame `index`: the mask decision (`next_mask`), what the DMD shows
@@ -322,14 +389,17 @@ class LoopStep:
             rec["prediction_fallback_pixels"] = decision.fallback_px     # held the last frame there
         if decision.predict_seconds is not None:
             rec["predict_seconds"] = decision.predict_seconds
-        shown = self.clock.show(index, decision.levels, decision.init, decision.predict_seconds)
+        fx = decision.exposure
+        shown = self.clock.show(index, decision.levels, decision.init, decision.predict_seconds, fx)
         if shown.record and not shown.record.get("init"):
             rec["timing_budget"] = {k: v for k, v in shown.record.items() if k != "frame"}
         g = self._attenuator_setting(decision, index, rec)
+        if fx is not None:
+            rec["exposure_time"] = {**fx.record(), "nd_transmission": g}
         late = shown.late is not None
         mirror = self.camera.mirror_grid
         return DMDCommand(OnGrid(shown.levels, mirror), OnGrid(shown.late, mirror) if late else None,
-                          shown.switch_s if late else None, g, rec, decision)
+                          shown.switch_s if late else None, g, rec, decision, fx)
 
     def _attenuator_setting(self, decision: MaskDecision, index: int, rec: dict) -> float:
         """The attenuator's transmission in frame `index`: the decision's, unless its command
@@ -352,6 +422,6 @@ class LoopStep:
             self.controller.observe(*controller_view(self.camera, enc, est, flags, index))
         if self.model is None:
             return
-        x = predictor_input(self.loop.mode, self.camera, ldr, enc, est, flags, index, self.mask.clipped_gain)
+        x = predictor_input(self.loop.mode, self.camera, ldr, enc, est, flags, index, self.lift)
         self.history.append(resize_onto(OnGrid(x, self.camera.sensor_grid), self.predictor_grid))
         self.history = self.history[-self.HISTORY:]

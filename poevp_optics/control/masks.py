@@ -295,6 +295,11 @@ class MaskSpec:
     band_high: float = param(0.9, gt=0, max=1)
     min_level: int = param(0, min=0, max=65535)         # lowest DMD level a law may use
     carry: str = param("dilate", choices=CARRY_MODES)    # exposure_controller: history carried to the next frame
+    # exposure_controller's exposure time and DMD bit depth per frame (control/exposure_time.py):
+    exposure_time_s: float = param(0.0, min=0, max=100.0)   # fixed sensor exposure T_e, s (0: chosen per frame)
+    fine_steps: int = param(20, min=1, max=65535)           # levels above zero the reference demand is put at
+    exposure_quantile: float = param(0.9, gt=0, max=1)     # D_ref: this quantile of the envelope above saturation
+    time_clip_step: float = param(100.0, min=1, max=1e9)    # T_e after a clip: for this x the lower bound
 
 
 def mask_levels(spec: MaskSpec, bits: int, *, pred_8bit: np.ndarray | None = None,

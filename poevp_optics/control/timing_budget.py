@@ -21,6 +21,11 @@ Compute budgets: `rtx3090` 16.9 ms (paper Table 2: VP + mask on an RTX 3090), `f
 3.96 ms (paper App. D: 1e10 FLOP at 2.525 TFLOPS on a Zynq XC7Z035), `measured` (this run's
 predictor + mask wall time per frame: not reproducible run to run), `given` (compute_s).
 
+Per-frame exposure (control/exposure_time.py): a frame whose exposure controller shortened the
+sensor's exposure to T_e shows its B planes in a window equal to that exposure, centred on the
+scene's; the budget of the next mask then runs from the shortened exposure's end and the window
+it must meet is that frame's own (reported per frame as `window_s`).
+
 One compute unit: a mask whose inputs arrive while the previous mask is still being computed
 waits for it. Frame rates reported: `on_time_fps`, the highest frame rate at which every mask
 is on time with this exposure and window placement; `pipelined_fps`, 1 / the slowest stage
@@ -87,6 +92,17 @@ class MaskClock:
         self.free_at_s = -math.inf
         self.masks: list[tuple[float, np.ndarray]] = []     # (ready time, levels), oldest first
         self.records: list[dict] = []
+        self.exposures: dict = {}     # frame -> its exposure choice (control/exposure_time.py), where not the scene's
+
+    def exposure_window_s(self, index: int) -> tuple[float, float]:
+        """[start, end] of frame `index`'s exposure (s): the scene's, or the frame's shortened
+        one centred on it (control/exposure_time.py)."""
+        t0, t1 = self.timing.exposure_window_s(index)
+        fx = self.exposures.get(index)
+        if fx is None:
+            return t0, t1
+        mid = 0.5 * (t0 + t1)
+        return mid - 0.5 * fx.exposure_s, mid + 0.5 * fx.exposure_s
 
     def compute_seconds(self, measured_s: float | None) -> float:
         """Predictor + mask time of one mask (s): the device budget, the given one or measured."""
@@ -98,23 +114,34 @@ class MaskClock:
         return float(self.spec.compute_s)
 
     def window_s(self, index: int) -> tuple[float, float]:
+        """[start, end] of frame `index`'s DMD window (s): the scene's, or the frame's exposure
+        choice's (its B planes in a window equal to the shortened exposure)."""
         t = self.timing
+        fx = self.exposures.get(index)
+        if fx is not None:
+            mid = sum(t.exposure_window_s(index)) / 2
+            return mid - 0.5 * fx.window_s, mid + 0.5 * fx.window_s
         w0 = t.frame_start_s(index) + t.dmd_window_offset_s
         return w0, w0 + t.dmd_window_s
 
     def ready_s(self, index: int, compute_s: float) -> tuple[float, dict]:
         """When the mask of frame `index` (from frame index-1's capture) reaches the DMD."""
-        end = self.timing.exposure_window_s(index - 1)[1]
+        end = self.exposure_window_s(index - 1)[1]
         start = max(end + self.readout_s, self.free_at_s)
         self.free_at_s = start + compute_s
         ready = self.free_at_s + self.transfer_s + self.spec.dmd_load_s
         return ready, {"exposure_end_s": end, "compute_start_s": start, "compute_s": compute_s,
                        "budget_s": ready - end}
 
-    def show(self, index: int, levels: np.ndarray | None, init: bool, measured_s: float | None) -> Shown:
-        """Frame `index`'s window for the mask computed for it (`init`: a preloaded white mask)."""
+    def show(self, index: int, levels: np.ndarray | None, init: bool, measured_s: float | None,
+             exposure=None) -> Shown:
+        """Frame `index`'s window for the mask computed for it (`init`: a preloaded white mask);
+        exposure: the frame's exposure choice (its window replaces the scene's for this frame)."""
         if levels is None:
             return Shown(None)
+        if exposure is not None and not exposure.nominal:
+            self.exposures[index] = exposure
+            self.exposures = {k: v for k, v in self.exposures.items() if k >= index - 2}
         w0, w1 = self.window_s(index)
         if init:
             self.masks.append((-math.inf, levels))
@@ -122,6 +149,8 @@ class MaskClock:
         ready, rec = self.ready_s(index, self.compute_seconds(measured_s))
         rec.update({"frame": index, "ready_s": ready, "window_start_s": w0, "slack_s": w0 - ready,
                     "late": ready > w0})
+        if index in self.exposures:
+            rec["window_s"] = w1 - w0
         ready_before = [m for r, m in self.masks if r <= w0]
         previous = ready_before[-1] if ready_before else np.full_like(levels, float(self.top))
         self.masks.append((ready, levels))

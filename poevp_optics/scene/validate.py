@@ -86,7 +86,9 @@ def check_dmd_use(ctx, dmd: DMDSpec, t: TimingSpec, mask: MaskSpec):
                        f"{e1:.6g}] s (from the frame start): no mask could act on the capture")
     from poevp_optics.camera.dmd import timing_problem
 
-    problem = timing_problem(dmd, t)
+    from poevp_optics.control.exposure_time import exposure_time_problem
+
+    problem = timing_problem(dmd, t) or exposure_time_problem(mask, dmd, t)
     if problem:
         raise ctx.fail(*problem)
     if mask.law == "exposure_controller" and not mask.band_low < mask.target < mask.band_high:

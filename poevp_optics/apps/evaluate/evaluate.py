@@ -242,7 +242,8 @@ class Runner:
             dt = time.perf_counter() - t0
             enc = cam.capture(list(e.subframes), dec.levels, e.index,
                               capture_seed(spec.sensor.seed, spec.render.seed, e.index, ENCODED_STREAM),
-                              **e.capture_timing(), transmission=dec.transmission)   # the scene's ND, on time
+                              **e.capture_timing(), transmission=dec.transmission,   # the scene's ND, on time
+                              exposure=dec.exposure)                                # the frame's T_e and B
             est = flags = None
             if self.cfg.loop_mode == "demodulated" or step.controller is not None:
                 # the exposure controller (mask law) reads the demodulated estimate in every mode

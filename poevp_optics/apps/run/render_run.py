@@ -20,7 +20,7 @@ from poevp_optics.apps.run.report_extensions import active as report_extensions
 from poevp_optics.apps.run.run_report import build_report
 from poevp_optics.apps.run.temporal_check import temporal_error
 from poevp_optics.camera.camera import Camera
-from poevp_optics.control.loop_step import LoopStep, oracle_decision, oracle_mask
+from poevp_optics.control.loop_step import LoopStep, oracle_choice, oracle_mask
 from poevp_optics.control.masks import MaskSpec
 from poevp_optics.core.exceptions import SceneError
 from poevp_optics.core.report import write_report
@@ -55,6 +55,7 @@ class FrameCapture:
     flags: np.ndarray
     record: dict
     oracle_transmission: float = 1.0      # the oracle mask's attenuator setting
+    oracle_exposure: object | None = None  # the oracle's exposure time and DMD bit depth (control/exposure_time.py)
 
 
 @dataclass
@@ -84,7 +85,7 @@ def _capture(spec, camera: Camera, step: LoopStep | None, ex: RenderedExposure, 
                          **timing)
     rec = {"index": i}
     mask = oracle = None
-    oracle_g = 1.0
+    oracle_g, oracle_fx = 1.0, None
     enc = ldr
     if camera.dmd:
         cmd = step.command(i, truth)
@@ -93,9 +94,9 @@ def _capture(spec, camera: Camera, step: LoopStep | None, ex: RenderedExposure, 
             res.predict_seconds.append(cmd.decision.predict_seconds)
         tm = time.perf_counter()
         if step.needs_truth and not cmd.decision.init:   # the oracle's own decision: not computed twice
-            oracle, oracle_g = cmd.decision.levels, cmd.decision.transmission
+            oracle, oracle_g, oracle_fx = cmd.decision.levels, cmd.decision.transmission, cmd.decision.exposure
         else:
-            oracle, oracle_g = oracle_decision(camera, spec.resolved.loop.mask, truth, i, spec.attenuator)
+            oracle, oracle_g, oracle_fx = oracle_choice(camera, spec.resolved.loop.mask, truth, i, spec.attenuator)
         res.stage_seconds["mask"] += time.perf_counter() - tm
         mask = cmd.levels.array                            # mirror grid (cmd.levels carries it)
         enc = camera.capture_command(subs, cmd, i, capture_seed(spec.sensor.seed, spec.render.seed, i, ENCODED_STREAM),
@@ -109,7 +110,7 @@ def _capture(spec, camera: Camera, step: LoopStep | None, ex: RenderedExposure, 
     est, flags, _ = camera.reconstruct(enc, i)
     res.stage_seconds["reconstruct"] += time.perf_counter() - tr
     return FrameCapture(ex, camera.to_sensor(truth).astype(np.float32), camera.box_to_sensor(ex.roi),
-                        ldr, enc, mask, oracle, est, flags, rec, oracle_g)
+                        ldr, enc, mask, oracle, est, flags, rec, oracle_g, oracle_fx)
 
 
 def _metrics(camera: Camera, fc: FrameCapture) -> None:
@@ -161,7 +162,7 @@ def _against_oracle(spec, camera: Camera, fc: FrameCapture) -> None:
     subs = list(fc.exposure.subframes) if not spec.is_static else [fc.exposure.radiance.data]
     timing = fc.exposure.capture_timing() if not spec.is_static else {}
     oc = camera.capture(subs, fc.oracle, i, capture_seed(spec.sensor.seed, spec.render.seed, i, ENCODED_STREAM),
-                        **timing, transmission=fc.oracle_transmission)
+                        **timing, transmission=fc.oracle_transmission, exposure=fc.oracle_exposure)
     fc.record["saturated_fraction_roi"]["oracle"] = saturated_fraction(crop(oc.dn, box), max_dn)
     fc.record["entropy_roi"]["oracle"] = entropy_8bit(to_8bit(crop(oc.dn, box), max_dn))
     if not fc.record.get("init"):

@@ -1,0 +1,208 @@
+"""The exposure controller's coarse stage: the sensor's exposure time T_e and the DMD's bit depth B per frame.
+
+Why. The mask dims a mirror by PWM: with B bit-planes a level q passes q / (2^B - 1) of the
+light (plus the off-state leakage 1 / contrast_ratio). A highlight 1e3-1e4x over saturation at
+the scene's exposure needs a transmission of 1e-3 to 1e-4, i.e. levels 0-6 of 255, where one
+step changes the transmission by 17-100 %: the mask can no longer shape the highlight (a plate's
+ends fall to the lowest levels) and below 1 / contrast_ratio it cannot reach it at all. The
+global variable ND (camera/attenuator.py) takes ~20 ms to settle, so at 30 fps with 30 ms
+exposures it cannot follow a frame. The sensor's exposure time needs no settling: it is set per
+frame, causally, like the mask.
+
+What. Per frame, from the same estimate the mask law uses (the smooth envelope of the
+controller's demand, control/masks.py `controller_demand_e`, through the ND's setting), the
+controller picks
+
+- T_e, the sensor's exposure, within [SENSOR_MIN_EXPOSURE_S, timing.exposure_s], centred on the
+  scene's exposure (so the frame still shows the middle of its exposure slot);
+- B, the largest bit depth whose PWM fits T_e when every plane lasts at least the controller's
+  shortest plane t_p (camera/dmd.py DMD_CONTROLLERS; 105 us on the DLPC900, whose shorter
+  planes need an LED gated off, which a camera imaging the scene's own light has not):
+  (2^B - 1) t_p <= T_e, B <= dmd.bits. The DMD shows its B planes in a window equal to the
+  exposure (so the duty integral is the closed form q / (2^B - 1) over the exposure); below the
+  shortest 2-bit window (3 t_p) the mask is binary (B = 1), its one pattern shown for
+  max(T_e, t_p) around the exposure. A mirror shows the top B bits of its mask level
+  (camera/dmd.py `displayed_levels`; the DLPC900 takes a B-bit pattern from a bit field of the
+  stored image);
+
+so that the reference demand D_ref lands at the aim (`mask.target` x full scale) at the fine
+level: `mask.fine_steps` (20) steps above zero, a step of 5 %, or the top level when B has fewer
+levels. The coarse attenuation is then in T_e (and in the ND where it can settle), and the mask
+keeps the highlight's mirrors in their fine range instead of at levels 1-6. D_ref is the
+`mask.exposure_quantile` (0.9) quantile of the envelope over the mirrors above saturation: a
+few lamp cores brighter than that still go to the low levels, but do not darken the frame.
+
+A frame whose D_ref is served at the fine level by the scene's own exposure keeps the scene's
+[timing] schedule and dmd.bits (`FrameExposure.nominal`): its capture is the same as without
+this stage. A shorter T_e darkens the whole frame by T_e / timing.exposure_s (the mask can only
+dim), the price of bringing a highlight into range.
+
+Search after a clip. A clipped capture says only "at least the lower bound L". The mask's demand
+brackets by `mask.clip_step` (2) per frame because its 8-bit levels round coarsely; T_e is
+continuous and a capture well below the band is still measured (a 12-bit capture at 1 % of full
+scale holds ~100 e- of a ~10 ke- well: SNR ~10), so with this stage the controller brackets a
+region clipped again by `mask.time_clip_step` (100) x L (control/loop_step.py builds the
+ExposureController so): the next capture is unclipped for any X < time_clip_step x L / target,
+and the one after is exact. A region first seen clipped still starts from the controller's prior
+(`mask.first_guess`). A plate 1e4x over saturation is then in the band on the third loop frame
+(tests).
+
+Fixed T_e: `mask.exposure_time_s` > 0 sets T_e for every frame (B from it as above; the
+scene's own timing.exposure_s gives the scene's schedule); 0 (default) lets the controller
+choose. Bounds: SENSOR_MIN_EXPOSURE_S <= T_e <= timing.exposure_s (`exposure_time_problem`).
+
+Sensor minimum. FACTS.md has no minimum exposure for the Pregius IMX250/253 family. Their
+global shutter is set in steps of one line time (a few us) and camera makers list minimum
+exposures from a few us to about 20 us; the conservative 20 us is taken here (to be checked
+against the camera's own manual).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from poevp_optics.camera.dmd import frame_schedule  # noqa: F401  (the schedule of a choice)
+
+#: Shortest sensor exposure (s) the controller uses: conservative figure for Pregius
+#: IMX250/253 cameras (module docstring).
+SENSOR_MIN_EXPOSURE_S = 20e-6
+
+
+@dataclass(frozen=True)
+class FrameExposure:
+    """One frame's exposure choice: the sensor's exposure T_e (s), the DMD's bit-planes B, its
+    window (s; = T_e, or one plane's minimum display time around a shorter binary exposure), the
+    ND transmission commanded with it, whether it is the scene's own schedule (`nominal`) and
+    whether T_e was fixed by the scene."""
+
+    exposure_s: float
+    bits: int
+    window_s: float
+    nominal: bool
+    nd_transmission: float = 1.0
+    fixed: bool = False
+
+    def record(self) -> dict:
+        """The frame's entry in report.json."""
+        return {"exposure_s": self.exposure_s, "dmd_bits": self.bits, "dmd_window_s": self.window_s,
+                "nd_transmission": self.nd_transmission, "binary_mask": self.bits == 1,
+                "scene_timing": self.nominal, "fixed": self.fixed}
+
+
+def min_plane_s(dmd_spec) -> float:
+    """The DMD controller's shortest bit-plane (s; camera/dmd.py DMD_CONTROLLERS)."""
+    from poevp_optics.camera.dmd import DMD_CONTROLLERS
+
+    return DMD_CONTROLLERS[dmd_spec.controller].min_plane_s
+
+
+def max_bits(exposure_s: float, plane_s: float, mask_bits: int) -> int:
+    """Largest B <= mask_bits whose PWM fits the exposure with every plane >= plane_s:
+    (2^B - 1) plane_s <= exposure_s; 1 (a binary mask) when not even 2 bits fit."""
+    b = mask_bits
+    while b > 1 and ((1 << b) - 1) * plane_s > exposure_s * (1 + 1e-12):
+        b -= 1
+    return b
+
+
+def fine_relative(bits: int, fine_steps: int, contrast_ratio: float) -> float:
+    """Exposure of the fine level relative to white at B bits: d + (1 - d) / contrast_ratio,
+    d = min(fine_steps, 2^B - 1) / (2^B - 1) (settle time neglected; the mask law uses the exact
+    table)."""
+    top = (1 << bits) - 1
+    d = min(fine_steps, top) / top
+    return d + (1.0 - d) / contrast_ratio
+
+
+def nominal(camera) -> FrameExposure:
+    """The scene's own schedule as a choice."""
+    t = camera.timing
+    return FrameExposure(t.exposure_s, camera.dmd_spec.bits, t.dmd_window_s, True)
+
+
+def at_exposure(camera, exposure_s: float, nd: float = 1.0, fixed: bool = False) -> FrameExposure:
+    """The choice for a given T_e (s): the scene's schedule at timing.exposure_s, else the
+    largest B that fits (`max_bits`) in a window equal to the exposure (one plane's minimum
+    for a binary mask under a shorter exposure)."""
+    t, spec = camera.timing, camera.dmd_spec
+    if exposure_s >= t.exposure_s * (1 - 1e-12):
+        return FrameExposure(t.exposure_s, spec.bits, t.dmd_window_s, True, nd, fixed)
+    plane = min_plane_s(spec)
+    b = max_bits(exposure_s, plane, spec.bits)
+    window = max(exposure_s, plane) if b == 1 else exposure_s
+    return FrameExposure(float(exposure_s), b, float(window), False, nd, fixed)
+
+
+def reference_demand(env_e: np.ndarray, saturation_e: float, quantile: float) -> float:
+    """D_ref (e-, at the scene's white exposure): the `quantile` of the envelope over the
+    mirrors above saturation; 0 when none is."""
+    e = np.asarray(env_e, dtype=np.float64)
+    bright = e[e > saturation_e]
+    if bright.size == 0:
+        return 0.0
+    return float(np.quantile(bright, quantile))
+
+
+def choose(camera, mask, env_e: np.ndarray, index: int, nd: float = 1.0) -> FrameExposure:
+    """T_e and B for frame `index` (module docstring). env_e: the smooth envelope of the
+    all-white electrons the mask law assumes at the scene's exposure (mirror grid), before the
+    ND; nd: the ND's transmission."""
+    from poevp_optics.control.exposure_control import full_scale_electrons
+
+    if mask.exposure_time_s > 0:
+        return at_exposure(camera, mask.exposure_time_s, nd, fixed=True)
+    p, spec, t = camera.params, camera.dmd_spec, camera.timing
+    guess = np.asarray(env_e, dtype=np.float64)
+    d_ref = reference_demand(guess * nd, p.saturation_capacity_e, mask.exposure_quantile)
+    e_aim = float(full_scale_electrons(p, mask.target))
+    table = camera.level_exposure_s(index)
+    white_nom = float(table[-1])
+    k = min(mask.fine_steps, len(table) - 1)
+    if d_ref <= 0 or d_ref * float(table[k]) / white_nom <= e_aim:
+        return nominal(camera) if nd == 1.0 else FrameExposure(t.exposure_s, spec.bits, t.dmd_window_s, True, nd)
+    from poevp_optics.camera.dmd import throughput_on
+
+    plane, thr = min_plane_s(spec), throughput_on(spec)
+    b = spec.bits
+    for _ in range(spec.bits + 1):           # B falls as T_e shortens, T_e as B falls: to the fixed point
+        te = e_aim / (d_ref * fine_relative(b, mask.fine_steps, spec.contrast_ratio)) * white_nom / thr
+        te = float(min(max(te, SENSOR_MIN_EXPOSURE_S), t.exposure_s))
+        nb = max_bits(te, plane, spec.bits)
+        if nb >= b:
+            break
+        b = nb
+    return at_exposure(camera, te, nd)
+
+
+def exposure_time_problem(mask, dmd_spec, timing) -> tuple[str, str] | None:
+    """(key, message) when the scene's fixed T_e (`mask.exposure_time_s`) is impossible, else None."""
+    te = mask.exposure_time_s
+    if te <= 0:
+        return None
+    if te > timing.exposure_s * (1 + 1e-12):
+        return ("mask.exposure_time_s", f"{te:g} s is longer than the scene's exposure timing.exposure_s = "
+                f"{timing.exposure_s:g} s, the slot its radiance is rendered for: use <= {timing.exposure_s:g} s "
+                "(0: the controller chooses per frame)")
+    if te < SENSOR_MIN_EXPOSURE_S * (1 - 1e-12):
+        return ("mask.exposure_time_s", f"{te:g} s is shorter than the sensor's minimum exposure "
+                f"{SENSOR_MIN_EXPOSURE_S * 1e6:g} us: use >= {SENSOR_MIN_EXPOSURE_S:g} s (0: the controller "
+                "chooses per frame)")
+    return None
+
+
+def is_active(mask, camera) -> bool:
+    """True when the frame's exposure is chosen here: the exposure controller's law with a DMD."""
+    return mask.law == "exposure_controller" and camera.dmd is not None
+
+
+def clip_step(mask, camera) -> float:
+    """The controller's bracket after a repeated clip: `mask.time_clip_step` where T_e is chosen
+    per frame (module docstring), else `mask.clip_step`."""
+    return mask.time_clip_step if is_active(mask, camera) and mask.exposure_time_s <= 0 else mask.clip_step
+
+
+__all__ = ["FrameExposure", "SENSOR_MIN_EXPOSURE_S", "at_exposure", "choose", "exposure_time_problem",
+           "fine_relative", "frame_schedule", "is_active", "max_bits", "min_plane_s", "nominal",
+           "reference_demand"]
