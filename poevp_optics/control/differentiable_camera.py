@@ -13,7 +13,7 @@ and kernels (camera.py `capture` is the reference; the test checks the electrons
 
 | stage | exact camera | here (for the gradient) |
 |---|---|---|
-| law's threshold at Vs | M = 255 below Vs | weight sigmoid((x - Vs) / step_dn) between 255 and the attenuated branch |
+| law's threshold at Vs | M = 255 below Vs | weight sigmoid((x - Vs) / step_dn) between 255 and the attenuated branch (exactly 1 at a clipped prediction, x >= 254.5, which is above every Vs < 255) |
 | law at x -> 255 | limit a^inf = 0 | 255 - x floored at `edge_dn` (0.5: a^((255 - b Vs) / 0.5), effectively 0) |
 | mask levels | rounded to integers | continuous; the per-level PWM table (dmd.py `transmission_table`, exact) interpolated by a C1 cubic (Catmull-Rom) between levels |
 | sensor | full-well and ADC clip, rounding, noise | mean response, no rounding; clips replaced by soft minima of width `clip_width` (DN) |
@@ -35,6 +35,8 @@ from poevp_optics.camera.dmd import transmission_table
 
 #: Parameter names, in the order of `value_and_grad`'s vector.
 COEFFICIENTS = ("vs", "a", "b")
+#: 8-bit value from which a prediction is clipped (control/loop_step.py CLIP_MARKER).
+CLIP_MARKER = 254.5
 
 
 @dataclass(frozen=True)
@@ -63,15 +65,18 @@ class FrameModel:
     subframes: the frame's K radiance samples (render grid, as RenderedExposure.subframes);
     times_s: their times (None: K uniform nodes); pred_8bit: the predicted frame on the mirror
     grid (8-bit scale) the law reads; box: the plate's box on the sensor grid (y0, x0, y1, x1);
-    band: (low, high) fractions of full scale; smooth_px, min_level: the law's own keys."""
+    band: (low, high) fractions of full scale; smooth_px: the law's own key; mirror_box: the
+    plate's box on the mirror grid (the frame's roi), which names a clipped prediction as the
+    reason of a flat start."""
 
     def __init__(self, camera, subframes, frame_index: int, pred_8bit, box, band=(0.4, 0.9), *,
-                 times_s=None, smooth_px: float = 4.0, relax: Relaxation = Relaxation()):
+                 times_s=None, smooth_px: float = 4.0, relax: Relaxation = Relaxation(), mirror_box=None):
         from drjit.llvm.ad import Float64
 
         from poevp_optics.control.masks import smooth_envelope
 
         self.camera, self.relax, self.box = camera, relax, tuple(int(v) for v in box)
+        self.mirror_box = tuple(int(v) for v in mirror_box) if mirror_box is not None else None
         self.target = 0.5 * (band[0] + band[1])
         k = len(subframes)
         self.nodes = [Float64(np.asarray(camera.dmd_image(s), np.float64).ravel()) for s in subframes]
@@ -82,6 +87,15 @@ class FrameModel:
         self.table = transmission_table(np.arange(camera.top_level + 1), camera.dmd_spec,
                                         camera.schedule(frame_index), rel)          # (levels + 1, K), s
         self.smooth_px = smooth_px
+        self._arrays: dict = {}
+
+    def _const(self, name: str, make):
+        """A constant DrJit array built once (`make()`), then the same buffer on every call: an
+        array made afresh from NumPy may differ in alignment, which changes the compiled kernel
+        and costs a new LLVM compilation per evaluation."""
+        if name not in self._arrays:
+            self._arrays[name] = make()
+        return self._arrays[name]
 
     # ------------------------------------------------------------------ stages
     def levels(self, vs, a, b, exact: bool = False):
@@ -97,7 +111,9 @@ class FrameModel:
 
             m255 = threshold_exp(self.env_np, float(vs[0]), float(a[0]), float(b[0]))
             return np.clip(np.rint(m255 * top / 255.0), 0, top)
-        step = 1.0 / (1.0 + dr.exp(-(x - vs) / r.step_dn))
+        # a clipped prediction (>= CLIP_MARKER) is above every Vs < 255: the law attenuates it
+        # exactly (no smooth threshold there, whose tail would leak light the camera never passes)
+        step = dr.select(x >= CLIP_MARKER, 1.0, 1.0 / (1.0 + dr.exp(-(x - vs) / r.step_dn)))
         m255 = 255.0 * ((1.0 - step) + step * att)
         return m255 * (top / 255.0)
 
@@ -116,7 +132,7 @@ class FrameModel:
         h00, h10, h01, h11 = 2 * f3 - 3 * f2 + 1, f3 - 2 * f2 + f, -2 * f3 + 3 * f2, f3 - f2
         out = []
         for j in range(self.table.shape[1]):
-            col = Float64(self.table[:, j])
+            col = self._const(f"table{j}", lambda j=j: Float64(self.table[:, j]))
             pm, p0, p1, p2 = (dr.gather(Float64, col, i) for i in idx)
             m0 = dr.select(li > 0, 0.5 * (p1 - pm), p1 - p0)
             m1 = dr.select(li + 2 <= top, 0.5 * (p2 - p0), p1 - p0)
@@ -140,7 +156,9 @@ class FrameModel:
             idx, tw = cam.taps
             acc = None
             for j in range(idx.shape[1]):
-                g = dr.gather(Float64, plane, UInt32(idx[:, j].astype(np.uint32))) * Float64(tw[:, j])
+                ij = self._const(f"tap_idx{j}", lambda j=j: UInt32(idx[:, j].astype(np.uint32)))
+                wj = self._const(f"tap_w{j}", lambda j=j: Float64(tw[:, j]))
+                g = dr.gather(Float64, plane, ij) * wj
                 acc = g if acc is None else acc + g
             plane = acc
         if cam.psf is not None:
@@ -168,8 +186,9 @@ class FrameModel:
                 kv = float(kernel[dy, dx])
                 if kv == 0.0:
                     continue
-                src = reflect(ys - (dy - c), h) * w + reflect(xs - (dx - c), w)
-                g = dr.gather(Float64, plane, UInt32(src.astype(np.uint32))) * kv
+                src = self._const(f"psf{dy},{dx}", lambda dy=dy, dx=dx: UInt32(
+                    (reflect(ys - (dy - c), h) * w + reflect(xs - (dx - c), w)).astype(np.uint32)))
+                g = dr.gather(Float64, plane, src) * kv
                 out = g if out is None else out + g
         return dr.maximum(out, 0.0)
 
@@ -182,7 +201,8 @@ class FrameModel:
         if g == 0 and (eh, ew) == (h, w):
             return plane
         ys, xs = np.divmod(np.arange(h * w), w)
-        return dr.gather(Float64, plane, UInt32(((ys + g) * ew + xs + g).astype(np.uint32)))
+        idx = self._const("crop", lambda: UInt32(((ys + g) * ew + xs + g).astype(np.uint32)))
+        return dr.gather(Float64, plane, idx)
 
     def dn(self, e):
         """Mean DN with soft clips (full well, ADC top) for the gradient."""
@@ -200,7 +220,8 @@ class FrameModel:
         h, w = self.camera.shape
         y0, x0, y1, x1 = self.box
         yy, xx = np.mgrid[y0:y1, x0:x1]
-        inside = dr.gather(Float64, dn, UInt32((yy * w + xx).ravel().astype(np.uint32)))
+        idx = self._const("box", lambda: UInt32((yy * w + xx).ravel().astype(np.uint32)))
+        inside = dr.gather(Float64, dn, idx)
         white = dr.sum(inside) / float(inside.shape[0] * self.camera.params.max_dn)
         return (white - self.target) ** 2
 
@@ -211,6 +232,7 @@ class FrameModel:
         from drjit.llvm.ad import Float64
 
         vs, a, b = (Float64(float(t)) for t in theta)
+        dr.make_opaque(vs, a, b)        # evaluated, not literals: one compiled kernel for every theta
         for t in (vs, a, b):
             dr.enable_grad(t)
         j = self.objective(self.dn(self.electrons(self.levels(vs, a, b))))
@@ -219,9 +241,11 @@ class FrameModel:
 
     def value(self, theta) -> float:
         """J at theta without the AD graph."""
+        import drjit as dr
         from drjit.llvm.ad import Float64
 
         vs, a, b = (Float64(float(t)) for t in theta)
+        dr.make_opaque(vs, a, b)
         return float(self.objective(self.dn(self.electrons(self.levels(vs, a, b))))[0])
 
     def exact_electrons(self, theta) -> np.ndarray:
@@ -250,33 +274,71 @@ class Refinement:
     note: str = ""
 
 
-def refine(model: FrameModel, theta0, bounds, *, max_iter: int = 50, flat_rel: float = 1e-9) -> Refinement:
+def refine(model, theta0, bounds, *, max_iter: int = 50, flat_rel: float = 1e-9) -> Refinement:
     """Minimise the model's smooth objective from `theta0` within `bounds` ((low, high) per
-    coefficient, COEFFICIENTS order) by L-BFGS-B (SciPy) on its reverse-mode gradient, the
-    coefficients scaled to [0, 1] by their bounds. A start whose scaled gradient is below
-    `flat_rel` x the objective in every coefficient is flat: the result says why (no plate pixel
-    above Vs, or the plate clipped) instead of moving."""
+    coefficient, COEFFICIENTS order; low == high holds that coefficient fixed) by L-BFGS-B
+    (SciPy) on its reverse-mode gradient, the free coefficients scaled to [0, 1] by their
+    bounds. `model`: a FrameModel or a FrameMean (several frames, several scenes). A start whose
+    scaled gradient is below `flat_rel` x the objective in every free coefficient is flat: the
+    result says why (no plate pixel above Vs, or the plate clipped) instead of moving."""
     from scipy.optimize import minimize
 
     lo = np.array([b[0] for b in bounds], np.float64)
     span = np.array([b[1] - b[0] for b in bounds], np.float64)
+    if np.any(span < 0):
+        raise ValueError(f"refine: bounds {bounds} have a low above its high")
+    free = span > 0
     theta0 = np.clip(np.asarray(theta0, np.float64), lo, lo + span)
     value0, g0 = model.value_and_grad(theta0)
-    g0s = g0 * span
-    if np.all(np.abs(g0s) <= flat_rel * max(abs(value0), 1e-300)):
-        return Refinement(tuple(theta0), tuple(theta0), value0, value0, tuple(g0s), 0, _flat_reason(model, theta0))
+    g0s = np.where(free, g0 * span, 0.0)
+    if not free.any():
+        return Refinement(tuple(theta0), tuple(theta0), value0, value0, tuple(g0s), 0,
+                          "no coefficient is free to move (every bound is a single value)")
+    if np.all(np.abs(g0s[free]) <= flat_rel * max(abs(value0), 1e-300)):
+        return Refinement(tuple(theta0), tuple(theta0), value0, value0, tuple(g0s), 0, flat_reason(model, theta0))
+
+    def full(u):
+        theta = theta0.copy()
+        theta[free] = lo[free] + u * span[free]
+        return theta
 
     def fun(u):
-        v, g = model.value_and_grad(lo + u * span)
-        return v, g * span
+        v, g = model.value_and_grad(full(u))
+        return v, (g * span)[free]
 
-    res = minimize(fun, (theta0 - lo) / span, jac=True, method="L-BFGS-B", bounds=[(0.0, 1.0)] * len(bounds),
-                   options={"maxiter": max_iter})
-    theta = lo + np.clip(res.x, 0.0, 1.0) * span
+    res = minimize(fun, (theta0[free] - lo[free]) / span[free], jac=True, method="L-BFGS-B",
+                   bounds=[(0.0, 1.0)] * int(free.sum()), options={"maxiter": max_iter})
+    theta = full(np.clip(res.x, 0.0, 1.0))
     value = model.value(theta)
     if value > value0:                        # never worse than the start
         theta, value = theta0, value0
     return Refinement(tuple(theta0), tuple(theta), value0, value, tuple(g0s), int(res.nit))
+
+
+class FrameMean:
+    """The mean of several FrameModels' objectives (the frames of a run after its white
+    initialisation, over one or more scenes): what `refine` minimises for a search."""
+
+    def __init__(self, models: list[FrameModel]):
+        if not models:
+            raise ValueError("FrameMean: no frame to average")
+        self.models = list(models)
+
+    def value_and_grad(self, theta) -> tuple[float, np.ndarray]:
+        vg = [m.value_and_grad(theta) for m in self.models]
+        return (float(np.mean([v for v, _ in vg])), np.mean([g for _, g in vg], axis=0))
+
+    def value(self, theta) -> float:
+        return float(np.mean([m.value(theta) for m in self.models]))
+
+
+def flat_reason(model, theta) -> str:
+    """Why the objective does not move at `theta` (a FrameModel or a FrameMean): the plate's
+    predicted values against Vs in every frame, or its capture at the top of the sensor's range
+    in every frame."""
+    frames = model.models if isinstance(model, FrameMean) else [model]
+    reasons = {_flat_reason(m, theta) for m in frames}
+    return reasons.pop() if len(reasons) == 1 else "flat: the capture does not depend on the coefficients here"
 
 
 def _flat_reason(model: FrameModel, theta) -> str:
@@ -289,6 +351,11 @@ def _flat_reason(model: FrameModel, theta) -> str:
     dn = np.array(model.dn(model.electrons(model.levels(*(Float64(float(t)) for t in theta))))).reshape(cam.shape)
     if np.mean(dn[y0:y1, x0:x1] >= cam.params.max_dn - model.relax.clip_width) > 0.99:
         return "flat: the plate is clipped at the top of the sensor's range for every nearby setting"
+    if model.mirror_box is not None:
+        my0, mx0, my1, mx1 = model.mirror_box
+        if np.mean(model.env_np[my0:my1, mx0:mx1] >= CLIP_MARKER) > 0.99:
+            return ("flat: the plate's prediction is clipped (255 of 255), where the paper's law gives 255 a^inf = 0 "
+                    "whatever (Vs, a, b)")
     above = np.mean(model.env_np >= float(theta[0]) - 6 * model.relax.step_dn)
     if above == 0:
         return (f"flat: no predicted value reaches Vs = {float(theta[0]):.4g} (the law leaves every mirror "

@@ -213,17 +213,23 @@ def requeue_interrupted(study, log) -> int:
 # ---------------------------------------------------------------------------- one batch of trials
 def trial_tasks(scenes, q: Question, trial, out: Path, hashes: dict) -> tuple[dict, list]:
     """The trial's values ({key: TOML literal}) and its points (row, overrides, refs, folder)."""
+    values = {p.key: p.suggest(trial) for p in q.params}
+    return values, settings_tasks(scenes, values, out, hashes, trial.number)
+
+
+def settings_tasks(scenes, values: dict, out: Path, hashes: dict, trial) -> list:
+    """The points of one setting of the searched keys ({key: TOML literal}), one per scene:
+    (row, overrides, refs, folder `points/<hash of the effective scene>`)."""
     from poevp_optics.apps.sweep.bundle import scene_inputs, with_hashes
 
-    values = {p.key: p.suggest(trial) for p in q.params}
     sets = [f"{k}={v}" for k, v in values.items()]
     tasks = []
     for i, sc in enumerate(scenes):
         ov = (*sc.base, *sets)
         key = point_key(apply_overrides(sc.raw, list(ov)))
         refs = tuple(with_hashes(scene_inputs(load_scene(sc.toml, list(ov), cross_checks=False)), hashes))
-        tasks.append(({"trial": trial.number, "scene": i, "point_key": key}, ov, refs, out / "points" / key))
-    return values, tasks
+        tasks.append(({"trial": trial, "scene": i, "point_key": key}, ov, refs, out / "points" / key))
+    return tasks
 
 
 def _point_result(folder: Path, res: dict | None, q: Question) -> dict:
@@ -281,12 +287,22 @@ def run_batch(study, scenes, q: Question, out: Path, k: int, ctx) -> list[dict]:
     """Ask `k` trials, run their points (those already in their folders are read), tell them."""
     trials = [study.ask() for _ in range(k)]
     asked = [(t, *trial_tasks(scenes, q, t, out, ctx.hashes)) for t in trials]
+    results = run_tasks(scenes, [task for _, _, tasks in asked for task in tasks], out, ctx)
+    rows = []
+    for trial, values, tasks in asked:
+        pts = [(f, _point_result(f, results.get(f.name), q)) for _, _, _, f in tasks]
+        rows.append(tell_trial(study, trial, q, values, pts, scenes))
+    return rows
+
+
+def run_tasks(scenes, tasks: list, out: Path, ctx) -> dict[str, dict]:
+    """Run the points of `tasks` not already in their folders (once each) on the search's Dask
+    session, sharing renders; {folder name: run_point's result} of those that ran."""
     todo, seen = [], set()
-    for _, _, tasks in asked:
-        for task in tasks:
-            if task[3].name not in seen and not (task[3] / "report.json").is_file():
-                seen.add(task[3].name)
-                todo.append(task)
+    for task in tasks:
+        if task[3].name not in seen and not (task[3] / "report.json").is_file():
+            seen.add(task[3].name)
+            todo.append(task)
     results: dict[str, dict] = {}
 
     def on_result(task, res):
@@ -300,11 +316,7 @@ def run_batch(study, scenes, q: Question, out: Path, k: int, ctx) -> list[dict]:
                        on_result=on_result, reuse=ctx.reuse,
                        progress=ctx.progress, log=ctx.log,
                        resume_hint=f"the finished trials are in {out}/trials.parquet: ")
-    rows = []
-    for trial, values, tasks in asked:
-        pts = [(f, _point_result(f, results.get(f.name), q)) for _, _, _, f in tasks]
-        rows.append(tell_trial(study, trial, q, values, pts, scenes))
-    return rows
+    return results
 
 
 def _groups(scenes, todo) -> dict[str, str]:
@@ -356,9 +368,12 @@ def rows_from_study(study, q: Question, known: dict[int, dict]) -> list[dict]:
 
 
 def search(scenes: list[str], bases: list[list[str]], q: Question, *, out: Path, cl: ClusterSettings,
-           reuse_render: bool = True, progress: bool = True, yes: bool = False, log=print):
-    """Run (or resume) the search (module docstring); returns (trials table, best trial or None).
-    scenes: scene paths; bases: each scene's overrides (--set, the camera's scale)."""
+           reuse_render: bool = True, progress: bool = True, yes: bool = False, log=print,
+           refine: bool = False):
+    """Run (or resume) the search (module docstring); returns (trials table, best trial or None,
+    refined.json's dict or None). scenes: scene paths; bases: each scene's overrides (--set, the
+    camera's scale); refine: after the trials, the gradient refinement of the best trial
+    (apps/search/refine.py)."""
     from poevp_optics.apps.search.results import read_trials, write_best, write_trials
     from poevp_optics.apps.sweep.bundle import make_plan, scene_inputs, with_hashes
 
@@ -377,10 +392,32 @@ def search(scenes: list[str], bases: list[list[str]], q: Question, *, out: Path,
             _check_record(out, record)
             write_json(out / "search.json", record)
             with sigterm_noted() as term:
-                return _search_loop(sc, q, out, _Context(dask, plans, hashes, None, progress, log, term),
-                                    reuse_render, read_trials, write_trials, write_best)
+                ctx = _Context(dask, plans, hashes, None, progress, log, term)
+                df, best = _search_loop(sc, q, out, ctx, reuse_render, read_trials, write_trials, write_best)
+                refined = None
+                if refine and best is not None:
+                    refined = _refine(sc, q, out, best, ctx, reuse_render)
+                elif not refine:
+                    (out / "refined.json").unlink(missing_ok=True)
+                return df, best, refined
     finally:
         dask.close()
+
+
+def _refine(sc, q: Question, out: Path, best: dict, ctx: _Context, reuse_render: bool) -> dict:
+    """The best trial refined (apps/search/refine.py), its settings run as the trials run."""
+    from poevp_optics.apps.search.refine import refine_best
+    from poevp_optics.apps.sweep.reuse import RenderReuse
+
+    def run_points(values: dict) -> list:
+        if ctx.reuse is None and reuse_render:
+            ctx.reuse = RenderReuse(out, {}, ctx.plans[0].mode == "shared", ctx.log)
+        tasks = settings_tasks(sc, values, out, ctx.hashes, "refined")
+        results = run_tasks(sc, tasks, out, ctx)
+        return [(f, _point_result(f, results.get(f.name), q)) for _, _, _, f in tasks]
+
+    ctx.log(f"poevp search: refining trial {best['trial']} by the differentiable camera")
+    return refine_best(sc, q, out, best, run_points, log=ctx.log)
 
 
 def _search_loop(sc, q: Question, out: Path, ctx: _Context, reuse_render: bool, read_trials, write_trials,

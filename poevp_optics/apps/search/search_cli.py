@@ -33,8 +33,8 @@ def cmd_search(args, overrides_for) -> int:
     cl = ClusterSettings(args.workers, args.scheduler, args.scheduler_file, args.shared_fs, args.retries,
                          args.threads, **tls_options(args))
     log = (lambda *a: None) if args.quiet else print
-    df, best = search(scenes, bases, q, out=out, cl=cl, reuse_render=not args.no_reuse_render,
-                      progress=not args.quiet, yes=args.yes, log=log)
+    df, best, refined = search(scenes, bases, q, out=out, cl=cl, reuse_render=not args.no_reuse_render,
+                               progress=not args.quiet, yes=args.yes, log=log, refine=args.refine)
     if df is None:
         print(f"poevp: search {out}: no trial ran", file=sys.stderr)
         return 1
@@ -47,7 +47,23 @@ def cmd_search(args, overrides_for) -> int:
         return 1
     print(f"poevp: best trial {best['trial']}: {metric} = {best['objective']:.6g} ({direction})")
     print(f"poevp: settings: {best['set_line']}")
+    if refined is not None:
+        print_refined(refined, metric, out)
     return 0
+
+
+def print_refined(r: dict, metric: str, out: Path) -> None:
+    """--refine's lines: the refined settings and both objectives from the camera, or why not."""
+    if not r.get("refined"):
+        print(f"poevp: refine: {r['note']} ({out}/refined.json)")
+        return
+    verdict = ("better than the best trial" if r["improved"] else
+               "breaks a constraint; keep the best trial" if not r["feasible"] else
+               "not better than the best trial; keep it")
+    print(f"poevp: refined (differentiable camera, {r['iterations']} L-BFGS-B steps): model objective "
+          f"{r['model_before']:.4g} -> {r['model_after']:.4g}; {metric} by the camera "
+          f"{r['objective_before']:.6g} -> {r['objective_after']:.6g}: {verdict}")
+    print(f"poevp: refined settings: {r['set_line']}")
 
 
 def add_search_parser(sub, add_run_options, overrides) -> None:
@@ -81,6 +97,10 @@ def add_search_parser(sub, add_run_options, overrides) -> None:
     add_cluster_options(p)
     p.add_argument("--no-reuse-render", action="store_true",
                    help="render every point (default: points with the same render inputs share one render)")
+    p.add_argument("--refine", action="store_true",
+                   help="after the trials, move the best trial's mask.vs/mask.a/mask.b along the differentiable "
+                        "camera's gradient (paper's Eq. 2 law, metrics.plate_white_after_init.in_band_fraction), "
+                        "run the camera there and write refined.json (or say why it cannot)")
     p.add_argument("--threads", type=threads_arg, help="DrJit/torch/OpenCV threads per worker")
     p.add_argument("--quiet", action="store_true")
 
