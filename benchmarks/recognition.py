@@ -596,6 +596,10 @@ def attribution_section(rows, dev: float | None) -> list[str]:
         d = [f"{m.replace('fusion_', '')} {rates[(f, m)] - rates[(base, m)]:+.0f} points"
              for m in ("fusion_classic", "fusion_deghost")]
         lines.append(f"- {f}: " + ", ".join(d) + ".")
+    for m in ("fusion_classic", "fusion_deghost"):
+        f = max(factors[1:], key=lambda f: abs(rates[(f, m)] - rates[(base, m)]), default=None)
+        if f is not None:
+            lines.append(f"- Largest single change for {m}: *{f}*, {rates[(base, m)]:.0f} % -> {rates[(f, m)]:.0f} %.")
     best = {m: min(factors, key=lambda f: abs(rates[(f, m)] - PAPER_TABLE2[m])) for m in ("fusion_classic", "fusion_deghost")}
     for m, f in best.items():
         lines.append(f"- Closest to the paper, {m}: *{f}*, {rates[(f, m)]:.0f} % "
@@ -634,6 +638,22 @@ def gap_section(rows, examples: dict, fig_name: str | None) -> list[str]:
     return lines
 
 
+def zero_read_section(rows) -> list[str]:
+    """Per scene, camera and condition where no POE-VP frame reads (full ALPR): why, in the words
+    of `poevp evaluate`'s report (eval_report.zero_read_reason: clipped, dark, or not detected)."""
+    from poevp_optics.apps.evaluate.eval_report import zero_read_reason
+
+    main = [r for r in rows if not r.get("factor")]
+    lines = []
+    for key, rr in _cells(main, lambda r: (r["scene"], r["camera"], r["condition"])).items():
+        why = zero_read_reason(rr)
+        if why:
+            lines.append(f"- **{' / '.join(key)}**: {why}")
+    if not lines:
+        return []
+    return ["## Where no POE-VP frame reads", "", *lines, ""]
+
+
 def confusion_section(rows) -> list[str]:
     c = confusions([r for r in rows if not r.get("factor")])
     pair = [k for k in c if any(set(k) == set(p) for p in CONFUSABLE)]
@@ -668,6 +688,7 @@ def page(result: dict) -> str:
     lines += ["## Every scene, condition and method", "", *main_table(main)]
     lines += attribution_section(rows, result.get("mertens_dev"))
     lines += gap_section(rows, result.get("examples", {}), "recognition_gaps.png" if result.get("gaps_png") else None)
+    lines += zero_read_section(rows)
     lines += confusion_section(rows)
     lines += ["## How it was measured", "", result.get("protocol", ""), ""]
     return "\n".join(lines).rstrip() + "\n"

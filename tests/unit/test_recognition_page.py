@@ -86,3 +86,13 @@ def test_fusion_variants_on_a_synthetic_sequence():
     one = rec.fused(seq, 2, False, rec.VARIANTS[1])
     # one channel, flat frames (zero contrast): equal weights, the mean of 128, 204, 255 = 195.7
     np.testing.assert_allclose(one, np.mean([128, 204, 255]), atol=1.0)
+
+
+def test_zero_read_section_names_the_clipped_plate():
+    rows = [{**_row("night_road", "beams x10", m, t, False, False), "plate_clipped": 0.9}
+            for m in ("ldr", "flow") for t in range(3)]
+    lines = rec.zero_read_section(rows)
+    assert lines[0] == "## Where no POE-VP frame reads"
+    assert "night_road / physical camera / beams x10" in lines[2] and "stays clipped" in lines[2]
+    rows[3] = {**rows[3], "alpr_ok": True}            # a flow frame reads: nothing to explain
+    assert rec.zero_read_section(rows) == []
