@@ -65,6 +65,8 @@ CONFUSION_ROWS = 12
 ROAD_TEXT_KEYS = {"night_road": "plate.text", "wet_night_road": "vehicle.car.plate_text",
                   "fog_highway": "vehicle.truck.plate_text"}
 BASELINES = ("ldr", "fusion_classic", "fusion_deghost")
+#: Default cache folder (git-ignored); --cache names another (e.g. one shared by several checkouts).
+CACHE = ROOT / "out" / "benchmarks" / "recognition_cache"
 SECTIONS = ("paper_camera", "physical_camera", "fusion_attribution", "highbeam_plate", *ROAD_TEXT_KEYS)
 
 
@@ -84,6 +86,7 @@ class Config:
     sections: tuple[str, ...] = SECTIONS
     label: str = "full"
     fresh: bool = False               # ignore the render and OCR caches
+    cache: Path = CACHE
 
 
 FULL = Config(predictors=("hold", "flow", "track_net", "dmvfn_lite", "oracle"), paper_e=(9.0, 29.0, 49.0),
@@ -99,43 +102,40 @@ QUICK = Config(predictors=("flow", "oracle"), paper_e=(9.0,), texts=TEXTS[:1], s
 # Caches: renders and OCR readings, by content (a rerun after a change to the loop redoes only
 # what the change touched)
 
-CACHE = ROOT / "out" / "benchmarks" / "recognition_cache"
-
-
 def _code_key(*folders: str) -> str:
-    """The committed tree hashes of `folders` plus the working tree's diff of them (so an edit
-    that is not committed yet still changes the key)."""
+    """SHA-1 of the Python sources under `folders` (relative to the package root's parent), by
+    content: the same code gives the same key in any checkout."""
     import hashlib
-    import subprocess
 
     h = hashlib.sha1()
     for f in folders:
-        for cmd in (["git", "rev-parse", f"HEAD:{f}"], ["git", "diff", "HEAD", "--", f]):
-            h.update(subprocess.run(cmd, cwd=ROOT, capture_output=True).stdout)
+        for p in sorted((ROOT / f).rglob("*.py")):
+            h.update(p.relative_to(ROOT).as_posix().encode() + b"\0" + p.read_bytes())
     return h.hexdigest()
 
 
-def cached_render(scene: str, overrides: list[str], fresh: bool = False):
-    """benchmarks.plate_band.render_once, kept under CACHE by the scene's files, the overrides and
-    the rendering code (render/, sources/, scene/)."""
+def cached_render(scene: str, overrides: list[str], cache: Path, fresh: bool = False):
+    """benchmarks.plate_band.render_once, kept under `cache` by the scene's files, the overrides and
+    the code that renders (render/, sources/, scene/, core/)."""
     import hashlib
     import pickle
 
     from benchmarks.plate_band import render_once
 
-    h = hashlib.sha1(_code_key("poevp_optics/render", "poevp_optics/sources", "poevp_optics/scene").encode())
+    h = hashlib.sha1(_code_key("poevp_optics/render", "poevp_optics/sources", "poevp_optics/scene",
+                               "poevp_optics/core").encode())
     for p in sorted(Path(scene).iterdir()):
         if p.is_file():
             h.update(p.name.encode() + p.read_bytes())
     h.update("\n".join(overrides).encode())
-    path = CACHE / f"render-{Path(scene).name}-{h.hexdigest()[:16]}.pkl"
+    path = cache / f"render-{Path(scene).name}-{h.hexdigest()[:16]}.pkl"
     if path.is_file() and not fresh:
         from poevp_optics.scene.load import load_scene
 
         with open(path, "rb") as f:
             return load_scene(scene, overrides), pickle.load(f)
     spec, _, ex = render_once(scene, overrides)
-    CACHE.mkdir(parents=True, exist_ok=True)
+    cache.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(".tmp")
     with open(tmp, "wb") as f:
         pickle.dump(ex, f, protocol=pickle.HIGHEST_PROTOCOL)
@@ -143,22 +143,24 @@ def cached_render(scene: str, overrides: list[str], fresh: bool = False):
     return spec, ex
 
 
-def load_ocr_cache() -> dict:
-    """Runner.read's cache {(image sha1, box, label): reading} kept under CACHE (by OCR version)."""
+def load_ocr_cache(cache: Path) -> dict:
+    """Runner.read's cache {(image sha1, box, label): reading} kept under `cache` (by OCR version)."""
     import json
 
-    path = CACHE / f"ocr-{_ocr_version()}.json"
+    path = cache / f"ocr-{_ocr_version()}.json"
     if not path.is_file():
         return {}
     return {(k[0], tuple(k[1]), k[2]): v for k, v in json.loads(path.read_text())}
 
 
-def save_ocr_cache(cache: dict) -> None:
+def save_ocr_cache(readings: dict, cache: Path) -> None:
+    """`readings` merged into the kept file (another run may have added to it meanwhile)."""
     import json
 
-    CACHE.mkdir(parents=True, exist_ok=True)
-    save_text(CACHE / f"ocr-{_ocr_version()}.json", json.dumps([[list(k[:1]) + [list(k[1]), k[2]], v]
-                                                              for k, v in cache.items()]))
+    cache.mkdir(parents=True, exist_ok=True)
+    merged = {**load_ocr_cache(cache), **readings}
+    save_text(cache / f"ocr-{_ocr_version()}.json", json.dumps([[list(k[:1]) + [list(k[1]), k[2]], v]
+                                                               for k, v in merged.items()]))
 
 
 def _ocr_version() -> str:
@@ -430,7 +432,7 @@ def road_scene(reader: Reader, cfg: Config, scene: str, log=print) -> None:
         t0 = time.perf_counter()
         ov = [*sc.sets, f"timing.frames={cfg.road_frames}", f'{ROAD_TEXT_KEYS[scene]}="{text}"',
               *beam_overrides(str(SCENES_DIR / scene), gain)]
-        spec, ex = cached_render(str(SCENES_DIR / scene), ov, cfg.fresh)
+        spec, ex = cached_render(str(SCENES_DIR / scene), ov, cfg.cache, cfg.fresh)
         runner = make_runner(reader, SCENES_DIR / scene, spec, cfg.predictors, loop_mode=spec.loop.mode)
         images, _ = runner.method_images(ex)
         boxes = {e.index: runner.cam.box_to_sensor(e.roi) if e.roi else None for e in ex}
@@ -778,7 +780,7 @@ PROTOCOL = __doc__.split("Scenes and conditions:", 1)[1].split("Writes recogniti
 
 
 def run(cfg: Config, log=print) -> dict:
-    reader = Reader(cache={} if cfg.fresh else load_ocr_cache())
+    reader = Reader(cache={} if cfg.fresh else load_ocr_cache(cfg.cache))
     t0 = time.perf_counter()
     seqs, dev = {}, None
     if "paper_camera" in cfg.sections or "fusion_attribution" in cfg.sections:
@@ -787,14 +789,16 @@ def run(cfg: Config, log=print) -> dict:
             reader.rows = [r for r in reader.rows if r.get("factor")]
     if "fusion_attribution" in cfg.sections:
         dev = fusion_attribution(reader, seqs, log)
+    save_ocr_cache(reader.cache, cfg.cache)
     if "physical_camera" in cfg.sections:
         paper_protocol(reader, cfg, "physical", log)
     if "highbeam_plate" in cfg.sections:
         highbeam(reader, cfg, log)
+    save_ocr_cache(reader.cache, cfg.cache)
     for scene in ROAD_TEXT_KEYS:
         if scene in cfg.sections:
             road_scene(reader, cfg, scene, log)
-    save_ocr_cache(reader.cache)
+            save_ocr_cache(reader.cache, cfg.cache)
     return {"rows": reader.rows, "examples": reader.examples, "showcase": reader.showcase, "mertens_dev": dev,
             "seconds": time.perf_counter() - t0}
 
@@ -810,10 +814,11 @@ def main(argv=None):
                     "road scenes at 1/6 scale): a few minutes")
     ap.add_argument("--sections", help=f"comma-separated subset of {','.join(SECTIONS)} (default all)")
     ap.add_argument("--fresh", action="store_true", help="render and read everything again (by default renders "
-                    f"and OCR readings are reused by content from {CACHE.relative_to(ROOT)}/)")
+                    "and OCR readings are reused by content from the cache folder)")
+    ap.add_argument("--cache", type=Path, default=CACHE, help=f"the cache folder (default {CACHE.relative_to(ROOT)})")
     add_results_flag(ap)
     a = ap.parse_args(argv)
-    cfg = dataclasses.replace(QUICK if a.quick else FULL, fresh=a.fresh)
+    cfg = dataclasses.replace(QUICK if a.quick else FULL, fresh=a.fresh, cache=a.cache)
     if a.sections:
         secs = tuple(s.strip() for s in a.sections.split(",") if s.strip())
         bad = [s for s in secs if s not in SECTIONS]
