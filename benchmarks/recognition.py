@@ -839,7 +839,13 @@ def main(argv=None):
     else:
         (dest / "recognition_gaps.png").unlink(missing_ok=True)
     write_csv(dest / "recognition_frames.csv", rows)
-    cmd = " ".join([".venv/bin/python -m benchmarks.recognition", *(argv if argv is not None else sys.argv[1:])])
+    args = list(argv if argv is not None else sys.argv[1:])
+    for i, x in reversed(list(enumerate(args))):      # where the cache lives does not change a number
+        if x == "--cache":
+            del args[i:i + 2]
+        elif x.startswith("--cache="):
+            del args[i]
+    cmd = " ".join([".venv/bin/python -m benchmarks.recognition", *args])
     text = page({**res, "date": datetime.date.today().isoformat(), "label": cfg.label, "command": cmd,
                  "machine": machine_line(), "road_scale": scale_text(cfg.road_scale),
                  "examples_png": bool(res["showcase"]), "gaps_png": bool(keys), "protocol": PROTOCOL})
