@@ -148,3 +148,21 @@ def test_an_impossible_fixed_exposure_time_is_one_line(capsys, value, says):
     err = capsys.readouterr().err.strip()
     assert rc == 2 and len(err.splitlines()) == 1, err
     assert "mask.exposure_time_s" in err and says in err, err
+
+
+def test_the_timing_budget_follows_each_frames_shortened_exposure_and_window():
+    """A frame shortened to 1 ms: its DMD window is that millisecond centred on the scene's 30 ms
+    exposure, and the next mask's budget runs from its end (not from the scene's exposure end)."""
+    from poevp_optics.control.timing_budget import BudgetSpec, MaskClock
+
+    clock = MaskClock(BudgetSpec(compute="given", compute_s=1e-3), TIMING, (8, 8), 12, (8, 8), 8)
+    levels = np.full((8, 8), 255.0)
+    clock.show(0, levels, True, None)
+    fx = et.FrameExposure(1e-3, 4, 1e-3, False)
+    mid1 = 1 / 30 + T / 2
+    r1 = clock.show(1, levels, False, None, fx).record
+    assert abs(r1["window_start_s"] - (mid1 - 0.5e-3)) < 1e-12 and abs(r1["window_s"] - 1e-3) < 1e-12
+    assert abs(r1["exposure_end_s"] - T) < 1e-12                      # frame 0 kept the scene's exposure
+    r2 = clock.show(2, levels, False, None).record
+    assert abs(r2["exposure_end_s"] - (mid1 + 0.5e-3)) < 1e-12
+    assert abs(r2["window_start_s"] - 2 / 30) < 1e-12 and "window_s" not in r2

@@ -55,7 +55,9 @@ def settle_mask(spec: SceneSpec, cam: Camera, truth: np.ndarray, white_capture) 
                                                        "history": []}
     # no [attenuator] here: a global ND scales both ends of one frame's range alike, so it leaves
     # the chart's (intra-frame) dynamic range unchanged
-    step = LoopStep(cam, spec.resolved.loop.mask, spec.loop, spec.predictor)
+    # the scene's exposure throughout: the chart measures one frame's range with a settled mask
+    fixed = dataclasses.replace(spec.resolved.loop.mask, exposure_time_s=spec.timing.exposure_s)
+    step = LoopStep(cam, fixed, spec.loop, spec.predictor)
     source = f"loop ({step.model.name}, {spec.loop.mode})"
     mask, frames = cam.white_mask(), []
     min_level = min(spec.mask.min_level, cam.top_level)
