@@ -351,13 +351,19 @@ def _flat_reason(model: FrameModel, theta) -> str:
     dn = np.array(model.dn(model.electrons(model.levels(*(Float64(float(t)) for t in theta))))).reshape(cam.shape)
     if np.mean(dn[y0:y1, x0:x1] >= cam.params.max_dn - model.relax.clip_width) > 0.99:
         return "flat: the plate is clipped at the top of the sensor's range for every nearby setting"
-    if model.mirror_box is not None:
-        my0, mx0, my1, mx1 = model.mirror_box
-        if np.mean(model.env_np[my0:my1, mx0:mx1] >= CLIP_MARKER) > 0.99:
-            return ("flat: the plate's prediction is clipped (255 of 255), where the paper's law gives 255 a^inf = 0 "
-                    "whatever (Vs, a, b)")
-    above = np.mean(model.env_np >= float(theta[0]) - 6 * model.relax.step_dn)
-    if above == 0:
+    reach = float(theta[0]) - 6 * model.relax.step_dn        # the smooth threshold's reach below Vs
+    if not np.any(model.env_np >= reach):
         return (f"flat: no predicted value reaches Vs = {float(theta[0]):.4g} (the law leaves every mirror "
                 "white), so no coefficient changes the capture")
+    if model.mirror_box is not None:
+        my0, mx0, my1, mx1 = model.mirror_box
+        x = model.env_np[my0:my1, mx0:mx1].astype(np.float64)
+        x = x[x >= reach]
+        vs, a, b = (float(t) for t in theta)
+        with np.errstate(over="ignore", under="ignore"):
+            att = a ** ((x - b * vs) / np.maximum(255.0 - x, model.relax.edge_dn))
+        if x.size and np.all(att < 1e-6) and np.min(x) >= 250.0:
+            return (f"flat: the plate's prediction is clipped ({np.min(x):.1f}-{np.max(x):.1f} of 255) wherever it "
+                    f"reaches Vs: the paper's law 255 a^((x - b Vs) / (255 - x)) passes less than 1e-6 of its "
+                    "light there, at these coefficients and all nearby")
     return "flat: the capture does not depend on the coefficients here"
