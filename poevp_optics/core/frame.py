@@ -64,6 +64,7 @@ class RenderedExposure:
     ground_truth: dict | None = None    # from a frame source: plate text, frames read, plate velocity
     spp: tuple[int, ...] = ()           # spp each radiance sample (or basis image) actually used
     target_met: bool | None = None      # render.target_rel_error reached (None: no target)
+    plates: tuple = ()                  # render.roi_shape = "plates": one dict per plate (render/exposures.py PlateTrack)
 
     @classmethod
     def build(cls, index: int, t0_s: float, t1_s: float, times_s: np.ndarray, subframes, mean: np.ndarray,

@@ -41,7 +41,8 @@ def render_sample(scene, renderer, frame: int, sample: int, rel_target: float = 
         if scene.render.roi_spp > 0:
             m, v = add_roi_samples(scene, renderer, frame, sample, m, v, used)
         return m, v, used, None, None
-    target = Target(rel_target, acc.max_spp, renderer.roi_box())
+    target = Target(rel_target, acc.max_spp, renderer.roi_box(),
+                    tuple(renderer.roi_boxes().values()) if renderer.multi_roi else ())
     reps, met = render_to_target(renderer, lambda n: render_seeds(scene.render.seed, frame, sample, n),
                                  acc.spp, acc.mc_splits, target, reps)
     return reps.mean.astype(np.float32), reps.variance_of_mean(), reps.spp, met, reps
@@ -54,28 +55,65 @@ ROI_MARGIN_PX = 1
 
 
 def add_roi_samples(scene, renderer, frame: int, sample: int, mean, var, spp: int):
-    """`render.roi_spp` more samples per pixel over the ROI shape's box at the current pose
-    (Renderer.render_box, own seeds), pooled with the frame's `spp` there: mean
-    (n1 m1 + n2 m2) / (n1 + n2), variance (n1^2 v1 + n2^2 v2) / (n1 + n2)^2 (independent
-    unbiased estimates of the same pixel integral). The frame's pixels elsewhere keep `spp`:
-    the effort goes where the error target is (issue 27). Returns (mean, var)."""
-    box = renderer.roi_box()
-    if box is None:
+    """`render.roi_spp` more samples per pixel over each ROI's box at the current pose
+    (Renderer.roi_boxes: the ROI shape, or every plate in view; Renderer.render_box, own seeds
+    per ROI), pooled with the frame's `spp` there (render/roi.py pool_samples; where two boxes
+    overlap the second pools with the count the first left). The frame's pixels elsewhere keep
+    `spp`: the effort goes where the error target is. Returns (mean, var)."""
+    boxes = renderer.roi_boxes()
+    if not boxes:
         return mean, var
+    from poevp_optics.render.roi import pool_samples
+
+    order = [t.label for t in renderer.roi_labels]
     h, w = mean.shape
-    y0, x0, y1, x1 = box
-    box = (max(0, y0 - ROI_MARGIN_PX), max(0, x0 - ROI_MARGIN_PX), min(h, y1 + ROI_MARGIN_PX),
-           min(w, x1 + ROI_MARGIN_PX))
-    y0, x0, y1, x1 = box
-    seeds = render_seeds(scene.render.seed, frame, ROI_STREAM + sample, scene.accuracy.mc_splits)
-    m2, v2, n2 = renderer.render_box_with_error(seeds, scene.render.roi_spp, box)
-    n1 = float(spp)
     mean = mean.astype(np.float64).copy()
     var = np.asarray(var, dtype=np.float64).copy()
-    a, b = n1 / (n1 + n2), n2 / (n1 + n2)
-    mean[y0:y1, x0:x1] = a * mean[y0:y1, x0:x1] + b * m2
-    var[y0:y1, x0:x1] = a * a * var[y0:y1, x0:x1] + b * b * v2
+    count = np.full(mean.shape, float(spp))
+    for label, (y0, x0, y1, x1) in boxes.items():
+        box = (max(0, y0 - ROI_MARGIN_PX), max(0, x0 - ROI_MARGIN_PX), min(h, y1 + ROI_MARGIN_PX),
+               min(w, x1 + ROI_MARGIN_PX))
+        k = order.index(label)           # the plate's own stream: the first ROI keeps ROI_STREAM's
+        seeds = render_seeds(scene.render.seed, frame, ROI_STREAM * (k + 1) + sample, scene.accuracy.mc_splits)
+        m2, v2, n2 = renderer.render_box_with_error(seeds, scene.render.roi_spp, box)
+        pool_samples(mean, var, count, box, m2, v2, n2)
     return mean.astype(np.float32), var
+
+
+class PlateTrack:
+    """Per ROI label over one exposure's poses: the union of its in-view boxes, its distances
+    (m) and visible fractions at each pose (render/roi.py PlateView); `records` gives each
+    plate's entry of RenderedExposure.plates with its own MC error."""
+
+    def __init__(self, renderer):
+        self.renderer = renderer
+        self.targets = renderer.roi_labels if renderer.multi_roi else ()
+        self.boxes = {t.label: None for t in self.targets}
+        self.dist = {t.label: [] for t in self.targets}
+        self.seen = {t.label: [] for t in self.targets}
+
+    def add_pose(self) -> None:
+        """Record the renderer's current pose."""
+        if not self.targets:
+            return
+        for label, v in self.renderer.plate_views().items():
+            self.dist[label].append(v.distance_m)
+            self.seen[label].append(v.visible_fraction if v.box is not None else 0.0)
+            if v.in_view:
+                self.boxes[label] = union_box(self.boxes[label], v.box)
+
+    def records(self, mean, var) -> tuple:
+        """({id, text, shape, box, distance_m, visible_fraction, rel_error}, ...) in the scene's
+        order: distance and visible fraction averaged over the poses; rel_error
+        (progressive.rel_error) over the plate's box; box and rel_error None out of view."""
+        out = []
+        for t in self.targets:
+            box = self.boxes[t.label]
+            out.append({"id": t.label, "text": t.text, "shape": t.shape_id, "box": box,
+                        "distance_m": float(np.mean(self.dist[t.label])),
+                        "visible_fraction": float(np.mean(self.seen[t.label])),
+                        "rel_error": rel_error(mean, var, box) if box is not None else None})
+        return tuple(out)
 
 
 def flicker_bases(scene, renderer):
@@ -95,7 +133,9 @@ def flicker_bases(scene, renderer):
     return out, renderer.roi_box()
 
 
-def _exposure(i, t0, t1, times, subs, mean, var, roi, **extra) -> RenderedExposure:
+def _exposure(i, t0, t1, times, subs, mean, var, roi, track: PlateTrack | None = None, **extra) -> RenderedExposure:
+    if track is not None and track.targets:
+        extra["plates"] = track.records(mean, var)
     return RenderedExposure.build(i, t0, t1, times, subs, mean, var, roi, rel_error(mean, var),
                                   rel_error(mean, var, roi), **extra)
 
@@ -105,7 +145,7 @@ def _met(flags) -> bool | None:
     return all(flags) if flags else None
 
 
-def _lamp_exposure(scene, i, t0, t1, bases, roi):
+def _lamp_exposure(scene, i, t0, t1, bases, roi, track=None):
     from poevp_optics.sources.flicker import drive_mean
 
     rest_m, rest_v = bases["rest"][:2]
@@ -115,7 +155,7 @@ def _lamp_exposure(scene, i, t0, t1, bases, roi):
         mean, var = mean + d * bases[p][0], var + d * d * bases[p][1]
     names = ("rest", *scene.flicker)
     subs = tuple(bases[n][0] for n in names)
-    return _exposure(i, t0, t1, np.array([(t0 + t1) / 2]), subs, mean.astype(np.float32), var, roi,
+    return _exposure(i, t0, t1, np.array([(t0 + t1) / 2]), subs, mean.astype(np.float32), var, roi, track,
                      basis=names, spp=tuple(bases[n][2] for n in names), target_met=_met(bases[n][3] for n in names))
 
 
@@ -132,13 +172,23 @@ def _moving_exposure(scene, renderer, i, t0, t1):
     target = scene.accuracy.target_rel_error
     share = target / float(np.sqrt(np.sum(weights ** 2))) if target > 0 else 0.0
     samples, roi = [], None
+    track = PlateTrack(renderer)
     for k, t in enumerate(times):
         renderer.set_time(float(t))
         samples.append(render_sample(scene, renderer, i, k, share))
         roi = union_box(roi, renderer.roi_box())
+        track.add_pose()
     mean, var = _combine(samples, weights)
+
+    def frame_error(mean, var):          # every plate in view is held to the target: the worst decides
+        if track.targets:
+            from poevp_optics.render.roi import max_box_error
+
+            return max_box_error(mean, var, [b for b in track.boxes.values() if b is not None] or [roi])
+        return rel_error(mean, var, roi)
+
     for _ in range(3):                              # tighten while the frame misses the target
-        err = rel_error(mean, var, roi)
+        err = frame_error(mean, var)
         if not target > 0 or err is None or err <= target or all(s[3] is False for s in samples):
             break
         share *= target / err
@@ -146,8 +196,8 @@ def _moving_exposure(scene, renderer, i, t0, t1):
             renderer.set_time(float(t))
             samples[k] = render_sample(scene, renderer, i, k, share, samples[k][4])
         mean, var = _combine(samples, weights)
-    met = None if not target > 0 else bool(rel_error(mean, var, roi) is not None and rel_error(mean, var, roi) <= target)
-    return _exposure(i, t0, t1, times, tuple(s[0] for s in samples), mean.astype(np.float32), var, roi,
+    met = None if not target > 0 else bool(frame_error(mean, var) is not None and frame_error(mean, var) <= target)
+    return _exposure(i, t0, t1, times, tuple(s[0] for s in samples), mean.astype(np.float32), var, roi, track,
                      subframe_variances=tuple(s[1] for s in samples), spp=tuple(s[2] for s in samples),
                      target_met=met)
 
@@ -156,18 +206,21 @@ def render_exposures(scene, renderer, progress: bool = True):
     """Yield a `RenderedExposure` per frame (module docstring)."""
     acc = scene.accuracy
     static = bases = None
+    track = PlateTrack(renderer)         # static geometry: the plates' one pose
     for i in tqdm(range(scene.timing.frames), desc=f"render {scene.name}", unit="frame",
                   disable=not progress or None, leave=False):
         t0, t1 = scene.exposure_window_s(i)
         if scene.is_static:
             if static is None:
                 static = (*render_sample(scene, renderer, 0, 0, acc.target_rel_error)[:4], renderer.roi_box())
+                track.add_pose()
             mean, var, spp, met, roi = static
-            yield _exposure(i, t0, t1, np.array([(t0 + t1) / 2]), (mean,), mean, var, roi,
+            yield _exposure(i, t0, t1, np.array([(t0 + t1) / 2]), (mean,), mean, var, roi, track,
                             spp=(spp,), target_met=met)
         elif scene.geometry_static:                   # flickering lamps, nothing moves
             if bases is None:
                 bases, roi0 = flicker_bases(scene, renderer)
-            yield _lamp_exposure(scene, i, t0, t1, bases, roi0)
+                track.add_pose()
+            yield _lamp_exposure(scene, i, t0, t1, bases, roi0, track)
         else:
             yield _moving_exposure(scene, renderer, i, t0, t1)

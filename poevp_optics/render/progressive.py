@@ -50,11 +50,13 @@ class Replicates:
 @dataclass(frozen=True)
 class Target:
     """What to render to: the relative error, the spp cap per radiance sample, and the box
-    (y0, x0, y1, x1) the error is taken over (None: the frame)."""
+    (y0, x0, y1, x1) the error is taken over (None: the frame); with `boxes`, the largest error
+    over them (every plate in view held to the target)."""
 
     rel_error: float
     max_spp: int
     box: tuple[int, int, int, int] | None = None
+    boxes: tuple = ()            # several ROIs (render.roi_shape = "plates"): the worst box decides
 
 
 def rel_error(mean: np.ndarray, var: np.ndarray, box=None) -> float | None:
@@ -121,7 +123,12 @@ def render_to_target(renderer, seeds_for, spp: int, splits: int, target: Target,
             img = renderer.render_once(seeds[reps.k], size)
             reps.add(img, renderer.last_spp)
             reps.seeds_used.append(seeds[reps.k - 1])
-        err = rel_error_of(reps, target.box)
+        if target.boxes:
+            from poevp_optics.render.roi import max_box_error
+
+            err = max_box_error(reps.mean, reps.variance_of_mean(), target.boxes)
+        else:
+            err = rel_error_of(reps, target.box)
         if err is None or err <= target.rel_error:
             return reps, True
         if reps.k >= k_max:

@@ -176,6 +176,8 @@ def save_exposure(tmp: Path, ex: RenderedExposure) -> None:
     """Every array of `ex` (dtype kept) and its scalars with their types, as one .npz."""
     fr = ex.radiance
     meta = {k: _enc(getattr(ex, k)) for k in _SCALARS}
+    if ex.plates:                       # several plates' ROIs (render.roi_shape = "plates")
+        meta["plates"] = _enc(ex.plates)
     meta["frame"] = {k: _enc(getattr(fr, k)) for k in ("quantity", "unit", "t_start_s", "exposure_s", "index")}
     arrays = {"subframe_times_s": np.asarray(ex.subframe_times_s), "radiance": np.asarray(fr.data),
               "variance": np.asarray(ex.variance), "meta": np.array(json.dumps(meta))}
@@ -197,7 +199,8 @@ def load_exposure(path: Path) -> RenderedExposure:
     frame = Frame(radiance, f["quantity"], f["unit"], f["t_start_s"], f["exposure_s"], f["index"])
     return RenderedExposure(s["index"], s["t_start_s"], s["exposure_s"], times, subs, frame, variance, s["roi"],
                             s["rel_error"], s["rel_error_roi"], basis=s["basis"], subframe_variances=subvars,
-                            ground_truth=s["ground_truth"], spp=s["spp"], target_met=s["target_met"])
+                            ground_truth=s["ground_truth"], spp=s["spp"], target_met=s["target_met"],
+                            plates=s.get("plates", ()))
 
 
 def check_exposure(ex: RenderedExposure, index: int, shape: tuple) -> str | None:

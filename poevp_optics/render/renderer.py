@@ -32,6 +32,7 @@ from poevp_optics.core import runtime
 from poevp_optics.core.exceptions import SceneError
 from poevp_optics.core.params import param
 from poevp_optics.render.lights import LIGHT_SELECTIONS
+from poevp_optics.render.roi import ALL_PLATES, roi_targets
 from poevp_optics.render.samplers import SAMPLERS, sample_count
 from poevp_optics.sources import spectra
 
@@ -60,7 +61,8 @@ class RenderSpec:
     variant: str = param("auto")                        # "auto" or a Mitsuba variant name
     spectral_mode: str = param("auto", choices=("auto", "spectral", "mono"))
     mc_splits: int = param(2, min=2, max=64)            # independent-seed renders for MC error
-    roi_shape: str = param("")                          # shape id whose image box is the ROI
+    roi_shape: str = param("")                          # shape id whose image box is the ROI, or
+    #                                                     "plates": every vehicle plate (render/roi.py)
     sampler: str = param(DEFAULT_SAMPLER, choices=SAMPLERS)             # render/samplers.py
     light_selection: str = param("power", choices=LIGHT_SELECTIONS)    # render/lights.py
     target_rel_error: float = param(0.0, min=0.0, max=1.0,              # 0: off; else render/progressive.py
@@ -334,12 +336,17 @@ class Renderer:
                                      f"id {target!r} in {scene.xml_path.name}{hint}")
         self.sensor = self._make_sensor()
         self._roi_shape = None
+        self._roi_shapes = []           # [(RoiTarget, shape)]: render/roi.py
+        self.multi_roi = scene.render.roi_shape == ALL_PLATES
+        self._views, self._views_time = None, None
         if scene.render.roi_shape:
-            found = [s for s in self.mi_scene.shapes() if s.id() == scene.render.roi_shape]
-            if not found:
-                raise SceneError(f"{scene.toml_path}: render.roi_shape: no shape with id "
-                                 f"{scene.render.roi_shape!r} in {scene.xml_path.name}")
-            self._roi_shape = found[0]
+            by_id = {s.id(): s for s in self.mi_scene.shapes()}
+            for target in roi_targets(scene):
+                if target.shape_id not in by_id:
+                    raise SceneError(f"{scene.toml_path}: render.roi_shape: no shape with id "
+                                     f"{target.shape_id!r} in {scene.xml_path.name}")
+                self._roi_shapes.append((target, by_id[target.shape_id]))
+            self._roi_shape = self._roi_shapes[0][1]
         self.stats = RenderStats(variant=variant)
         self._time = None
         self.light_weights: dict[str, float] | None = None   # set before the first render
@@ -412,11 +419,46 @@ class Renderer:
 
     def roi_box(self) -> tuple[int, int, int, int] | None:
         """Image box (y0, x0, y1, x1), end-exclusive, of the ROI shape at the current pose, in
-        the rendered grid (guard band included)."""
+        the rendered grid (guard band included); with `render.roi_shape = "plates"`, the box of
+        the nearest plate in view (render/roi.py)."""
         if self._roi_shape is None:
             return None
+        if self.multi_roi:
+            views = [v for v in self.plate_views().values() if v.in_view]
+            return min(views, key=lambda v: v.distance_m).box if views else None
+        return self._project_box(self._roi_shape)
+
+    def plate_views(self) -> dict:
+        """{ROI label: render/roi.py PlateView} of every ROI shape at the current pose (computed
+        once per pose)."""
+        from poevp_optics.render.roi import plate_view
+
+        if self._views is None or self._views_time != self._time:
+            self._views = {t.label: plate_view(self, shape, self._project_box(shape))
+                           for t, shape in self._roi_shapes}
+            self._views_time = self._time
+        return self._views
+
+    def roi_boxes(self) -> dict:
+        """{ROI label: box} of the ROIs that get their own samples at the current pose: with
+        "plates" every plate in view (render/roi.py), else the one ROI shape's box."""
+        if self._roi_shape is None:
+            return {}
+        if not self.multi_roi:
+            box = self.roi_box()
+            return {self._roi_shapes[0][0].label: box} if box is not None else {}
+        return {k: v.box for k, v in self.plate_views().items() if v.in_view}
+
+    @property
+    def roi_labels(self) -> tuple:
+        """The ROI targets (render/roi.py RoiTarget) in the scene's order."""
+        return tuple(t for t, _ in self._roi_shapes)
+
+    def _project_box(self, shape) -> tuple[int, int, int, int] | None:
+        """Image box (y0, x0, y1, x1), end-exclusive, of `shape`'s bounding box at the current
+        pose on the rendered grid (None: off the film)."""
         mi, dr = self.mi, __import__("drjit")
-        bb = self._roi_shape.bbox()
+        bb = shape.bbox()
         lo, hi = np.array(bb.min).ravel(), np.array(bb.max).ravel()
         corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
         it = dr.zeros(mi.Interaction3f, len(corners))
@@ -461,6 +503,16 @@ class Renderer:
         from poevp_optics.render.lights import pilot_moments, roi_weighted_moments
 
         frame = pilot_moments(self.mi, self.mi_scene, self.sensor, self.scene.render.seed)
+        if self.multi_roi:               # every plate in view is a region of its own
+            boxes = list(self.roi_boxes().values())
+            if not boxes:
+                return frame[0]
+            h, w = (n + 2 * self.guard_px for n in self.scene.render.resolution)
+            box = self.roi_box()
+            self._pilot_area = (box[2] - box[0]) * (box[3] - box[1])
+            regions = [pilot_moments(self.mi, self.mi_scene, self.sensor, self.scene.render.seed,
+                                     (x0 / w, y0 / h, x1 / w, y1 / h)) for y0, x0, y1, x1 in boxes]
+            return roi_weighted_moments([frame, *regions])
         box = self.roi_box() if self._roi_shape is not None else None
         if box is None:
             return frame[0]

@@ -180,7 +180,11 @@ def check_xml_references(spec: SceneSpec, xml_params: dict[str, str]) -> None:
             if target not in movable:
                 raise _fail(spec, key, f"no shape or emitter with id {target!r} in {spec.xml_path.name} "
                             f"(ids there: {', '.join(sorted(movable)) or 'none'})")
-    if spec.render.roi_shape and spec.render.roi_shape not in shapes:
+    if spec.render.roi_shape == "plates":      # every vehicle plate (render/roi.py): one line when none
+        from poevp_optics.render.roi import roi_targets
+
+        roi_targets(spec)
+    elif spec.render.roi_shape and spec.render.roi_shape not in shapes:
         raise _fail(spec, "render.roi_shape", f"no shape with id {spec.render.roi_shape!r} in "
                     f"{spec.xml_path.name} (shape ids there: {', '.join(sorted(shapes)) or 'none'})")
     defaults = {d.get("name"): d.get("value") for d in root.iter("default")}

@@ -113,7 +113,7 @@ def _capture(spec, camera: Camera, step: LoopStep | None, ex: RenderedExposure, 
                         ldr, enc, mask, oracle, est, flags, rec, oracle_g, oracle_fx)
 
 
-def _metrics(camera: Camera, fc: FrameCapture) -> None:
+def _metrics(spec, camera: Camera, fc: FrameCapture) -> None:
     """Plate (ROI) and frame metrics of the LDR twin and the encoded capture."""
     max_dn, box = camera.params.max_dn, fc.box
     ldr, enc, valid = fc.ldr.dn, fc.enc.dn, fc.flags == 0
@@ -132,6 +132,10 @@ def _metrics(camera: Camera, fc: FrameCapture) -> None:
     if box:
         fc.record["plate_white_fraction"] = {"ldr": plate_white_fraction(to_8bit(ldr, max_dn), box),
                                              "encoded": plate_white_fraction(to_8bit(enc, max_dn), box)}
+    if fc.exposure.plates:                  # render.roi_shape = "plates": every plate its own record
+        from poevp_optics.apps.run.plates import frame_plates
+
+        fc.record["plates"] = frame_plates(spec, camera, fc.exposure, ldr, enc)
 
 
 def unclipped_mc_error(camera: Camera, ex: RenderedExposure, capture_dn: np.ndarray) -> dict:
@@ -215,7 +219,7 @@ def simulate(spec, camera: Camera, step: LoopStep | None, exposures, *, writer: 
         fc = _capture(spec, camera, step, ex, res)                 # render -> capture -> reconstruct
         if ex.index == mid and not ex.basis and not spec.is_static:
             res.mid_frame = (ex, fc.mask)
-        _metrics(camera, fc)
+        _metrics(spec, camera, fc)
         fc.record.update(unclipped_mc_error(camera, ex, fc.enc.dn))
         _extension_records(extensions, spec, camera, fc, step, after_observe=False)
         if causal:
@@ -330,6 +334,10 @@ def run_frames(spec, out_dir: Path, progress: bool = True, *, renderer=None,
         from poevp_optics.apps.run.report_html import write_report_html
 
         write_report_html(out_dir, report, spec.plate.text)
+        if (report.get("metrics") or {}).get("plates"):
+            from poevp_optics.apps.run.plates import write_plates_markdown
+
+            write_plates_markdown(out_dir, report)
     return report, res.kept
 
 

@@ -327,6 +327,8 @@ document.getElementById('status').appendChild(m);})();"""
 def render_html(out_dir: Path, report: dict, plate_text: str = "") -> str:
     """The page of the run in `out_dir` (its report.json as `report`; `plate_text`: the scene's
     [plate] text, shown as the ground truth where a frame has a plate box)."""
+    from poevp_optics.apps.run.plates import plates_html   # every plate in view, when the run has them
+
     out_dir = Path(out_dir)
     data = collect_frames(out_dir, report, plate_text)
     fps = float((report.get("timing") or {}).get("fps") or 5.0)
@@ -353,6 +355,7 @@ def render_html(out_dir: Path, report: dict, plate_text: str = "") -> str:
 <input id="slider" type="range" min="0" max="{max(0, len(data['frames']) - 1)}" value="0"><span id="frame-label"></span></div>
 <div id="player" class="row">{panels}</div><p id="caption" class="note"></p>
 {plate}
+{plates_html(report)}
 {_plots(report)}
 {_error_budget(report.get('errors') or {})}
 {_figures(out_dir)}

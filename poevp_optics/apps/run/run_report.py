@@ -142,6 +142,10 @@ def run_metrics(spec, camera, per_frame, law_cmp, causal: bool) -> dict:
         # twin's plate is saturated (the highlight "arrives" and the mask must catch it)
         lit = [f for f in loop_frames if f["saturated_fraction_roi"]["ldr"] > 0.1][:2]
         metrics["lag_artifact"] = mean_of([f["saturated_fraction_roi"]["encoded"] for f in lit])
+    if any(f.get("plates") for f in per_frame):      # render.roi_shape = "plates" (apps/run/plates.py)
+        from poevp_optics.apps.run.plates import plate_summary
+
+        metrics["plates"] = plate_summary(spec, per_frame)
     if camera.dmd and any(v["saturated"] for k, v in law_cmp.items() if k != "scene_law"):
         metrics["mask_law_comparison"] = {
             (f"scene:{spec.mask.law}" if k == "scene_law" else k):

@@ -1,0 +1,147 @@
+"""Regions of interest of a render: which shapes get extra samples, their image boxes, and the
+view of each plate (distance, how much of it the camera sees).
+
+`render.roi_shape` takes:
+
+| value        | meaning |
+|--------------|---------|
+| ""           | no ROI |
+| a shape id   | that shape's projected box is the ROI (one plate: the scene's own `[plate]` or a vehicle's) |
+| "plates"     | every [vehicle.<id>] plate in the XML (the rectangle placed by `$vehicle_<id>_plate_matrix`) |
+
+With "plates" each plate in view gets its own box at each pose, its own `render.roi_spp`
+samples (exposures.add_roi_samples), its own Monte Carlo error and its own record in the run's
+report (`per_frame[i].plates`, `plates`). The run's single ROI (`roi`, `saturated_fraction_roi`,
+`plate_white_fraction`, ...) is then the nearest plate in view. A plate is in view when its box
+lies on the film and the camera sees part of it: of `VIEW_GRID` x `VIEW_GRID` points on the plate,
+those whose ray from the camera reaches the plate before anything else (`PlateView.visible_fraction`;
+a car ahead can hide a plate whose box is on the film).
+"""
+
+from __future__ import annotations
+
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from poevp_optics.core.exceptions import SceneError
+
+#: `render.roi_shape` value selecting every vehicle plate.
+ALL_PLATES = "plates"
+#: Points per side of the grid on a plate whose rays test its visibility (inset half a cell).
+VIEW_GRID = 3
+#: A ray reaches the plate when it hits nothing nearer than the plate point minus this (m): the
+#: plate is 2 mm proud of its recess floor (sources/vehicles.py PLATE_PROUD_M).
+VIEW_TOLERANCE_M = 0.01
+
+
+@dataclass(frozen=True)
+class RoiTarget:
+    """One ROI: its label in the report (the vehicle id, or the shape id), the XML shape id, and
+    the plate text where the scene gives one ("" otherwise)."""
+
+    label: str
+    shape_id: str
+    text: str = ""
+
+
+@dataclass(frozen=True)
+class PlateView:
+    """A plate seen from the camera at one pose: its image box (y0, x0, y1, x1, end-exclusive,
+    rendered grid; None off the film), its centre's distance from the camera (m) and the share
+    of its test points the camera sees (0..1)."""
+
+    box: tuple[int, int, int, int] | None
+    distance_m: float
+    visible_fraction: float
+
+    @property
+    def in_view(self) -> bool:
+        return self.box is not None and self.visible_fraction > 0
+
+
+def vehicle_plate_shapes(xml_path: Path) -> dict[str, str]:
+    """{vehicle id: shape id} of the XML's shapes placed by `$vehicle_<id>_plate_matrix`."""
+    root = ET.parse(xml_path).getroot()
+    out = {}
+    for shape in root.iter("shape"):
+        for m in shape.iter("matrix"):
+            v = (m.get("value") or "").strip()
+            if v.startswith("$vehicle_") and v.endswith("_plate_matrix") and shape.get("id"):
+                out[v[len("$vehicle_"):-len("_plate_matrix")]] = shape.get("id")
+    return out
+
+
+def roi_targets(scene) -> list[RoiTarget]:
+    """The ROIs `render.roi_shape` selects (module table), in the scene file's vehicle order;
+    SceneError (one line naming the key) when "plates" finds no vehicle plate."""
+    sel = scene.render.roi_shape
+    if not sel:
+        return []
+    vehicles = getattr(scene, "vehicle", {}) or {}
+    if sel != ALL_PLATES:
+        text = next((v.plate_text for k, v in vehicles.items()
+                     if vehicle_plate_shapes(scene.xml_path).get(k) == sel), "") if vehicles else ""
+        return [RoiTarget(sel, sel, text or getattr(scene.plate, "text", ""))]
+    shapes = vehicle_plate_shapes(scene.xml_path)
+    out = [RoiTarget(k, shapes[k], v.plate_text) for k, v in vehicles.items() if k in shapes]
+    if not out:
+        raise SceneError(f"{scene.toml_path}: render.roi_shape: \"plates\" selects every [vehicle.<id>] plate, but "
+                         f"{scene.xml_path.name} places none (no shape whose to_world is $vehicle_<id>_plate_matrix "
+                         "for a [vehicle] of this scene)")
+    return out
+
+
+def pool_samples(mean, var, count, box, m2, v2, n2):
+    """Pool `n2` more samples per pixel (mean m2, variance of the mean v2) into the pixels of
+    `box` of (mean, var), whose pixels hold `count` samples each (an array: pixels another ROI
+    already pooled hold more): mean (n1 m1 + n2 m2) / (n1 + n2), variance
+    (n1^2 v1 + n2^2 v2) / (n1 + n2)^2 (independent unbiased estimates of the same pixel
+    integral). In place; returns nothing."""
+    y0, x0, y1, x1 = box
+    n1 = count[y0:y1, x0:x1]
+    a, b = n1 / (n1 + n2), n2 / (n1 + n2)
+    mean[y0:y1, x0:x1] = a * mean[y0:y1, x0:x1] + b * m2
+    var[y0:y1, x0:x1] = a * a * var[y0:y1, x0:x1] + b * b * v2
+    count[y0:y1, x0:x1] = n1 + n2
+
+
+def max_box_error(mean, var, boxes) -> float | None:
+    """The largest `progressive.rel_error` over `boxes` (None where none has a positive mean):
+    every plate is held to the error target, the worst one decides."""
+    from poevp_optics.render.progressive import rel_error
+
+    errs = [e for e in (rel_error(mean, var, b) for b in boxes if b is not None) if e is not None]
+    return max(errs) if errs else None
+
+
+def plate_view(renderer, shape, box) -> PlateView:
+    """`PlateView` of `shape` at the renderer's current pose (module docstring): the distance
+    from the camera's centre of projection to the shape's bounding-box centre, and the share of
+    VIEW_GRID^2 points inset on the box's face toward the camera that a ray from the camera
+    reaches before hitting anything else."""
+    mi = renderer.mi
+    bb = shape.bbox()
+    lo, hi = np.array(bb.min, dtype=np.float64).ravel(), np.array(bb.max, dtype=np.float64).ravel()
+    centre = 0.5 * (lo + hi)
+    origin = np.array(renderer.sensor.world_transform().translation(), dtype=np.float64).ravel()[:3]
+    dist = float(np.linalg.norm(centre - origin))
+    g = (np.arange(VIEW_GRID) + 0.5) / VIEW_GRID
+    thin = int(np.argmin(hi - lo))                          # the plate's normal axis
+    axes = [k for k in range(3) if k != thin]
+    pts = np.repeat(centre[None, :], VIEW_GRID * VIEW_GRID, axis=0)
+    a, b = np.meshgrid(g, g)
+    pts[:, axes[0]] = lo[axes[0]] + a.ravel() * (hi[axes[0]] - lo[axes[0]])
+    pts[:, axes[1]] = lo[axes[1]] + b.ravel() * (hi[axes[1]] - lo[axes[1]])
+    d = pts - origin[None, :]
+    t = np.linalg.norm(d, axis=1)
+    d /= t[:, None]
+    ray = mi.Ray3f(mi.Point3f(*[mi.Float(np.full(len(t), origin[k], np.float32)) for k in range(3)]),
+                   mi.Vector3f(*[mi.Float(d[:, k].astype(np.float32)) for k in range(3)]))
+    si = renderer.mi_scene.ray_intersect(ray)
+    hit_t = np.array(si.t, dtype=np.float64).ravel()
+    valid = np.array(si.is_valid(), dtype=bool).ravel()
+    seen = valid & (hit_t >= t - VIEW_TOLERANCE_M)
+    return PlateView(box, dist, float(np.mean(seen)))
