@@ -172,6 +172,9 @@ def build_spec(raw: dict, path: Path, ctx: Where | None = None, *, cross_checks:
         validate.check_spectrum(ctx, f"spectra.{ident}", s)
     validate.check_plugin_tables(ctx, path, tables["spectra"], tables["sheeting"])
     validate.check_world(ctx, tables["marking"], tables["vehicle"], tables["furniture"])
+    from poevp_optics.sources.traffic import resolve_scene_traffic   # [motion] kind "traffic": simulated paths
+
+    tables["motion"] = resolve_scene_traffic(ctx, sec["traffic"], tables["vehicle"], tables["motion"], sec["timing"])
     if "road" in raw:
         validate.check_road(ctx, sec["road"], tables["spectra"], tables["sheeting"])
     validate.check_controller_prior(ctx, sec["mask"], sec["road"], tables["spectra"], "road" in raw)

@@ -13,6 +13,7 @@
 | [sheeting.<param>]   | SheetingSpec     | render/materials/retroreflective.py |
 | [marking.<param>]    | MarkingSpec      | render/materials/road_marking.py (EN 1436 lane markings) |
 | [weather]            | WeatherSpec      | sources/weather.py (fog, wet road) |
+| [traffic]            | TrafficSpec      | sources/traffic.py (Intelligent Driver Model traffic moving [vehicle] entries) |
 | [vehicle.<id>]       | VehicleSpec      | sources/vehicles.py (parametric vehicle meshes and plates) |
 | [furniture.<id>]     | FurnitureSpec    | sources/furniture.py (guard rails, delineators, studs, signs, kerbs, trees, buildings) |
 | [objective]          | ObjectiveSpec    | camera/objective/   |
@@ -64,6 +65,7 @@ from poevp_optics.sources.kinds import SourceSpec
 from poevp_optics.sources.motion import MotionSpec
 from poevp_optics.sources.plates import PlateSpec
 from poevp_optics.sources.road import RoadSpec
+from poevp_optics.sources.traffic import TrafficSpec
 from poevp_optics.sources.spectra import SpectrumSpec
 from poevp_optics.sources.vehicles import VehicleSpec
 from poevp_optics.sources.weather import WeatherSpec
@@ -102,6 +104,7 @@ class SceneSpec:
     attenuator: AttenuatorSpec
     raw: Mapping[str, Any]
     weather: WeatherSpec = WeatherSpec()
+    traffic: TrafficSpec = TrafficSpec()
     marking: Mapping[str, MarkingSpec] = field(default_factory=lambda: MappingProxyType({}))
     vehicle: Mapping[str, VehicleSpec] = field(default_factory=lambda: MappingProxyType({}))
     furniture: Mapping[str, FurnitureSpec] = field(default_factory=lambda: MappingProxyType({}))
@@ -160,6 +163,7 @@ SECTIONS = {
     "relay": RelaySpec, "sensor": SensorSpec, "mask": MaskSpec, "predictor": PredictorSpec,
     "loop": LoopSpec, "budget": BudgetSpec, "outputs": OutputsSpec, "plate": PlateSpec, "chart": ChartSpec,
     "source": SourceSpec, "road": RoadSpec, "attenuator": AttenuatorSpec, "weather": WeatherSpec,
+    "traffic": TrafficSpec,
 }
 TABLE_SECTIONS = {"motion": MotionSpec, "spectra": SpectrumSpec, "flicker": FlickerSpec,
                   "sheeting": SheetingSpec, "marking": MarkingSpec, "vehicle": VehicleSpec,
