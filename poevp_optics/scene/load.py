@@ -176,7 +176,7 @@ def build_spec(raw: dict, path: Path, ctx: Where | None = None, *, cross_checks:
 
     tables["motion"] = resolve_scene_traffic(ctx, sec["traffic"], tables["vehicle"], tables["motion"], sec["timing"])
     if "road" in raw:
-        validate.check_road(ctx, sec["road"], tables["spectra"], tables["sheeting"])
+        validate.check_road(ctx, sec["road"], tables["spectra"], tables["sheeting"], tables["vehicle"])
     validate.check_controller_prior(ctx, sec["mask"], sec["road"], tables["spectra"], "road" in raw)
     validate.check_sensor_and_relay(ctx, path, sec["sensor"], sec["relay"])
     validate.check_layout(ctx, sec)

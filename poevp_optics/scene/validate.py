@@ -326,9 +326,15 @@ def check_source(ctx, path: Path, raw: dict, sec: dict, tables: dict) -> Path | 
     return None
 
 
-def check_road(ctx, road, spectra_, sheeting) -> None:
+def check_road(ctx, road, spectra_, sheeting, vehicle) -> None:
     """[road] (sources/road.py): its high beam names an intensity lamp with a photometric file,
-    its sheeting a [sheeting] entry (the per-frame report reads both)."""
+    its sheeting a [sheeting] entry (the per-frame report reads both), and a plate-carrying
+    `road.vehicle` names a [vehicle.<id>] whose plate is at plate_position_m, facing us."""
+    from poevp_optics.sources.road import vehicle_plate_problem
+
+    problem = vehicle_plate_problem(road, vehicle)
+    if problem:
+        raise ctx.fail(*problem)
     lamp = spectra_.get(road.highbeam)
     if lamp is None or lamp.kind != "intensity" or not lamp.distribution:
         raise ctx.fail("road.highbeam", f"{road.highbeam!r} must name a [spectra] entry of kind 'intensity' "

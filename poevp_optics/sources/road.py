@@ -1,5 +1,6 @@
-"""Night-road geometry: our headlamps, the camera's offset from them, a car ahead with a
-retroreflective plate in a recess, and an oncoming car (scenes/night_road).
+"""Night-road geometry: our headlamps, the camera's offset from them, the car ahead's
+retroreflective plate, and the box car that carries it where no [vehicle.<id>] does
+(scenes/night_road).
 
 World frame (metres): y up, the road plane y = 0, our car's front at z = 0 looking down +z, x to
 the left (Mitsuba's `lookat` with up +y puts local +x on the left). Our two headlamps sit at
@@ -16,9 +17,16 @@ and moves with `[motion.plate]`; its normal faces us (-z).
 | lamp_height_m       | float     | m    | 0.65            | height of our headlamps' centres |
 | camera_aim_m        | float     | m    | 25.0            | the camera looks at the lane centre at plate height this far ahead |
 | plate_position_m    | [x, y, z] | m    | [0, 0.5, 60]    | the plate's centre at t = 0 |
-| oncoming_position_m | [x, z]    | m    | [3.5, 80]       | the oncoming car's front centre on the road at t = 0 |
+| oncoming_position_m | [x, z]    | m    | [3.5, 80]       | the oncoming car's front centre on the road at t = 0 (box car only) |
 | highbeam            | str       | -    | "highbeam"      | the [spectra] entry of our high beams (intensity_cd, distribution) |
 | sheeting            | str       | -    | "plate_sheeting"| the [sheeting] entry of the plate's sheeting |
+| vehicle             | str       | -    | ""              | the [vehicle.<id>] whose plate is the plate; "" : the box car below |
+
+With `vehicle` set (sources/vehicles.py), that vehicle's plate rectangle is the plate: it must face
+us (heading_deg 0, normal -z) with its centre at `plate_position_m` at t = 0 (`vehicle_plate_problem`,
+checked when the scene loads), and the XML takes its meshes, plate and lamps from the
+`$vehicle_<id>_*` parameters; the `$road_*` parameters are then the camera's and our high beams'
+only. Without it, the XML places the box car below and the oncoming car from `$road_*`.
 
 Angles of retroreflection (CIE 54.2-2001; ASTM E808): for the lamp at P_l, the camera at P_c and
 the plate centre at P_p with normal n, the observation angle alpha is the angle at P_p between
@@ -65,6 +73,7 @@ class RoadSpec:
     oncoming_position_m: tuple[float, float] = param((3.5, 80.0), length=2, min=-1000.0, max=1000.0)
     highbeam: str = param("highbeam")
     sheeting: str = param("plate_sheeting")
+    vehicle: str = param("")
 
     def lamps_m(self) -> dict[str, np.ndarray]:
         """Our headlamps' centres (world, m): left (+x) and right."""
@@ -83,22 +92,50 @@ def _vec(v) -> str:
 
 
 def xml_params(road: RoadSpec) -> dict[str, str]:
-    """The `$road_*` XML parameters (origins/targets as 'x, y, z', coordinates as numbers) and
-    the car mesh's file (`$road_car_mesh`)."""
+    """The `$road_*` XML parameters (origins/targets as 'x, y, z', coordinates as numbers): the
+    camera's and our high beams'; without `road.vehicle` also the box car's mesh file
+    (`$road_car_mesh`), its plate's and the oncoming car's coordinates."""
     lamps = road.lamps_m()
-    plate = np.asarray(road.plate_position_m, float)
-    car = plate - np.asarray(PLATE_LOCAL_M)
-    ox, oz = road.oncoming_position_m
-    out = {"road_camera_origin": _vec(road.camera_m()), "road_camera_target": _vec(road.camera_target_m()),
-           "road_car_mesh": str(cached_car_mesh())}
+    out = {"road_camera_origin": _vec(road.camera_m()), "road_camera_target": _vec(road.camera_target_m())}
     for side, p in lamps.items():
         out[f"road_highbeam_{side}_origin"] = _vec(p)
         out[f"road_highbeam_{side}_target"] = _vec(p + np.array([0.0, 0.0, 1.0]))
+    if road.vehicle:
+        return out
+    plate = np.asarray(road.plate_position_m, float)
+    car = plate - np.asarray(PLATE_LOCAL_M)
+    ox, oz = road.oncoming_position_m
+    out["road_car_mesh"] = str(cached_car_mesh())
     for name, v in (("car", car), ("plate", plate)):
         for axis, x in zip("xyz", v):
             out[f"road_{name}_{axis}"] = f"{x:.9g}"
     out["road_oncoming_x"], out["road_oncoming_z"] = f"{ox:.9g}", f"{oz:.9g}"
     return out
+
+
+def vehicle_plate_problem(road: RoadSpec, vehicles) -> tuple[str, str] | None:
+    """(key, why) when `road.vehicle` names no [vehicle.<id>] of `vehicles`, or that vehicle's
+    plate does not face us (heading_deg 0: normal -z, as `plate_geometry` takes it) or does not
+    centre on `plate_position_m` at t = 0 within 0.5 mm; None when it does (or no vehicle is
+    named)."""
+    if not road.vehicle:
+        return None
+    spec = vehicles.get(road.vehicle)
+    if spec is None:
+        known = ", ".join(sorted(vehicles)) or "none"
+        return "road.vehicle", f"{road.vehicle!r} names no [vehicle.<id>] entry (known: {known})"
+    from poevp_optics.sources.vehicles import plate_world_m
+
+    key = f"vehicle.{road.vehicle}"
+    if math.remainder(spec.heading_deg, 360.0) != 0.0:
+        return f"{key}.heading_deg", (f"{spec.heading_deg:g} deg: the plate named by road.vehicle must face "
+                                      "our camera (heading_deg = 0, its rear toward us)")
+    centre, _ = plate_world_m(spec)
+    want = np.asarray(road.plate_position_m, float)
+    if np.max(np.abs(centre - want)) > 5e-4:
+        return f"{key}.position_m", (f"its plate centres at ({_vec(centre)}) m, not at road.plate_position_m "
+                                     f"({_vec(want)}) m: the report's angles would be another plate's")
+    return None
 
 
 # ------------------------------------------------------------------------------- geometry

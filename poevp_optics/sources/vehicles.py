@@ -384,6 +384,14 @@ def to_world(spec: VehicleSpec) -> np.ndarray:
     return m
 
 
+def plate_world_m(spec: VehicleSpec) -> tuple[np.ndarray, np.ndarray]:
+    """(centre, unit normal) of the vehicle's plate in the world at t = 0 (m): `plate_centre_m`
+    and the plate's face normal (-z in the vehicle frame, out of its rear) through `to_world`."""
+    world = to_world(spec)
+    rot = world[:3, :3]
+    return rot @ plate_centre_m(shape_of(spec)) + world[:3, 3], rot @ np.array([0.0, 0.0, -1.0])
+
+
 def _matrix(m: np.ndarray) -> str:
     return " ".join(f"{float(v):.9g}" for v in np.asarray(m).ravel())
 

@@ -4,7 +4,7 @@ is removed and rebuilt with one note line on stderr, never an error; an intact f
 
 Unit tests damage each cache kind in turn and call its user directly (builds replaced by fast,
 deterministic stand-ins where the real one takes seconds); the end-to-end tests damage the cache
-files a small night_road render reads (PSF grids, RI table, car mesh, plate texture) and check the
+files a small night_road render reads (PSF grids, RI table, vehicle meshes, plate texture) and check the
 run succeeds, notes it, and writes the same bytes as a run on a clean cache."""
 
 from __future__ import annotations
@@ -475,7 +475,7 @@ def _other_npz(path: Path) -> None:
 E2E = {          # the cache files a night_road render reads (3 PSF grids: image, guard bands), damaged in turn
     "psf_grids_truncated_empty_other_arrays": ("objective/psf-*.npz", [_truncate, _empty, _resigned(_other_npz)]),
     "ri_table_random_bytes": ("objective/ri-*.npz", [_random_bytes]),
-    "mesh_of_another_car": ("meshes/car_rear_*.ply", [_resigned(_other_mesh)]),
+    "mesh_of_another_car": ("meshes/vehicle_*.ply", [_resigned(_other_mesh)]),   # the scene's vehicles' parts
     "plate_of_another_size": ("plates/plate_*.png", [_resigned(lambda p: write_png(p, np.full((22, 104), 255, np.uint8)))]),
 }
 
