@@ -118,7 +118,8 @@ class KindDefaults:
 
 
 FURNITURE_KINDS = Registry("furniture kind")
-FURNITURE_KINDS.register("guard_rail", KindDefaults(60.0, 2.0, 0.75, W_BEAM_DEPTH_M, RAIL_POST_M, 0.0, ("rail", "posts")),
+FURNITURE_KINDS.register("guard_rail",
+                         KindDefaults(60.0, 2.0, 0.75, W_BEAM_DEPTH_M, RAIL_POST_M, 0.0, ("rail", "posts")),
                          source="W-beam (AASHTO M180, EN 1317): 310 x 83 mm, top 0.75 m, posts every 2.0 m")
 FURNITURE_KINDS.register("delineator", KindDefaults(0.0, 50.0, 1.0, 0.10, 0.12, 0.0, ("posts", "reflectors")),
                          source="German Leitpfosten (TL-Leitpfosten): 1.0 m, every 50 m; EN 12899-3 retroreflector")
@@ -429,7 +430,8 @@ def _ply_problem(path: Path, mesh) -> str | None:
 
     got = trimesh.load(str(path), file_type="ply", process=False, force="mesh")
     if got.vertices.shape != mesh.vertices.shape or got.faces.shape != mesh.faces.shape:
-        return f"{len(got.vertices)} vertices and {len(got.faces)} faces, not {len(mesh.vertices)} and {len(mesh.faces)}"
+        return (f"{len(got.vertices)} vertices and {len(got.faces)} faces, not {len(mesh.vertices)} and "
+                f"{len(mesh.faces)}")
     if not np.array_equal(np.asarray(got.vertices, np.float32), np.asarray(mesh.vertices, np.float32)):
         return "vertices differ from the furniture mesh's"
     if not np.array_equal(got.faces, mesh.faces):
@@ -523,7 +525,8 @@ def xml_params(ident: str, spec: FurnitureSpec) -> dict[str, str]:
 
         # rectangle [-1, 1]^2 (normal +z) -> width x length on the road, normal +y, from z = 0 on
         surface = np.eye(4)
-        surface[:3, :3] = np.array([[1.0, 0, 0], [0, 0, 1.0], [0, -1.0, 0]]) @ np.diag([f.width_m / 2, f.length_m / 2, 1])
+        rot = np.array([[1.0, 0, 0], [0, 0, 1.0], [0, -1.0, 0]])        # 90 deg about x: +z -> +y
+        surface[:3, :3] = rot @ np.diag([f.width_m / 2, f.length_m / 2, 1])
         surface[2, 3] = f.length_m / 2
         out[f"{pre}_matrix"] = _matrix(world @ surface)
         albedo, rough = cached_asphalt_maps(f.albedo, f.roughness, f.tile_m, f.seed)

@@ -31,8 +31,8 @@ def test_rendered_asphalt_reflects_its_mean_albedo():
                    "sampler": {"type": "independent", "sample_count": 16}},
         "sky": {"type": "constant", "radiance": 1.0},
         "plane": {"type": "rectangle",
-                  "bsdf": {"type": "diffuse", "reflectance": {"type": "bitmap", "filename": p["furniture_road_albedo_map"],
-                                                             "raw": True}}},
+                  "bsdf": {"type": "diffuse",
+                           "reflectance": {"type": "bitmap", "filename": p["furniture_road_albedo_map"], "raw": True}}},
     })
     img = np.asarray(mi.render(scene, seed=3), np.float64)[..., 0]
     # the view covers the rectangle [-1, 1]^2 = one tile exactly; bilinear lookups of a periodic

@@ -50,6 +50,7 @@ def test_world_parts_bound_and_mono_exact():
     assert plan.mode == "mono" and "flat" in plan.reason
     for ident in spec.furniture:
         assert f"furniture_{ident}_matrix" in plan.xml_params
-    assert {"street_led_distribution", "street_hps_distribution", "sign_sheeting", "stud_sheeting"} <= set(plan.xml_params)
+    bound = {"street_led_distribution", "street_hps_distribution", "sign_sheeting", "stud_sheeting"}
+    assert bound <= set(plan.xml_params)
     assert plan.xml_params["sign_sheeting"] == "en12899_1:RA2"
     assert spec.flicker["signal_red"].frequency_hz == 90.0 and spec.geometry_static

@@ -20,11 +20,13 @@ aggregate's exposed stone chips (lighter, rougher), at PX_PER_M pixels per metre
 
   * a field f = 1 + 0.12 g_1 + 0.06 g_2 with g_k unit-variance Gaussian noise low-passed at 0.25 m
     and 0.02 m (blotches of binder wear, grain);
-  * chips: a Boolean model of 8 mm discs (Poisson centres), 35 % expected area cover (a dense asphalt's surface aggregate,
-    EN 13108-1 AC 11: 11 mm top size), each 1.6 x the binder's albedo and 0.15 rougher;
+  * chips: a Boolean model of 8 mm discs (Poisson centres), 35 % expected area cover (a dense
+    asphalt's surface aggregate, EN 13108-1 AC 11: 11 mm top size), each 1.6 x the binder's
+    albedo and (1 + 0.15 / roughness) x its roughness;
   * the albedo map is f x chips scaled so that its mean is `albedo` exactly (then clipped to
     [0, 1] and rescaled until the mean holds to 1e-6), stored as round(65535 a); the roughness
-    map likewise about its mean, clipped to [0.05, 1].
+    map is (2 - f) x chips (worn, lighter binder is smoother) scaled likewise to its mean, clipped
+    to [0.05, 1].
 
 Both maps wrap (the noise is periodic: FFT filtering), so a road tiled with them has no seams.
 Read them with `<texture type="bitmap">` and `<boolean name="raw" value="true"/>` (linear values,
