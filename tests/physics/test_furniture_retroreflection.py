@@ -11,6 +11,9 @@ about the tabulated entrance angle beta, coplanar, alpha apart: the table's node
 A road stud is rated by its coefficient of luminous intensity R = I / E_perp (mcd lx-1, EN 1463-1):
 its lens of area A (measured on the built mesh) seen at theta_view sends I = L A cos(theta_view),
 L = eval x E_perp, so R = eval x A x cos(theta_view).
+
+Rendered: a sign face built by sources/furniture.py under a point lamp 30 m away, the camera 12'
+from it: R_A = L cos(theta_view) D^2 / I from the rendered radiance.
 """
 
 from __future__ import annotations
@@ -81,3 +84,47 @@ def test_road_stud_luminous_intensity(mono):
     # a stud 30 m ahead in a 20 kcd beam: I = R E_perp = 0.22 cd lx-1 x 20000 / 30^2 lx = 4.9 cd
     e_perp = 20000.0 / 30.0 ** 2
     assert _eval("en1463_1:PRP1", 0.3, 5.0) * area * e_perp == pytest.approx(0.220 * e_perp, rel=1e-4)
+
+
+def test_rendered_sign_face_returns_its_class(mono):
+    """A sign from sources/furniture.py (its face's matrix and texture as the XML binds them, the
+    sheeting on the white of the face, no diffuse base) rendered under a point lamp of intensity I
+    at D = 30 m, the camera D away too, light and camera symmetric about beta = 5 deg in the
+    horizontal plane, alpha = 12' apart: the face's radiance is L = R_A E_perp / cos(theta_v) with
+    E_perp = I / D^2, so R_A = L cos(theta_v) D^2 / I must be the class's 180 (RA2)."""
+    import mitsuba as mi
+
+    from poevp_optics.sources.furniture import FurnitureSpec, xml_params
+
+    p = xml_params("s", FurnitureSpec(kind="sign", position_m=(0.0, 10.0), legend=""))
+    face = np.array(p["furniture_s_face_matrix"].split(), float).reshape(4, 4)
+    centre = face[:3, 3]
+    alpha, beta, dist, intensity = 0.2, 5.0, 30.0, 1000.0
+
+    def at(theta_deg):                         # D from the face's centre, theta from its normal (-z)
+        t = math.radians(theta_deg)
+        return (centre + dist * np.array([math.sin(t), 0.0, -math.cos(t)])).tolist()
+
+    view, light = beta - alpha / 2, beta + alpha / 2
+    scene = mi.load_dict({
+        "type": "scene",
+        "integrator": {"type": "path", "max_depth": 2},
+        "sensor": {"type": "perspective", "fov": 0.4,
+                   "to_world": mi.ScalarTransform4f().look_at(origin=at(view), target=centre.tolist(), up=[0, 1, 0]),
+                   "film": {"type": "hdrfilm", "width": 8, "height": 8, "rfilter": {"type": "box"}},
+                   "sampler": {"type": "independent", "sample_count": 4}},
+        "lamp": {"type": "point", "position": at(light), "intensity": intensity},
+        "face": {"type": "rectangle", "to_world": mi.ScalarTransform4f(face),
+                 "bsdf": {"type": "blendbsdf",
+                          "weight": {"type": "bitmap", "filename": p["furniture_s_face_texture"], "raw": True,
+                                     "to_uv": mi.ScalarTransform4f().translate([1, 0, 0]).scale([-1, 1, 1])},
+                          "ink": {"type": "diffuse", "reflectance": 0.03},
+                          "sheeting": {"type": "retroreflective", "sheeting": "en12899_1:RA2"}}},
+    })
+    radiance = float(np.mean(np.asarray(mi.render(scene, seed=1), np.float64)))
+    ra = radiance * math.cos(math.radians(view)) * dist ** 2 / intensity
+    # the 0.4 deg view spans +-0.1 m of the face: the bisector's angle varies by +-0.2 deg about
+    # the 5 deg node (R_A log-linear in beta above it, -2.3 %/deg: <= 0.5 % at the edges, half of
+    # it in the mean); the point lamp is sampled exactly (no Monte Carlo noise from the light)
+    print(f"rendered R_A {ra:.3f} cd lx-1 m-2 (RA2 at 12', 5 deg: 180)")
+    assert ra == pytest.approx(180.0, rel=5e-3), ra
