@@ -233,6 +233,9 @@ def check(f: Furniture) -> None:
         need(f.length_m == 0, "length_m", "a sign is one item (length_m = 0)")
         need(f.mount_height_m > 0, "mount_height_m", "the face's lower edge must be above the road")
         need(f.depth_m > 0, "depth_m", "the blank's thickness must be > 0")
+        for k in ("width_m", "height_m"):
+            need(getattr(f, k) <= 8.0, k, f"a sign face of {getattr(f, k):g} m: at most 8 m (a large direction "
+                 "sign; its texture is 400 px per m)")
     if f.kind == "tree_line":
         need(f.height_m * (1 - TREE_SPREAD) > f.width_m * (1 + TREE_SPREAD) * 0.5 + 0.5, "height_m",
              f"the trees ({f.height_m:g} m) are too short for their {f.width_m:g} m crowns")

@@ -122,6 +122,7 @@ def test_asphalt_maps_have_the_stated_mean():
 
 @pytest.mark.parametrize("toml,key", [
     ('kind = "sign"\nlength_m = 5.0', "furniture.x.length_m"),
+    ('kind = "sign"\nwidth_m = 40.0', "furniture.x.width_m"),
     ('kind = "guard_rail"\nheight_m = 0.2', "furniture.x.height_m"),
     ('kind = "building"\nwidth_m = 20.0\nspacing_m = 10.0', "furniture.x.spacing_m"),
     ('kind = "bench"', "furniture.x.kind"),
