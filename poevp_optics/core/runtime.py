@@ -38,24 +38,89 @@ class Terminated(BaseException):
     `except Exception` on the way swallows it and every `finally` and staging cleanup runs)."""
 
 
+#: A SIGTERM seen inside `sigterm_raises`: `term` (noted, not yet acted on by a block's end),
+#: `raised` (Terminated raised so far), `depth` (nested blocks).
+_TERM = {"term": False, "raised": 0, "depth": 0}
+
+
 def _raise_terminated(signum, frame):
+    _TERM["term"] = True
+    _TERM["raised"] += 1
     raise Terminated()
+
+
+def check_terminated() -> None:
+    """A safe point: raise Terminated when a SIGTERM was noted inside `sigterm_raises` (one that
+    a library swallowed on its way up still stops the command here)."""
+    if _TERM["term"]:
+        _TERM["raised"] += 1
+        raise Terminated()
+
+
+def _caused_by_terminated(exc) -> bool:
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, Terminated):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False
+
+
+def _unraisable(previous):
+    """sys.unraisablehook inside `sigterm_raises`: a Terminated that Python could not raise (the
+    SIGTERM landed in a garbage-collection callback, a __del__ or a weakref callback: the
+    exception is printed and dropped there) is delivered again, by the signal itself sent from a
+    helper thread 50 ms later, unless a Terminated was raised since; anything else goes to the
+    previous hook."""
+    import threading
+
+    def hook(args):
+        if not _caused_by_terminated(args.exc_value):
+            previous(args)
+            return
+        lost_at = _TERM["raised"]
+
+        def again():
+            if _TERM["depth"] and _TERM["raised"] == lost_at:
+                os.kill(os.getpid(), signal.SIGTERM)
+
+        t = threading.Timer(0.05, again)
+        t.daemon = True
+        t.start()
+    return hook
 
 
 @contextlib.contextmanager
 def sigterm_raises():
     """Within the block, SIGTERM raises `Terminated` (handled like Ctrl-C: message, cleanup,
-    exit 143). Outside the main thread signals cannot be handled: the block runs as is."""
+    exit 143) and is noted. Python drops an exception raised inside a garbage-collection
+    callback, a __del__ or a weakref callback (Dask registers a GC callback), so a SIGTERM that
+    lands there is not lost: the signal is delivered again once that callback is over
+    (`_unraisable`), `check_terminated` raises at a safe point, and a block that ends without
+    an exception after a noted SIGTERM raises Terminated at its end. Yields the noted state
+    (`["term"]`). Outside the main thread signals cannot be handled: the block runs as is."""
+    import sys
     import threading
 
     if threading.current_thread() is not threading.main_thread():
-        yield
+        yield _TERM
         return
     old = signal.signal(signal.SIGTERM, _raise_terminated)
+    old_hook = sys.unraisablehook
+    if _TERM["depth"] == 0:
+        _TERM.update(term=False, raised=0)
+        sys.unraisablehook = _unraisable(old_hook)
+    _TERM["depth"] += 1
     try:
-        yield
+        yield _TERM
+        check_terminated()              # a SIGTERM swallowed on the way: the command still stops
     finally:
+        _TERM["depth"] -= 1
         signal.signal(signal.SIGTERM, old)
+        if _TERM["depth"] == 0:
+            sys.unraisablehook = old_hook
+            _TERM["term"] = False
 
 
 def sigterm_exits(message: str) -> None:

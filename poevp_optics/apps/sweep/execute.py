@@ -115,32 +115,21 @@ class DaskSession:
 
 @contextlib.contextmanager
 def sigterm_noted():
-    """SIGTERM raises Terminated (as core.runtime.sigterm_raises) and is also noted in the
-    yielded dict (`term`), which a sweep or search checks after every point (`stop_if_terminated`):
-    a SIGTERM that arrives while a library swallows exceptions (Dask's garbage-collection
-    callback) still stops it."""
-    import signal
-    import threading
+    """core.runtime.sigterm_raises: SIGTERM raises Terminated and is noted in the yielded dict
+    (`term`), which a sweep or search checks after every point (`stop_if_terminated`), so a
+    SIGTERM that a library swallows (Dask's garbage-collection callback) still stops it."""
+    from poevp_optics.core import runtime
 
-    noted = {"term": False}
-    if threading.current_thread() is not threading.main_thread():
+    with runtime.sigterm_raises() as noted:
         yield noted
-        return
-
-    def handler(signum, frame):
-        noted["term"] = True
-        raise Terminated()
-
-    old = signal.signal(signal.SIGTERM, handler)
-    try:
-        yield noted
-    finally:
-        signal.signal(signal.SIGTERM, old)
 
 
 def stop_if_terminated(noted: dict | None) -> None:
     """Raise Terminated when `sigterm_noted` saw a SIGTERM."""
     if noted and noted.get("term"):
+        from poevp_optics.core import runtime
+
+        runtime.check_terminated()
         raise Terminated()
 
 
