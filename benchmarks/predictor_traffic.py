@@ -34,6 +34,8 @@ from benchmarks.common import add_results_flag, machine_line, markdown_table, ou
 PREDICTORS = ("hold", "flow", "dmvfn_lite", "track", "track_net")
 CLASSICAL = ("flow", "track")
 CONTEXT = 4
+#: Frame rate the learned predictor must reach at 368x640 on the CPU: the camera's 30 fps video.
+TARGET_FPS = 30.0
 
 
 def run(cases, predictors, log=print):
@@ -126,6 +128,12 @@ def tables(rows, summ, families, predictors, speeds, seconds) -> str:
     out.append("### Prediction time per frame on this machine (all calls; several lights per frame)\n\n"
                "Wall time on a shared 2-core machine varies with its other load; CPU time is this "
                f"process's own.\n\n{markdown_table(header, body)}\n")
+    if "track_net" in predictors:
+        wall, cpu = np.median(np.asarray(seconds["track_net"]), axis=0)
+        fps = 1.0 / float(wall)
+        out.append(f"track_net at 368x640 on this CPU: {fps:.1f} frames per second (median wall time "
+                   f"{wall * 1e3:.1f} ms, CPU {cpu * 1e3:.1f} ms a frame); target {TARGET_FPS:g} fps: "
+                   f"{'met' if fps >= TARGET_FPS else 'NOT met'}.\n")
     return "\n".join(out)
 
 

@@ -39,6 +39,10 @@ IOU_TIE = 0.1
 RETRY_NEIGHBOURS = 3
 #: ... and takes one that moves it back onto an unclaimed region with at least this IoU.
 RETRY_IOU = 0.5
+#: Two regions' shifts agree (one vehicle's lights) within this (px) or this fraction of the
+#: shift, whichever is larger (a growing car's lamps part: their shifts differ by the growth times
+#: their spacing).
+AGREE_PX, AGREE_FRAC = 1.5, 0.15
 #: Matched regions whose shifts lie within this of a candidate shift (px, Euclidean) agree with it:
 #: a few times the outline correlation's spread on one light (0.1-0.5 px), well under one lamp's size.
 GLOBAL_TOL_PX = 1.5
@@ -111,13 +115,18 @@ def match_regions(prev_labels: np.ndarray, prev_stats: np.ndarray, labels: np.nd
 
     Each later region, moved back by its shift, claims the earlier region it overlaps most (IoU
     of the moved-back region with it). An earlier region claimed more than once keeps the claim
-    of the highest IoU, ties (within `IOU_TIE`) going to the smaller shift. A claim stands when
+    of the highest IoU, ties (within `IOU_TIE`) going to the shift that more of the claimant's
+    `RETRY_NEIGHBOURS` nearest regions share (`AGREE_PX`, `AGREE_FRAC`: a car's lamps and
+    plate move together; a lamp of a pair whose speed is half their spacing correlates as well
+    with its twin, at a shift its neighbours do not have), then to the smaller shift. A claim
+    stands when
     it won, its response is at least `min_response`, and the two areas differ by at most
     `MAX_AREA_RATIO` (not checked for a region cut by the frame's edge: its visible area changes
-    as it enters or leaves). A region whose claim lost tries the shifts of the matched regions
-    nearest it (a car's lamps move together: the outline correlation of one lamp of a pair
-    may land on its twin) and is matched by one that moves it back onto an unclaimed region
-    of alike area with IoU >= `RETRY_IOU`. Every other region is new (prev_label 0)."""
+    as it enters or leaves). A region left without a match (its claim lost, or its shift moved
+    it back onto nothing: the outline correlation of one lamp of a pair may land on its twin)
+    tries the shifts of the matched regions nearest it (a car's lamps move together) and is
+    matched by one that moves it back onto an unclaimed region of alike area with IoU >=
+    `RETRY_IOU`. Every other region is new (prev_label 0)."""
     shape = labels.shape
     claims: dict[int, list[tuple[float, float, int]]] = {}
     best: dict[int, int] = {}
@@ -127,17 +136,29 @@ def match_regions(prev_labels: np.ndarray, prev_stats: np.ndarray, labels: np.nd
             best[k] = j
             claims.setdefault(j, []).append((iou, float(np.hypot(dx, dy)), k))
     out = {k: RegionMatch(k, 0, (float(dx), float(dy)), float(resp)) for k, (dx, dy, resp) in shifts.items()}
+    measured = {k: np.array(v[:2], np.float64) for k, v in shifts.items() if v[2] >= min_response}
+    centre = lambda st: np.array([st[0] + st[2] / 2.0, st[1] + st[3] / 2.0])
+
+    def support(k: int) -> int:
+        """How many of the RETRY_NEIGHBOURS regions nearest k share its shift (its own vehicle's
+        lights, not a far one's that happens to move by the twin's offset)."""
+        s = measured[k]
+        tol = max(AGREE_PX, AGREE_FRAC * float(np.hypot(*s)))
+        near = sorted((q for q in measured if q != k),
+                      key=lambda q: float(np.hypot(*(centre(stats[q]) - centre(stats[k])))))[:RETRY_NEIGHBOURS]
+        return sum(1 for q in near if float(np.hypot(*(measured[q] - s))) <= tol)
+
     taken = set()
     for k, j in best.items():
         top = max(c[0] for c in claims[j])
-        winner = min((c for c in claims[j] if c[0] >= top - IOU_TIE), key=lambda c: (c[1], -c[0]))[2]
+        tied = [c for c in claims[j] if c[0] >= top - IOU_TIE]
+        winner = min(tied, key=lambda c: (-support(c[2]) if len(tied) > 1 else 0, c[1], -c[0]))[2]
         growth = _pair(k, j, stats, prev_stats, shape)
         if winner == k and growth is not None:
             out[k] = replace(out[k], prev_label=j, growth=growth)
             taken.add(j)
-    centre = lambda st: np.array([st[0] + st[2] / 2.0, st[1] + st[3] / 2.0])
     matched = [m for m in out.values() if m.prev_label]
-    for k in [k for k in best if not out[k].prev_label]:
+    for k in [k for k in shifts if not out[k].prev_label]:
         near = sorted(matched, key=lambda m: float(np.hypot(*(centre(stats[m.label]) - centre(stats[k])))))
         for m in near[:RETRY_NEIGHBOURS]:
             j, iou = _claim(k, *m.shift, labels, stats, prev_labels, prev_stats)
