@@ -46,9 +46,14 @@ AGREE_PX, AGREE_FRAC = 1.5, 0.15
 #: Matched regions whose shifts lie within this of a candidate shift (px, Euclidean) agree with it:
 #: a few times the outline correlation's spread on one light (0.1-0.5 px), well under one lamp's size.
 GLOBAL_TOL_PX = 1.5
-#: Fewest matched regions that must agree on one shift for it to be the frame's global motion: a
-#: car's two lamps and its plate move together, so fewer cannot tell the camera's motion from a car's.
+#: Fewest matched regions that must agree on one shift for it to be the frame's global motion ...
 MIN_GLOBAL_REGIONS = 3
+#: ... and the least height (fraction of the frame's) their centres must span: the camera's pitch
+#: and yaw move lights at every height together (a street lamp high up, a parked car low), whereas
+#: one car's lamps and plate span 0.16 of its width (lamps 0.05 above, plate 0.3 below the body's
+#: middle, body 0.45 wide as high: analysis/traffic_paths.py), under a quarter of the frame's
+#: height unless the car fills the frame. One car alone is not the camera's motion.
+GLOBAL_SPAN = 0.25
 
 
 def components(bright: np.ndarray):
@@ -181,23 +186,28 @@ class GlobalShift:
     response: float
 
 
-def global_shift(shifts, responses=None, tol_px: float = GLOBAL_TOL_PX,
-                 min_regions: int = MIN_GLOBAL_REGIONS) -> GlobalShift:
+def global_shift(shifts, responses=None, centres_y=None, height: float | None = None,
+                 tol_px: float = GLOBAL_TOL_PX, min_regions: int = MIN_GLOBAL_REGIONS) -> GlobalShift:
     """The frame's global motion from its matched regions' shifts ((N, 2) px): a consensus (as
     RANSAC's, Fischler & Bolles 1981, with every region's shift tried as the model): each shift
     gathers the regions within `tol_px` of it; the largest gathering (ties: the one whose shift
-    is smallest, a standing scene) gives the per-axis median of its members' shifts, when it
-    holds at least `min_regions` regions. Fewer: no global motion (shift 0, support 0). The
-    camera's own pitch and yaw move every light by one shift, so the standing lights and the
-    lights of vehicles that move with the traffic agree on it; a lone independent mover does
-    not pull it (the median of the agreeing set, not the mean of all)."""
+    is smallest, a standing scene) that holds at least `min_regions` regions, and whose centres
+    (`centres_y`, px, when given) span at least GLOBAL_SPAN x `height`, gives the per-axis median
+    of its members' shifts. None such: no global motion (shift 0, support 0). The camera's own
+    pitch and yaw move every light by one shift, so the standing lights and the lights of
+    vehicles that move with the traffic agree on it; a lone independent mover does not pull it
+    (the median of the agreeing set, not the mean of all), nor is one car's set of lights taken
+    for it (too short a span)."""
     s = np.asarray(shifts, dtype=np.float64).reshape(-1, 2)
     if len(s) < min_regions:
         return GlobalShift((0.0, 0.0), 0, 0.0)
     near = np.hypot(*(s[:, None, :] - s[None, :, :]).transpose(2, 0, 1)) <= tol_px
     count = near.sum(1)
-    best = max(range(len(s)), key=lambda i: (count[i], -float(np.hypot(*s[i]))))
-    if count[best] < min_regions:
+    ys = None if centres_y is None else np.asarray(centres_y, np.float64)
+    spread = lambda i: ys is None or float(np.ptp(ys[near[i]])) >= GLOBAL_SPAN * float(height)
+    order = sorted(range(len(s)), key=lambda i: (-count[i], float(np.hypot(*s[i]))))
+    best = next((i for i in order if count[i] >= min_regions and spread(i)), None)
+    if best is None:
         return GlobalShift((0.0, 0.0), 0, 0.0)
     members = near[best]
     g = np.median(s[members], axis=0)

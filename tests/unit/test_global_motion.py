@@ -54,6 +54,11 @@ def test_global_shift_is_the_median_of_the_largest_agreeing_set():
     # fewer agreeing regions than MIN_GLOBAL_REGIONS: no global motion
     none = global_shift(np.array([[5.0, 5.0], [5.2, 5.0], [-8.0, 1.0], [14.0, 3.0]]))
     assert MIN_GLOBAL_REGIONS == 3 and none.support == 0 and none.shift == (0.0, 0.0)
+    # one car's three lights (2 px apart in height) are not the camera's motion; spread over the
+    # frame's height (a street lamp high, a parked car low) they are
+    car = np.array([[9.0, 1.0], [9.2, 1.1], [8.9, 0.9]])
+    assert global_shift(car, centres_y=[100.0, 100.0, 102.0], height=200).support == 0
+    assert global_shift(car, centres_y=[20.0, 150.0, 152.0], height=200).support == 3
     # two equal sets: the standing one (smaller shift) is the global motion
     tie = global_shift(np.array([[0.0, 0.1], [0.1, 0.0], [0.0, 0.0], [12.0, 3.0], [12.1, 3.0], [12.0, 3.1]]))
     np.testing.assert_allclose(tie.shift, (0.0, 0.0))

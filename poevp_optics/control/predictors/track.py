@@ -20,7 +20,7 @@ Per frame t (history oldest first, up to four frames):
    **Global motion.** Our camera pitches over road bumps and yaws as we steer, and that moves
    every light by one shift. Per frame pair, the shift most matched regions share is the
    global shift g (region_motion.py `global_shift`: a consensus of at least three regions within
-   1.5 px, their median; none found: 0). Each region's own motion is its displacements less g
+   1.5 px spread over a quarter of the frame's height or more, their median; none found: 0). Each region's own motion is its displacements less g
    of the same pair, r = d - g (`RegionTrack.relative`), whatever its chain's length; the
    global chain g_t, g_{t-1}, g_{t-2} is the frame's, from all its regions.
 2. **Extrapolate.** d_{t+1} = the region's own motion extrapolated + the global motion
@@ -118,9 +118,10 @@ def global_chain(pairs) -> tuple[tuple[tuple[float, float], ...], tuple[float, .
     from poevp_optics.control.region_motion import global_shift
 
     shifts, resp = [], []
-    for _, _, matches in pairs:
+    for labels, stats, matches in pairs:
         got = [m for m in matches.values() if m.prev_label]
-        g = global_shift([m.shift for m in got], [m.response for m in got])
+        g = global_shift([m.shift for m in got], [m.response for m in got],
+                         [stats[m.label, 1] + stats[m.label, 3] / 2.0 for m in got], labels.shape[0])
         shifts.append(g.shift)
         resp.append(g.response)
     return tuple(shifts), tuple(resp)
