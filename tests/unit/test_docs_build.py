@@ -23,7 +23,7 @@ def test_docs_build_strict(tmp_path):
     for md in results.glob("*.md"):           # every current result is on a page of the site
         pages = " ".join(p.read_text() for p in (site / "results").glob("*/index.html"))
         assert md.name in pages, md.name
-    assert (site / "results" / "evaluate_predictors" / "examples.png").is_file()
+    assert (site / "results" / "recognition_examples.png").is_file()
 
 
 def test_readme_is_short_and_its_links_resolve():

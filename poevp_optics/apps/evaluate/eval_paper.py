@@ -12,7 +12,7 @@ simulation experiment, the mask coefficients (a, b) are set to (0.9, 0)", Fig. 3
 Sec. 3): a and b are Eq. 2's light-suppression coefficients. Eq. 2 is garbled in our copy
 (control/masks.py), which has three readings. `PAPER_LAW`, the linear reading M = 255 (1 - a)
 above Vs (a tenfold dimmer at a = 0.9), is the one that reproduces the paper's Table 2 in the
-paper's camera (benchmarks/results/table2.md: oracle 100 %, the paper's POE-VP 94.86 %). The ratio
+paper's camera (benchmarks/results/recognition.md, `benchmarks.table2`: oracle 100 %, the paper's POE-VP 94.86 %). The ratio
 reading, M = 255 (a Vs / x + b), dims a prediction clipped at 255 by at most a Vs / 255 = 0.71: a
 pixel of stored value O stays clipped where 0.71 O (E G + 1) > 255, i.e. at the highlight's centre
 any O above 36, 12, 7 at E = 9, 29, 49 (black plate ink is ~45 in the demo), and the exponential

@@ -304,8 +304,9 @@ def _findings_text(find: dict, cfg) -> str:
     return "\n".join(lines) + "\n"
 
 
-#: The physically rendered benchmark whose pooled rows sit beside the paper protocol's.
-RENDERED_REPORT = REPO_ROOT / "benchmarks" / "results" / "evaluate" / "report.json"
+#: The physically rendered benchmark whose pooled rows sit beside the paper protocol's: the report
+#: of `poevp evaluate`'s default run (its default output folder).
+RENDERED_REPORT = REPO_ROOT / "out" / "evaluate" / "report.json"
 
 
 def pooled_alpr(cells: dict, method: str, kind: str, e_levels=(9, 29, 49)) -> dict | None:
@@ -356,7 +357,7 @@ def _paper_protocol_md(cells: dict, cfg, e_levels, rendered: dict) -> list[str]:
         rows.append(["POE-VP (paper: DMVFN)", f"{PAPER['poevp'][0]:.2f}", f"{PAPER['poevp'][1]:.1f}", "-",
                      "not run", _pooled_fmt(pooled_alpr(rendered, "dmvfn", "lateral"))])
     out += ["\n### Paper Table 2 beside ours: the paper's protocol here, and the physically rendered "
-            "benchmark (benchmarks/results/evaluate, lateral cells at E = 9, 29, 49 pooled; "
+            "benchmark (`poevp evaluate`'s default run, lateral cells at E = 9, 29, 49 pooled; "
             + ("present" if rendered else "absent: run `poevp evaluate` first") + ")\n"]
     out += _table(["method", "paper acc %", "paper ms", "ours ms", "paper protocol acc % [95 %]",
                    "physically rendered acc % [95 %]"], rows)
