@@ -103,28 +103,21 @@ QUICK = Config(predictors=("flow", "oracle"), paper_e=(9.0,), texts=TEXTS[:1], s
 # Caches: renders and OCR readings, by content (a rerun after a change to the loop redoes only
 # what the change touched)
 
-def _code_key(*folders: str) -> str:
-    """SHA-1 of the Python sources under `folders` (relative to the package root's parent), by
-    content: the same code gives the same key in any checkout."""
-    import hashlib
-
-    h = hashlib.sha1()
-    for f in folders:
-        for p in sorted((ROOT / f).rglob("*.py")):
-            h.update(p.relative_to(ROOT).as_posix().encode() + b"\0" + p.read_bytes())
-    return h.hexdigest()
+#: Bump to drop every kept road render (as eval_sequences.CACHE_VERSION does for evaluate's).
+RENDER_CACHE_VERSION = "recognition-render-v1"
 
 
 def cached_render(scene: str, overrides: list[str], cache: Path, fresh: bool = False):
-    """benchmarks.plate_band.render_once, kept under `cache` by the scene's files, the overrides and
-    the code that renders (render/, sources/, scene/, core/)."""
+    """(spec, exposures, when rendered): benchmarks.plate_band.render_once, kept under `cache` by the
+    scene's files, the overrides and the package version (as `poevp evaluate` keeps its sequences:
+    eval_sequences.content_key); `--fresh` renders again."""
     import hashlib
     import pickle
 
     from benchmarks.plate_band import render_once
+    from poevp_optics import __version__
 
-    h = hashlib.sha1(_code_key("poevp_optics/render", "poevp_optics/sources", "poevp_optics/scene",
-                               "poevp_optics/core").encode())
+    h = hashlib.sha1(f"{RENDER_CACHE_VERSION}\0{__version__}".encode())
     for p in sorted(Path(scene).iterdir()):
         if p.is_file():
             h.update(p.name.encode() + p.read_bytes())
@@ -134,14 +127,19 @@ def cached_render(scene: str, overrides: list[str], cache: Path, fresh: bool = F
         from poevp_optics.scene.load import load_scene
 
         with open(path, "rb") as f:
-            return load_scene(scene, overrides), pickle.load(f)
+            ex = pickle.load(f)
+        return load_scene(scene, overrides), ex, _stamp(path)
     spec, _, ex = render_once(scene, overrides)
     cache.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(".tmp")
     with open(tmp, "wb") as f:
         pickle.dump(ex, f, protocol=pickle.HIGHEST_PROTOCOL)
     tmp.replace(path)
-    return spec, ex
+    return spec, ex, _stamp(path)
+
+
+def _stamp(path: Path) -> str:
+    return datetime.datetime.fromtimestamp(path.stat().st_mtime, datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
 
 
 def load_ocr_cache(cache: Path) -> dict:
@@ -198,6 +196,7 @@ class Reader:
     rows: list = field(default_factory=list)
     examples: dict = field(default_factory=dict)     # (scene, camera, condition, method) -> (img, box, row)
     showcase: dict = field(default_factory=dict)     # method -> (img, box, row), one condition
+    renders: dict = field(default_factory=dict)      # road render -> when it was made
 
     def read(self, img, box, label: str, **meta) -> dict:
         r = self.runner.read(np.asarray(img, np.uint8), tuple(int(v) for v in box), label)
@@ -441,7 +440,8 @@ def road_scene(reader: Reader, cfg: Config, scene: str, log=print) -> None:
         t0 = time.perf_counter()
         ov = [*sc.sets, f"timing.frames={cfg.road_frames}", f'{ROAD_TEXT_KEYS[scene]}="{text}"',
               *beam_overrides(str(SCENES_DIR / scene), gain)]
-        spec, ex = cached_render(str(SCENES_DIR / scene), ov, cfg.cache, cfg.fresh)
+        spec, ex, made = cached_render(str(SCENES_DIR / scene), ov, cfg.cache, cfg.fresh)
+        reader.renders[f"{scene}, beams x{gain:g}"] = made
         runner = make_runner(reader, SCENES_DIR / scene, spec, cfg.predictors, loop_mode=spec.loop.mode)
         images, _ = runner.method_images(ex)
         boxes = {e.index: runner.cam.box_to_sensor(e.roi) if e.roi else None for e in ex}
@@ -695,6 +695,9 @@ def page(result: dict) -> str:
             f"{result['road_scale']} (of the scene's mirrors; the resolution is in each condition). Cells: reads/frames = % [Wilson 95 %]; full ALPR = PP-OCRv4 detection + "
             "recognition on the whole 8-bit frame, every character (paper Eq. 4); recognition only = the "
             "recogniser on the known plate box.", ""]
+    if result.get("renders"):
+        head += ["Road-scene renders (kept by scene files and settings, so a rerun repeats only the camera, the "
+                 "loop and the OCR): " + "; ".join(f"{k} rendered {v}" for k, v in result["renders"].items()) + ".", ""]
     if result["label"] != "full":
         head += [f"**These are the {result['label']} settings (a development run): fewer conditions, methods "
                  "and frames than the full page.**", ""]
@@ -816,7 +819,7 @@ def run(cfg: Config, log=print) -> dict:
             save_ocr_cache(reader.cache, cfg.cache)
     speed = plate_speed_px(next(iter(seqs.values()))) if seqs else None
     return {"rows": reader.rows, "examples": reader.examples, "showcase": reader.showcase, "mertens_dev": dev,
-            "demo_speed_px": speed, "demo_shape": tuple(next(iter(seqs.values())).hdr[0].shape) if seqs else None,
+            "demo_speed_px": speed, "renders": reader.renders, "demo_shape": tuple(next(iter(seqs.values())).hdr[0].shape) if seqs else None,
             "seconds": time.perf_counter() - t0}
 
 
