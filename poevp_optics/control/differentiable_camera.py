@@ -19,7 +19,8 @@ and kernels (camera.py `capture` is the reference; the test checks the electrons
 | sensor | full-well and ADC clip, rounding, noise | mean response, no rounding; clips replaced by soft minima of width `clip_width` (DN) |
 
 The objective is J = (w - t)^2 with w the mean of DN / max DN over the plate's box on the
-sensor grid (a smooth stand-in for the report's 90th percentile) and t the middle of the band
+sensor grid (computed from the mirrors the box reads alone: the registration, the relay PSF and
+the crop composed into one sparse matrix; `objective_full` runs the whole frame, the same J) (a smooth stand-in for the report's 90th percentile) and t the middle of the band
 [band_low, band_high]. The radiance (the objective's image on the mirrors, `Camera.dmd_image`)
 and the predicted frame (its smooth envelope, masks.py) do not depend on (Vs, a, b): they enter
 as constants.
@@ -98,11 +99,12 @@ class FrameModel:
         return self._arrays[name]
 
     # ------------------------------------------------------------------ stages
-    def levels(self, vs, a, b, exact: bool = False):
-        """Mirror levels from the law (continuous, or the camera's rounded ones with exact)."""
+    def levels(self, vs, a, b, exact: bool = False, env=None):
+        """Mirror levels from the law (continuous, or the camera's rounded ones with exact), on
+        every mirror or on the predicted values `env` of some of them."""
         import drjit as dr
 
-        r, x, top = self.relax, self.env, self.camera.top_level
+        r, x, top = self.relax, self.env if env is None else env, self.camera.top_level
         expo = (x - b * vs) / dr.maximum(255.0 - x, r.edge_dn)
         att = dr.exp(expo * dr.log(a))
         att = dr.minimum(att, 1.0)
@@ -225,9 +227,84 @@ class FrameModel:
         white = dr.sum(inside) / float(inside.shape[0] * self.camera.params.max_dn)
         return (white - self.target) ** 2
 
+    # ------------------------------------------------------------------ the plate's box only
+    def _box_operator(self):
+        """The chain mirror plane -> sensor electrons (registration taps, relay PSF with
+        reflected borders, crop) restricted to the plate's box, as one sparse matrix: (rows: box
+        pixel, cols: index into `support`, vals) and `support`, the mirrors it reads. Linear
+        before the PSF's clamp at 0, which acts per box pixel (`_objective_box`)."""
+        if "box_op" in self._arrays:
+            return self._arrays["box_op"]
+        import scipy.sparse as sp
+
+        cam = self.camera
+        g, (h, w) = cam.sensor_guard_px, cam.shape
+        eh, ew = cam.extended_shape
+        y0, x0, y1, x1 = self.box
+        yy, xx = np.mgrid[y0:y1, x0:x1]
+        rows_ext = ((yy + g) * ew + xx + g).ravel()
+        n = rows_ext.size
+        if cam.psf is not None:                    # box pixel <- extended pixels (convolve_reflect)
+            k = cam.psf.kernel
+            c = k.shape[0] // 2
+            ys, xs = np.divmod(rows_ext, ew)
+
+            def reflect(i, m):
+                i = np.where(i < 0, -i - 1, i)
+                return np.where(i >= m, 2 * m - i - 1, i)
+
+            r, cidx, v = [], [], []
+            for dy in range(k.shape[0]):
+                for dx in range(k.shape[1]):
+                    if k[dy, dx] != 0.0:
+                        r.append(np.arange(n))
+                        cidx.append(reflect(ys - (dy - c), eh) * ew + reflect(xs - (dx - c), ew))
+                        v.append(np.full(n, float(k[dy, dx])))
+            psf = sp.csr_matrix((np.concatenate(v), (np.concatenate(r), np.concatenate(cidx))), shape=(n, eh * ew))
+        else:
+            psf = sp.csr_matrix((np.ones(n), (np.arange(n), rows_ext)), shape=(n, eh * ew))
+        mirrors = cam.mirror_shape[0] * cam.mirror_shape[1]
+        if cam.taps is not None:                   # extended pixel <- mirrors (area average)
+            idx, tw = cam.taps
+            reg = sp.csr_matrix((tw.ravel(), (np.repeat(np.arange(idx.shape[0]), idx.shape[1]), idx.ravel())),
+                                shape=(eh * ew, mirrors))
+        else:
+            reg = sp.identity(mirrors, format="csr")
+        m = (psf @ reg).tocoo()
+        keep = m.data != 0.0
+        support, cols = np.unique(m.col[keep], return_inverse=True)
+        self._arrays["box_op"] = (m.row[keep], cols, m.data[keep], support)
+        return self._arrays["box_op"]
+
+    def _objective_box(self, vs, a, b):
+        """J from the plate's box alone: the law, the exposure and the chain only on the mirrors
+        the box reads (`_box_operator`); the same J as the whole frame's (`objective_full`)."""
+        import drjit as dr
+        from drjit.llvm.ad import Float64, UInt32
+
+        rows, cols, vals, support = self._box_operator()
+        cam = self.camera
+        sub = self._const("box_env", lambda: Float64(self.env_np.ravel()[support]))
+        nodes = [self._const(f"box_node{j}", lambda j=j: Float64(np.asarray(self.nodes[j].numpy())[support]))
+                 for j in range(len(self.nodes))]
+        w = self.weights(self.levels(vs, a, b, env=sub))
+        plane = w[0] * nodes[0]
+        for j in range(1, len(w)):
+            plane = dr.fma(w[j], nodes[j], plane)
+        g = dr.gather(Float64, plane, self._const("box_cols", lambda: UInt32(cols.astype(np.uint32))))
+        g = g * self._const("box_vals", lambda: Float64(vals))
+        n = (self.box[2] - self.box[0]) * (self.box[3] - self.box[1])
+        e = dr.zeros(Float64, n)
+        dr.scatter_reduce(dr.ReduceOp.Add, e, g, self._const("box_rows", lambda: UInt32(rows.astype(np.uint32))))
+        if cam.psf is not None:
+            e = dr.maximum(e, 0.0)
+        dn = self.dn(e * float(cam.electrons_per_radiance()))
+        white = dr.sum(dn) / float(n * cam.params.max_dn)
+        return (white - self.target) ** 2
+
     # ------------------------------------------------------------------ value and gradient
     def value_and_grad(self, theta) -> tuple[float, np.ndarray]:
-        """J and dJ/d(Vs, a, b) at theta = (Vs, a, b) (reverse-mode AD)."""
+        """J and dJ/d(Vs, a, b) at theta = (Vs, a, b) (reverse-mode AD, over the plate's box)."""
         import drjit as dr
         from drjit.llvm.ad import Float64
 
@@ -235,12 +312,21 @@ class FrameModel:
         dr.make_opaque(vs, a, b)        # evaluated, not literals: one compiled kernel for every theta
         for t in (vs, a, b):
             dr.enable_grad(t)
-        j = self.objective(self.dn(self.electrons(self.levels(vs, a, b))))
+        j = self._objective_box(vs, a, b)
         dr.backward(j)
         return float(j[0]), np.array([float(dr.grad(t)[0]) for t in (vs, a, b)])
 
     def value(self, theta) -> float:
-        """J at theta without the AD graph."""
+        """J at theta without the AD graph (over the plate's box)."""
+        import drjit as dr
+        from drjit.llvm.ad import Float64
+
+        vs, a, b = (Float64(float(t)) for t in theta)
+        dr.make_opaque(vs, a, b)
+        return float(self._objective_box(vs, a, b)[0])
+
+    def objective_full(self, theta) -> float:
+        """J at theta through the whole frame's chain (electrons on every sensor pixel)."""
         import drjit as dr
         from drjit.llvm.ad import Float64
 

@@ -64,6 +64,8 @@ def test_gradient_through_the_registration_matches_central_differences(frame, th
     _, _, model = frame
     value, grad = model.value_and_grad(theta)
     assert value == pytest.approx(model.value(theta), rel=1e-12)
+    # computed on the plate's box alone (the mirrors it reads): the whole frame's chain's value
+    assert value == pytest.approx(model.objective_full(theta), rel=1e-12)
     assert np.all(np.abs(grad) > 0)
     steps = (1e-2, 1e-4, 1e-4)          # as the identity test: truncation and round-off below 1e-6
     for i, h in enumerate(steps):

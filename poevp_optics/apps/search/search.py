@@ -23,7 +23,9 @@ rerunning with a larger N continues the search.
 Outputs: `trials.parquet` / `trials.csv` (one row per trial: its values, the objective and each
 scene's metric, the constraints, the point folders, whether their radiance was reused),
 `search_plot.png` (the objective against the trial number, the best so far as a line) and
-`best.json`; the best trial's settings are printed as a ready `--set` line.
+`best.json`; the best trial's settings are printed as a ready `--set` line. With `--refine`, the
+best trial's Eq. 2 coefficients are then moved along the differentiable camera's gradient and
+run as one more point per scene (`refined.json`, apps/search/refine.py).
 """
 
 from __future__ import annotations
@@ -397,11 +399,23 @@ def search(scenes: list[str], bases: list[list[str]], q: Question, *, out: Path,
                 refined = None
                 if refine and best is not None:
                     refined = _refine(sc, q, out, best, ctx, reuse_render)
-                elif not refine:
-                    (out / "refined.json").unlink(missing_ok=True)
+                else:
+                    _drop_stale_refinement(out, best)
                 return df, best, refined
     finally:
         dask.close()
+
+
+def _drop_stale_refinement(out: Path, best: dict | None) -> None:
+    """refined.json of another best trial than today's (more trials found a better one) goes."""
+    path = out / "refined.json"
+    try:
+        old = json.loads(path.read_text())
+    except (OSError, ValueError):
+        path.unlink(missing_ok=True)
+        return
+    if best is None or old.get("from_trial") != best["trial"] or old.get("settings_before") != best["settings"]:
+        path.unlink(missing_ok=True)
 
 
 def _refine(sc, q: Question, out: Path, best: dict, ctx: _Context, reuse_render: bool) -> dict:
