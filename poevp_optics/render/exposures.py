@@ -16,7 +16,7 @@ from tqdm import tqdm
 
 from poevp_optics.core.frame import RenderedExposure
 from poevp_optics.core.seeds import render_seeds
-from poevp_optics.render.progressive import Replicates, Target, rel_error, render_to_target
+from poevp_optics.render.progressive import Replicates, Target, max_box_error, rel_error, render_to_target
 
 __all__ = ["RenderedExposure", "rel_error", "render_exposures", "render_sample", "flicker_bases"]
 
@@ -182,8 +182,6 @@ def _moving_exposure(scene, renderer, i, t0, t1):
 
     def frame_error(mean, var):          # every plate in view is held to the target: the worst decides
         if track.targets:
-            from poevp_optics.render.roi import max_box_error
-
             return max_box_error(mean, var, [b for b in track.boxes.values() if b is not None] or [roi])
         return rel_error(mean, var, roi)
 

@@ -70,6 +70,13 @@ def rel_error(mean: np.ndarray, var: np.ndarray, box=None) -> float | None:
     return float(np.sqrt(np.mean(var, dtype=np.float64)) / m)
 
 
+def max_box_error(mean: np.ndarray, var: np.ndarray, boxes) -> float | None:
+    """The largest `rel_error` over `boxes` (None where none has a positive mean): every plate
+    is held to the error target, the worst one decides."""
+    errs = [e for e in (rel_error(mean, var, b) for b in boxes if b is not None) if e is not None]
+    return max(errs) if errs else None
+
+
 def rel_error_unclipped(mean: np.ndarray, var: np.ndarray, clipped: np.ndarray) -> tuple[float | None, float]:
     """`rel_error` over the pixels that are not `clipped` (bool, mean's shape): pixels clipped in
     the capture read full scale whatever their radiance, so their MC error does not reach the
@@ -124,8 +131,6 @@ def render_to_target(renderer, seeds_for, spp: int, splits: int, target: Target,
             reps.add(img, renderer.last_spp)
             reps.seeds_used.append(seeds[reps.k - 1])
         if target.boxes:
-            from poevp_optics.render.roi import max_box_error
-
             err = max_box_error(reps.mean, reps.variance_of_mean(), target.boxes)
         else:
             err = rel_error_of(reps, target.box)

@@ -47,7 +47,7 @@ _EMISSIVE_KINDS = ("intensity", "radiance", "irradiance")
 class RenderSpec:
     """[render]: the Mitsuba scene and its sampling; spp, subframes, pwm_nodes, temporal_spp,
     mc_splits, sampler, light_selection, target_rel_error and max_spp are accuracy settings
-    (core/accuracy.py). roi_spp: samples per pixel added over `roi_shape`'s image box (the plate),
+    (core/accuracy.py). roi_spp: samples per pixel added over each ROI's image box (`roi_shape`),
     pooled with `spp` there (exposures.add_roi_samples; ignored when target_rel_error > 0, which
     aims the frame's renders at the ROI error already)."""
 
@@ -61,8 +61,7 @@ class RenderSpec:
     variant: str = param("auto")                        # "auto" or a Mitsuba variant name
     spectral_mode: str = param("auto", choices=("auto", "spectral", "mono"))
     mc_splits: int = param(2, min=2, max=64)            # independent-seed renders for MC error
-    roi_shape: str = param("")                          # shape id whose image box is the ROI, or
-    #                                                     "plates": every vehicle plate (render/roi.py)
+    roi_shape: str = param("")                          # shape id whose image box is the ROI, or "plates" (render/roi.py)
     sampler: str = param(DEFAULT_SAMPLER, choices=SAMPLERS)             # render/samplers.py
     light_selection: str = param("power", choices=LIGHT_SELECTIONS)    # render/lights.py
     target_rel_error: float = param(0.0, min=0.0, max=1.0,              # 0: off; else render/progressive.py
@@ -426,24 +425,22 @@ class Renderer:
         if self.multi_roi:
             views = [v for v in self.plate_views().values() if v.in_view]
             return min(views, key=lambda v: v.distance_m).box if views else None
-        return self._project_box(self._roi_shape)
+        from poevp_optics.render.roi import project_box
+
+        return project_box(self, self._roi_shape)
 
     def plate_views(self) -> dict:
-        """{ROI label: render/roi.py PlateView} of every ROI shape at the current pose (computed
-        once per pose)."""
-        from poevp_optics.render.roi import plate_view
+        """{ROI label: render/roi.py PlateView} of every ROI shape at the current pose (once per pose)."""
+        from poevp_optics.render.roi import plate_view, project_box
 
         if self._views is None or self._views_time != self._time:
-            self._views = {t.label: plate_view(self, shape, self._project_box(shape))
-                           for t, shape in self._roi_shapes}
+            self._views = {t.label: plate_view(self, shape, project_box(self, shape)) for t, shape in self._roi_shapes}
             self._views_time = self._time
         return self._views
 
     def roi_boxes(self) -> dict:
         """{ROI label: box} of the ROIs that get their own samples at the current pose: with
         "plates" every plate in view (render/roi.py), else the one ROI shape's box."""
-        if self._roi_shape is None:
-            return {}
         if not self.multi_roi:
             box = self.roi_box()
             return {self._roi_shapes[0][0].label: box} if box is not None else {}
@@ -453,28 +450,6 @@ class Renderer:
     def roi_labels(self) -> tuple:
         """The ROI targets (render/roi.py RoiTarget) in the scene's order."""
         return tuple(t for t, _ in self._roi_shapes)
-
-    def _project_box(self, shape) -> tuple[int, int, int, int] | None:
-        """Image box (y0, x0, y1, x1), end-exclusive, of `shape`'s bounding box at the current
-        pose on the rendered grid (None: off the film)."""
-        mi, dr = self.mi, __import__("drjit")
-        bb = shape.bbox()
-        lo, hi = np.array(bb.min).ravel(), np.array(bb.max).ravel()
-        corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
-        it = dr.zeros(mi.Interaction3f, len(corners))
-        it.p = mi.Point3f(corners[:, 0], corners[:, 1], corners[:, 2])
-        ds, _ = self.sensor.sample_direction(it, mi.Point2f(0.5, 0.5))
-        uv = np.array(ds.uv).reshape(2, -1) if np.array(ds.uv).shape[0] == 2 else np.array(ds.uv).T
-        visible = np.array(ds.pdf).ravel() > 0
-        if not np.any(visible):
-            return None
-        h, w = (n + 2 * self.guard_px for n in self.scene.render.resolution)
-        u, v = uv[0][visible], uv[1][visible]
-        x0, x1 = int(np.clip(np.floor(u.min()), 0, w)), int(np.clip(np.ceil(u.max()), 0, w))
-        y0, y1 = int(np.clip(np.floor(v.min()), 0, h)), int(np.clip(np.ceil(v.max()), 0, h))
-        if x1 <= x0 or y1 <= y0:
-            return None
-        return y0, x0, y1, x1
 
     # ------------------------------------------------------------------ rendering
     def select_lights(self) -> dict[str, float]:
@@ -503,16 +478,11 @@ class Renderer:
         from poevp_optics.render.lights import pilot_moments, roi_weighted_moments
 
         frame = pilot_moments(self.mi, self.mi_scene, self.sensor, self.scene.render.seed)
-        if self.multi_roi:               # every plate in view is a region of its own
-            boxes = list(self.roi_boxes().values())
-            if not boxes:
-                return frame[0]
-            h, w = (n + 2 * self.guard_px for n in self.scene.render.resolution)
-            box = self.roi_box()
-            self._pilot_area = (box[2] - box[0]) * (box[3] - box[1])
-            regions = [pilot_moments(self.mi, self.mi_scene, self.sensor, self.scene.render.seed,
-                                     (x0 / w, y0 / h, x1 / w, y1 / h)) for y0, x0, y1, x1 in boxes]
-            return roi_weighted_moments([frame, *regions])
+        if self.multi_roi:               # every plate in view a region of its own (render/roi.py)
+            from poevp_optics.render.roi import plates_pilot_moments
+
+            moments, self._pilot_area = plates_pilot_moments(self, frame)
+            return moments
         box = self.roi_box() if self._roi_shape is not None else None
         if box is None:
             return frame[0]

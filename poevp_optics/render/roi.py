@@ -108,15 +108,6 @@ def pool_samples(mean, var, count, box, m2, v2, n2):
     count[y0:y1, x0:x1] = n1 + n2
 
 
-def max_box_error(mean, var, boxes) -> float | None:
-    """The largest `progressive.rel_error` over `boxes` (None where none has a positive mean):
-    every plate is held to the error target, the worst one decides."""
-    from poevp_optics.render.progressive import rel_error
-
-    errs = [e for e in (rel_error(mean, var, b) for b in boxes if b is not None) if e is not None]
-    return max(errs) if errs else None
-
-
 def plate_view(renderer, shape, box) -> PlateView:
     """`PlateView` of `shape` at the renderer's current pose (module docstring): the distance
     from the camera's centre of projection to the shape's bounding-box centre, and the share of
@@ -145,3 +136,46 @@ def plate_view(renderer, shape, box) -> PlateView:
     valid = np.array(si.is_valid(), dtype=bool).ravel()
     seen = valid & (hit_t >= t - VIEW_TOLERANCE_M)
     return PlateView(box, dist, float(np.mean(seen)))
+
+
+def project_box(renderer, shape) -> tuple[int, int, int, int] | None:
+    """Image box (y0, x0, y1, x1), end-exclusive, of `shape`'s bounding box at the renderer's
+    current pose on its rendered grid (guard band included; None: off the film): the box's
+    corners projected by the camera."""
+    import drjit as dr
+
+    mi = renderer.mi
+    bb = shape.bbox()
+    lo, hi = np.array(bb.min).ravel(), np.array(bb.max).ravel()
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    it = dr.zeros(mi.Interaction3f, len(corners))
+    it.p = mi.Point3f(corners[:, 0], corners[:, 1], corners[:, 2])
+    ds, _ = renderer.sensor.sample_direction(it, mi.Point2f(0.5, 0.5))
+    uv = np.array(ds.uv).reshape(2, -1) if np.array(ds.uv).shape[0] == 2 else np.array(ds.uv).T
+    visible = np.array(ds.pdf).ravel() > 0
+    if not np.any(visible):
+        return None
+    h, w = (n + 2 * renderer.guard_px for n in renderer.scene.render.resolution)
+    u, v = uv[0][visible], uv[1][visible]
+    x0, x1 = int(np.clip(np.floor(u.min()), 0, w)), int(np.clip(np.ceil(u.max()), 0, w))
+    y0, y1 = int(np.clip(np.floor(v.min()), 0, h)), int(np.clip(np.ceil(v.max()), 0, h))
+    if x1 <= x0 or y1 <= y0:
+        return None
+    return y0, x0, y1, x1
+
+
+def plates_pilot_moments(renderer, frame) -> dict[str, float]:
+    """The light-selection pilot's moments with every plate in view a region of its own beside
+    the frame's (`frame`: render/lights.py pilot_moments over the film), combined by
+    lights.roi_weighted_moments; the frame's alone when no plate is in view. Returns (moments,
+    the nearest plate's box area in px, 0 without one: the renderer's re-selection trigger)."""
+    from poevp_optics.render.lights import pilot_moments, roi_weighted_moments
+
+    boxes = list(renderer.roi_boxes().values())
+    if not boxes:
+        return frame[0], 0
+    h, w = (n + 2 * renderer.guard_px for n in renderer.scene.render.resolution)
+    box = renderer.roi_box()
+    regions = [pilot_moments(renderer.mi, renderer.mi_scene, renderer.sensor, renderer.scene.render.seed,
+                             (x0 / w, y0 / h, x1 / w, y1 / h)) for y0, x0, y1, x1 in boxes]
+    return roi_weighted_moments([frame, *regions]), (box[2] - box[0]) * (box[3] - box[1])
