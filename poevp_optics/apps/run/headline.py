@@ -24,7 +24,8 @@ def mc_error_line(r: dict, spec) -> str:
                 f"- (radiance from [source] {spec.source.kind})")
     parts = []
     if roi is not None:
-        parts.append(f"{roi:.2%} {spec.render.roi_shape or 'ROI'} (ROI)")
+        name = "nearest plate" if spec.render.roi_shape == "plates" else spec.render.roi_shape or "ROI"
+        parts.append(f"{roi:.2%} {name} (ROI)")   # "plates": each plate's own in report.json metrics.plates
     med, p90 = r.get("rel_error_pixel_median"), r.get("rel_error_pixel_p90")
     if unclipped is not None and med is not None:
         parts.append(f"per pixel over the {1 - clipped:.2%} of the frame not clipped in the capture: median "
