@@ -114,3 +114,19 @@ def test_plate_summary_counts_frames_in_band_after_the_white_frames():
     assert s["rel_error_max"] == pytest.approx(0.05)
     md = plates_markdown({"scene": "x", "metrics": {"plates": plate_summary(spec, per_frame)}})
     assert "| a | AB 12 | 5/6 |" in md and "2/3 (67 %)" in md
+
+
+def test_a_stored_render_keeps_its_plates(tmp_path):
+    """The render cache (render/render_cache.py) stores and reads back each plate's record."""
+    from poevp_optics.core.frame import RenderedExposure
+    from poevp_optics.render.render_cache import load_exposure, save_exposure
+
+    plates = ({"id": "a", "text": "OB 180 I", "shape": "a_plate", "box": (3, 4, 9, 20), "distance_m": 22.4,
+               "visible_fraction": 1.0, "rel_error": 0.05},
+              {"id": "b", "text": "", "shape": "b_plate", "box": None, "distance_m": 40.0, "visible_fraction": 0.0,
+               "rel_error": None})
+    img = np.ones((12, 24), np.float32)
+    ex = RenderedExposure.build(0, 0.0, 0.028, np.array([0.014]), (img,), img, np.zeros_like(img), (3, 4, 9, 20),
+                                plates=plates)
+    save_exposure(tmp_path / "x.npz", ex)
+    assert load_exposure(tmp_path / "x.npz").plates == plates
