@@ -28,14 +28,22 @@ controller picks
 so that the reference demand D_ref lands at the aim (`mask.target` x full scale) at the fine
 level: `mask.fine_steps` (20) steps above zero, a step of 5 %, or the top level when B has fewer
 levels. The coarse attenuation is then in T_e (and in the ND where it can settle), and the mask
-keeps the highlight's mirrors in their fine range instead of at levels 1-6. D_ref is the
-`mask.exposure_quantile` (0.9) quantile of the envelope over the mirrors above saturation: a
-few lamp cores brighter than that still go to the low levels, but do not darken the frame.
+keeps the highlight's mirrors in their fine range instead of at levels 1-6. D_ref follows the
+attenuator's rule (camera/attenuator.py): from the controller's demand of the last capture (the
+frame's own for the oracle; not dilated), through the ND's setting, the highlights beyond the
+fine level's reach at the scene's exposure (the demand the fine level brings to the aim: 7.6x
+saturation at 8 bits) of at least `attenuator.serve_min_mirrors` mirrors are served, each at the
+demand its brightest serve_min_mirrors mirrors share, and D_ref is the highest of these. A lamp
+core smaller than that is left to the low levels rather than darken the frame; a frame with no
+served highlight keeps the scene's exposure. With a variable ND in the path (it settles within
+the scene's frame timing, or the scene is refused) the ND keeps the coarse part as before: T_e
+serves only what the ND's setting leaves beyond the mask's reach (its darkest usable level, the
+attenuator's own threshold), e.g. beyond the ND's darkest setting.
 
-A frame whose D_ref is served at the fine level by the scene's own exposure keeps the scene's
-[timing] schedule and dmd.bits (`FrameExposure.nominal`): its capture is the same as without
-this stage. A shorter T_e darkens the whole frame by T_e / timing.exposure_s (the mask can only
-dim), the price of bringing a highlight into range.
+A frame that keeps the scene's exposure keeps its [timing] schedule and dmd.bits
+(`FrameExposure.nominal`): its capture is the same as without this stage. A shorter T_e darkens
+the whole frame by T_e / timing.exposure_s (the mask can only dim), the price of bringing a
+highlight into range.
 
 Search after a clip. A clipped capture says only "at least the lower bound L". The mask's demand
 brackets by `mask.clip_step` (2) per frame because its 8-bit levels round coarsely; T_e is
@@ -43,7 +51,9 @@ continuous and a capture well below the band is still measured (a 12-bit capture
 scale holds ~100 e- of a ~10 ke- well: SNR ~10), so with this stage the controller brackets a
 region clipped again by `mask.time_clip_step` (100) x L (control/loop_step.py builds the
 ExposureController so): the next capture is unclipped for any X < time_clip_step x L / target,
-and the one after is exact. A region first seen clipped still starts from the controller's prior
+and the one after is exact. With a variable ND in the path the search stays the ND's
+(`mask.clip_step`, which such a scene sets for its ND: night_road's 5 lands a plate 10x brighter
+than its prior in the band on the frame after the clip). A region first seen clipped still starts from the controller's prior
 (`mask.first_guess`). A plate 1e4x over saturation is then in the band on the third loop frame
 (tests).
 
@@ -135,32 +145,49 @@ def at_exposure(camera, exposure_s: float, nd: float = 1.0, fixed: bool = False)
     return FrameExposure(float(exposure_s), b, float(window), False, nd, fixed)
 
 
-def reference_demand(env_e: np.ndarray, saturation_e: float, quantile: float) -> float:
-    """D_ref (e-, at the scene's white exposure): the `quantile` of the envelope over the
-    mirrors above saturation; 0 when none is."""
-    e = np.asarray(env_e, dtype=np.float64)
-    bright = e[e > saturation_e]
-    if bright.size == 0:
-        return 0.0
-    return float(np.quantile(bright, quantile))
+def reference_demand(demand_e: np.ndarray, reach_e: float, min_mirrors: int) -> float:
+    """D_ref (e-, all-white at the scene's exposure): over the highlights beyond `reach_e`
+    (8-connected regions, demand > reach_e) of at least `min_mirrors` mirrors, the highest
+    demand that `min_mirrors` mirrors of one highlight share (its min_mirrors-th brightest); 0
+    when there is none. As the attenuator's rule (camera/attenuator.py): a lamp core smaller than
+    that is left to the low levels rather than darken the frame, and a plate is served at its
+    own brightness."""
+    import cv2
+
+    d = np.nan_to_num(np.asarray(demand_e, dtype=np.float64), nan=1e300, posinf=1e300)
+    beyond = (d > reach_e).astype(np.uint8)
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(beyond, connectivity=8)
+    best = 0.0
+    for i in range(1, n):
+        if stats[i, cv2.CC_STAT_AREA] >= min_mirrors:
+            vals = d[labels == i]
+            best = max(best, float(np.partition(vals, vals.size - min_mirrors)[vals.size - min_mirrors]))
+    return best
 
 
-def choose(camera, mask, env_e: np.ndarray, index: int, nd: float = 1.0) -> FrameExposure:
-    """T_e and B for frame `index` (module docstring). env_e: the smooth envelope of the
-    all-white electrons the mask law assumes at the scene's exposure (mirror grid), before the
-    ND; nd: the ND's transmission."""
+def choose(camera, mask, demand_e: np.ndarray, index: int, nd: float = 1.0, min_mirrors: int = 24,
+           with_nd: bool = False) -> FrameExposure:
+    """T_e and B for frame `index` (module docstring). demand_e: the all-white electrons per
+    mirror at the scene's exposure, before the ND (the controller's demand of the last capture,
+    or the frame's where no capture was measured; mirror grid); nd: the ND's transmission;
+    min_mirrors: the smallest highlight served (attenuator.serve_min_mirrors); with_nd: a
+    variable ND is in the path (it takes the coarse part: T_e only for what it leaves beyond
+    the mask's reach)."""
     from poevp_optics.control.exposure_control import full_scale_electrons
+    from poevp_optics.control.masks import reach_electrons
 
     if mask.exposure_time_s > 0:
         return at_exposure(camera, mask.exposure_time_s, nd, fixed=True)
     p, spec, t = camera.params, camera.dmd_spec, camera.timing
-    guess = np.asarray(env_e, dtype=np.float64)
-    d_ref = reference_demand(guess * nd, p.saturation_capacity_e, mask.exposure_quantile)
-    e_aim = float(full_scale_electrons(p, mask.target))
     table = camera.level_exposure_s(index)
     white_nom = float(table[-1])
-    k = min(mask.fine_steps, len(table) - 1)
-    if d_ref <= 0 or d_ref * float(table[k]) / white_nom <= e_aim:
+    e_aim = float(full_scale_electrons(p, mask.target))
+    if with_nd:     # the ND took the coarse part: only what it leaves beyond the darkest usable level
+        threshold = reach_electrons(mask, len(table) - 1, table, p)
+    else:           # what the fine level brings to the aim at the scene's exposure
+        threshold = e_aim * white_nom / float(table[min(mask.fine_steps, len(table) - 1)])
+    d_ref = reference_demand(np.asarray(demand_e, dtype=np.float64) * nd, threshold, min_mirrors)
+    if d_ref <= 0:
         return nominal(camera) if nd == 1.0 else FrameExposure(t.exposure_s, spec.bits, t.dmd_window_s, True, nd)
     from poevp_optics.camera.dmd import throughput_on
 
@@ -197,12 +224,19 @@ def is_active(mask, camera) -> bool:
     return mask.law == "exposure_controller" and camera.dmd is not None
 
 
-def clip_step(mask, camera) -> float:
-    """The controller's bracket after a repeated clip: `mask.time_clip_step` where T_e is chosen
-    per frame (module docstring), else `mask.clip_step`."""
-    return mask.time_clip_step if is_active(mask, camera) and mask.exposure_time_s <= 0 else mask.clip_step
+def searches(mask, camera, attenuator=None) -> bool:
+    """True when T_e does the search after a clip: chosen per frame, no variable ND in the path
+    (with an ND the search is the ND's, bracketed as the scene set it for the ND)."""
+    nd = attenuator is not None and attenuator.enabled
+    return is_active(mask, camera) and mask.exposure_time_s <= 0 and not nd
 
 
-__all__ = ["FrameExposure", "SENSOR_MIN_EXPOSURE_S", "at_exposure", "choose", "exposure_time_problem",
-           "fine_relative", "frame_schedule", "is_active", "max_bits", "min_plane_s", "nominal",
-           "reference_demand"]
+def clip_step(mask, camera, attenuator=None) -> float:
+    """The controller's bracket after a repeated clip: `mask.time_clip_step` where T_e searches
+    (`searches`), else `mask.clip_step`."""
+    return mask.time_clip_step if searches(mask, camera, attenuator) else mask.clip_step
+
+
+__all__ = ["FrameExposure", "SENSOR_MIN_EXPOSURE_S", "at_exposure", "choose", "clip_step", "exposure_time_problem",
+           "fine_relative", "frame_schedule", "is_active", "max_bits", "min_plane_s", "nominal", "reference_demand",
+           "searches"]

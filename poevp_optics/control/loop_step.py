@@ -32,8 +32,7 @@ from poevp_optics.camera.attenuator import AttenuatorSpec, AttenuatorState, choo
 from poevp_optics.camera.dmd import displayed_levels
 from poevp_optics.control import exposure_time
 from poevp_optics.control.exposure_control import ExposureController
-from poevp_optics.control.masks import (ATTENUATED_LAWS, MaskInput, MaskSpec, controller_demand_e, mask_levels,
-                                        predicted_electrons, reach_electrons, smooth_envelope)
+from poevp_optics.control.masks import ATTENUATED_LAWS, MaskSpec, mask_levels, predicted_electrons, reach_electrons
 from poevp_optics.control.timing_budget import BudgetSpec, MaskClock
 from poevp_optics.control.predictors import PREDICTORS, PredictorSpec, checked_prediction, make_predictor
 from poevp_optics.core.grids import Grid, GridError, OnGrid
@@ -135,19 +134,18 @@ def predictor_input(mode: str, camera, ldr, enc, est, flags, index: int, clipped
     return LOOP_MODES[mode](camera, ldr, enc, est, flags, index, clipped_gain)
 
 
-def levels_and_exposure(camera, mask: MaskSpec, index: int, g: float, controller=None, **kw):
-    """(levels, exposure choice) of the mask law for frame `index` with the ND at `g`; kw: the
+def levels_and_exposure(camera, mask: MaskSpec, index: int, g: float, demand_e: np.ndarray, controller=None,
+                        attenuator: AttenuatorSpec = AttenuatorSpec(), **kw):
+    """(levels, exposure choice) of the mask law for frame `index` with the ND at `g`; demand_e:
+    the all-white electrons per mirror the exposure choice reads (as the attenuator's); kw: the
     law's inputs (mask_levels' pred_8bit, pred_electrons, full_well_e, sensor, pred_masked). Under
     the exposure controller's law the frame's sensor exposure and DMD bit depth are chosen first
-    (control/exposure_time.py) from the envelope the law reads, and the law then reads that
-    frame's level table, the shortening taken as a transmission; other laws: (levels, None)."""
+    (control/exposure_time.py) and the law then reads that frame's level table, the shortening
+    taken as a transmission; other laws: (levels, None)."""
     level_exposure = camera.level_exposure_s(index)
     fx, t = None, g
     if exposure_time.is_active(mask, camera):
-        x = MaskInput(kw.get("pred_8bit"), kw.get("pred_electrons"), kw.get("full_well_e"), level_exposure,
-                      kw.get("sensor"), controller, kw.get("pred_masked", False), g)
-        env = smooth_envelope(controller_demand_e(mask, x), mask.smooth_px)
-        fx = exposure_time.choose(camera, mask, env, index, g)
+        fx = exposure_time.choose(camera, mask, demand_e, index, g, attenuator.serve_min_mirrors, attenuator.enabled)
         if not fx.nominal:
             white_nom = float(level_exposure[-1])
             level_exposure = camera.level_exposure_s(index, fx)
@@ -168,8 +166,8 @@ def oracle_choice(camera, mask: MaskSpec, radiance_mean: np.ndarray, index: int,
     white_e = radiance_mean.astype(np.float64) * camera.electrons_per_radiance() * camera.white_exposure_s(index)
     g = attenuator_transmission(camera, mask, attenuator, white_e, index)
     ldr8 = to_8bit(camera.noise_free_dn(white_e), camera.params.max_dn)
-    levels, fx = levels_and_exposure(camera, mask, index, g, pred_8bit=ldr8, pred_electrons=white_e,
-                                     full_well_e=camera.params.full_well_e, sensor=camera.params)
+    levels, fx = levels_and_exposure(camera, mask, index, g, white_e, attenuator=attenuator, pred_8bit=ldr8,
+                                     pred_electrons=white_e, full_well_e=camera.params.full_well_e, sensor=camera.params)
     return levels, g, fx
 
 
@@ -234,13 +232,14 @@ def predicted_choice(camera, mask: MaskSpec, pred_8bit: np.ndarray | OnGrid, ind
     kw = dict(pred_8bit=pred, pred_electrons=e, full_well_e=camera.params.full_well_e, sensor=camera.params,
               pred_masked=pred_masked)
     g = 1.0
-    if attenuator.enabled:     # global: where does not matter, only how bright and how large
-        measured = controller is not None and controller.demand_e is not None
-        g = attenuator_transmission(camera, mask, attenuator, controller.demand_e if measured else e, index)
+    measured = controller is not None and controller.demand_e is not None
+    demand = controller.demand_e if measured else e     # global: where does not matter, only how bright and how large
+    if attenuator.enabled:
+        g = attenuator_transmission(camera, mask, attenuator, demand, index)
     if not exposure_control:
         return mask_levels(mask, camera.dmd.spec.bits, transmission=g, level_exposure=camera.level_exposure_s(index),
                            controller=controller, **kw), g, None
-    levels, fx = levels_and_exposure(camera, mask, index, g, controller, **kw)
+    levels, fx = levels_and_exposure(camera, mask, index, g, demand, controller, attenuator, **kw)
     return levels, g, fx
 
 
@@ -342,17 +341,17 @@ class LoopStep:
         p = camera.params
         self.clock = MaskClock(budget, camera.timing, camera.shape, p.bits, camera.mirror_shape,
                                camera.dmd.spec.bits) if camera.dmd else None
-        self.controller = ExposureController(mask.first_guess, exposure_time.clip_step(mask, camera),
+        self.controller = ExposureController(mask.first_guess, exposure_time.clip_step(mask, camera, attenuator),
                                              int(np.ceil(3 * mask.smooth_px)),
                                              p.saturation_capacity_e, mask.carry == "extrapolate") if camera.dmd else None
 
     @property
     def lift(self) -> float:
         """The demodulated loop's assumption for a pixel clipped behind a dimmed mirror (x its
-        lower bound): mask.clipped_gain, or where the exposure time is chosen per frame the
-        same bracket as the controller's (exposure_time.clip_step)."""
-        if exposure_time.is_active(self.mask, self.camera) and self.mask.exposure_time_s <= 0:
-            return exposure_time.clip_step(self.mask, self.camera)
+        lower bound): mask.clipped_gain, or where the exposure time does the search after a clip
+        the same bracket as the controller's (exposure_time.searches, mask.time_clip_step)."""
+        if exposure_time.searches(self.mask, self.camera, self.attenuator):
+            return self.mask.time_clip_step
         return self.mask.clipped_gain
 
     @classmethod

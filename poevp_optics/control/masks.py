@@ -298,7 +298,6 @@ class MaskSpec:
     # exposure_controller's exposure time and DMD bit depth per frame (control/exposure_time.py):
     exposure_time_s: float = param(0.0, min=0, max=100.0)   # fixed sensor exposure T_e, s (0: chosen per frame)
     fine_steps: int = param(20, min=1, max=65535)           # levels above zero the reference demand is put at
-    exposure_quantile: float = param(0.9, gt=0, max=1)     # D_ref: this quantile of the envelope above saturation
     time_clip_step: float = param(100.0, min=1, max=1e9)    # T_e after a clip: for this x the lower bound
 
 

@@ -116,8 +116,10 @@ def test_chosen_bits_are_the_largest_whose_planes_fit_the_exposure():
 
 
 def test_the_controller_keeps_the_reference_demand_at_its_fine_level_with_the_dlpc900():
-    """With 105 us planes the chosen B fits T_e, and the reference demand sits at the fine level
-    (20 of 255, or the top of a shallower B) at the aim: D_ref T_e / T_white x rel(level) = aim."""
+    """With 105 us planes the chosen B fits T_e, and the brightest served highlight sits at the
+    fine level (20 of 255, or the top of a shallower B) at the aim: D T_e / T x rel(level) = aim.
+    A highlight the fine level serves at 30 ms (up to 7.6x) and a lamp core smaller than
+    serve_min_mirrors (24) keep the scene's exposure."""
     from poevp_optics.control.exposure_control import full_scale_electrons
     from poevp_optics.control.masks import MaskSpec
 
@@ -125,11 +127,19 @@ def test_the_controller_keeps_the_reference_demand_at_its_fine_level_with_the_dl
     mask = MaskSpec(law="exposure_controller", target=0.6, band_low=0.4, band_high=0.9)
     sat = cam.params.saturation_capacity_e
     aim = float(full_scale_electrons(cam.params, mask.target))
-    assert et.choose(cam, mask, np.full((4, 4), 5.0 * sat), 0).nominal        # 5x: level ~31 of 255 at 30 ms
-    for over in (30.0, 300.0, 1000.0):
-        fx = et.choose(cam, mask, np.full((4, 4), over * sat), 0)
+    demand = np.full((16, 16), 0.1 * sat)
+    assert et.choose(cam, mask, demand, 0).nominal
+    demand[2:12, 2:12] = 5.0 * sat                                      # at 30 ms already at level >= 20
+    assert et.choose(cam, mask, demand, 0).nominal
+    lamp = demand.copy()
+    lamp[13:15, 13:16] = 1e5 * sat                                      # a 6-mirror lamp core
+    assert et.choose(cam, mask, lamp, 0).nominal
+    for over in (30.0, 300.0, 1000.0, 1300.0):
+        d = lamp.copy()
+        d[2:12, 2:12] = over * sat                                      # a 100-mirror plate beyond reach
+        fx = et.choose(cam, mask, d, 0)
         top = (1 << fx.bits) - 1
-        assert ((1 << fx.bits) - 1) * PLANE_S <= max(fx.exposure_s, PLANE_S) * (1 + 1e-12)
+        assert not fx.nominal and ((1 << fx.bits) - 1) * PLANE_S <= max(fx.exposure_s, PLANE_S) * (1 + 1e-12)
         k = min(20, top)
         got = over * sat * fx.exposure_s / T * (k / top + (1 - k / top) / 1000.0)
         assert abs(got / aim - 1) < 1e-6 or fx.exposure_s == et.SENSOR_MIN_EXPOSURE_S, (over, fx)
@@ -166,3 +176,26 @@ def test_the_timing_budget_follows_each_frames_shortened_exposure_and_window():
     r2 = clock.show(2, levels, False, None).record
     assert abs(r2["exposure_end_s"] - (mid1 + 0.5e-3)) < 1e-12
     assert abs(r2["window_start_s"] - 2 / 30) < 1e-12 and "window_s" not in r2
+
+
+def test_with_a_variable_nd_the_exposure_time_serves_only_what_the_nd_leaves_beyond_reach():
+    """A plate 300x over saturation that the ND dims to the mask's reach keeps the scene's
+    exposure; at the ND's darkest setting (1/128) a plate 1e5x over is still beyond reach and T_e
+    takes the rest (the plate at the fine level at the aim)."""
+    from poevp_optics.control.exposure_control import full_scale_electrons
+    from poevp_optics.control.masks import MaskSpec, reach_electrons
+
+    cam = _camera()
+    mask = MaskSpec(law="exposure_controller", target=0.6, band_low=0.4, band_high=0.9)
+    sat = cam.params.saturation_capacity_e
+    table = cam.level_exposure_s(0)
+    reach = reach_electrons(mask, 255, table, cam.params)
+    demand = np.full((16, 16), 0.1 * sat)
+    demand[2:12, 2:12] = 300.0 * sat
+    assert et.choose(cam, mask, demand, 0, nd=reach / (300.0 * sat), with_nd=True).nominal
+    assert not et.choose(cam, mask, demand, 0, nd=1.0, with_nd=False).nominal
+    demand[2:12, 2:12] = 1e5 * sat
+    fx = et.choose(cam, mask, demand, 0, nd=1 / 128, with_nd=True)
+    aim = float(full_scale_electrons(cam.params, mask.target))
+    got = 1e5 * sat / 128 * fx.exposure_s / T * (20 / 255 + (235 / 255) / 1000.0)
+    assert not fx.nominal and fx.nd_transmission == 1 / 128 and abs(got / aim - 1) < 1e-6
