@@ -198,7 +198,7 @@ def refine_best(scenes, q, out: Path, best: dict, run_points, log=print) -> dict
         if t != p:
             new[k] = params[k].literal(int(round(t)) if params[k].kind == "int" else t)
     results = run_points(new)
-    values, viol, errors, folders = [], [0.0] * len(q.objective.constraints), [], []
+    values, viol, errors, folders = [], [-math.inf] * len(q.objective.constraints), [], []
     for sc, (folder, res) in zip(scenes, results):
         folders.append(folder.name)
         if "error" in res:
@@ -210,8 +210,9 @@ def refine_best(scenes, q, out: Path, best: dict, run_points, log=print) -> dict
     feasible = all(v <= 0 for v in viol)
     row = {f"param.{k}": v for k, v in new.items()}
     record.update({"refined": True, "settings": new, "set_line": set_line(row), "points": folders,
-                   "objective_after": after, "constraints_after": {c.text: v for c, v in
-                                                                  zip(q.objective.constraints, viol)},
+                   "objective_after": after,
+                   "constraints_after": {c.text: (v if math.isfinite(v) else None)
+                                         for c, v in zip(q.objective.constraints, viol)},
                    "feasible": feasible and not errors,
                    "improved": bool(feasible and not errors and math.isfinite(after)
                                     and q.objective.better(after, best["objective"])),
