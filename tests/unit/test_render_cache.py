@@ -142,12 +142,18 @@ def test_replay_writes_the_recorded_runs_bytes_and_a_damaged_store_renders_again
            {k: v for k, v in plain_files.items() if k != "report.json"}
 
 
-def test_a_point_without_the_clients_files_replays_the_render_it_was_sent(tmp_path):
-    """The scene bundle path of a sweep (no shared file system), run in this process."""
+def test_a_point_without_the_clients_files_replays_the_render_it_was_sent(tmp_path, monkeypatch):
+    """The scene bundle path of a sweep (no shared file system), on an in-process Dask worker:
+    the recording is pulled from the worker in chunks and pushed back to it in chunks, into the
+    inbox the next point reads."""
+    from distributed import Client
+
+    from poevp_optics.apps.sweep import reuse
     from poevp_optics.apps.sweep.bundle import make_bundle, make_plan
     from poevp_optics.apps.sweep.sweep import PointTask, run_point
     from poevp_optics.apps.sweep.sweep_grid import point_overrides
 
+    monkeypatch.setattr(reuse, "CHUNK_BYTES", 4096)           # many chunks per file
     ov = tuple(TINY + point_overrides(["mask.a"], [0.7], 0))
     spec = load_scene(SCENES / "smoke", list(ov))
     refs = tuple(with_hashes(scene_inputs(spec)))
@@ -156,14 +162,22 @@ def test_a_point_without_the_clients_files_replays_the_render_it_was_sent(tmp_pa
     plan = dataclasses.replace(plan, bundle_sha256=bundle.sha256)
     group = render_group(spec.resolved.render, {r.key: r.sha256 for r in refs})
     task = PointTask(ov, "render", 1, plan, refs, {}, group, (), "leader-s0")
-    led = run_point(task, bundle.data)
-    assert led["row"]["status"] == "ok", led["row"]
-    assert led["render"]["reused"] is False and led["render_archive"]
-    key = led["render"]["key"]
-    ov2 = tuple(TINY + point_overrides(["mask.a"], [0.9], 0))
-    task2 = dataclasses.replace(task, overrides=ov2, label="other-s0")
-    got = run_point(task2, bundle.data, [(key, led["render_archive"])])
-    assert got["row"]["status"] == "ok" and "render_archive" not in got
+    with Client(processes=False, n_workers=1, threads_per_worker=1, dashboard_address=None) as client:
+        led = client.submit(run_point, task, bundle.data, pure=False).result()
+        assert led["row"]["status"] == "ok", led["row"]
+        assert led["render"]["reused"] is False and "archive" not in led["render"]
+        remote = dict(led["render_remote"])
+        key = led["render"]["key"]
+        sweep = reuse.RenderReuse(tmp_path / "sweep", {"p0": group}, False, log=lambda *a: None)
+        sweep.finished(({}, ov, refs, "p0"), led, client)
+        assert sweep.stored[group] == [key] and verify(tmp_path / "sweep" / "renders" / key)[0] is not None
+        assert not Path(remote["folder"]).exists()          # the worker removed its copy
+        ov2 = tuple(TINY + point_overrides(["mask.a"], [0.9], 0))
+        task2 = dataclasses.replace(task, overrides=ov2, label="other-s0")
+        assert sweep.payload(client, ({}, ov2, refs, "p0")) == []   # pushed to the worker's inbox
+        assert len(sweep._scattered[key]) == 1
+        got = client.submit(run_point, task2, bundle.data, pure=False).result()
+    assert got["row"]["status"] == "ok" and "render_remote" not in got
     assert got["render"] == {"key": key, "reused": True, "rendered_by": "leader-s0"}
     fresh = run_point(dataclasses.replace(task2, render_group=""), bundle.data)
     assert "render" not in fresh

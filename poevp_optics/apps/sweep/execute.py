@@ -188,7 +188,7 @@ def execute_points(todo: list, job: str, plan: InputPlan | Callable, dask: DaskS
         group = reuse.group_of((row, ov, refs, folder)) if reuse else ""
         pl, bundle = plans[plan_of((row, ov, refs, folder)).scene]
         task = PointTask(ov, job, dask.threads, pl, refs, dask.versions, group,
-                         reuse.read_dirs() if group else (), folder.name)
+                         reuse.read_dirs() if group else (), folder.name, reuse.store_dir() if group else "")
         renders = reuse.payload(client, (row, ov, refs, folder)) if group else []
         return client.submit(run_point, task, bundle, renders, pure=False,
                              key=f"poevp-point-{folder.name}-{run_id}-a{attempt}")
@@ -220,7 +220,7 @@ def execute_points(todo: list, job: str, plan: InputPlan | Callable, dask: DaskS
             raise ClusterError(res["refused"])
         if res.get("archive") is not None:
             write_point(folder, res["archive"], job)
-        for t in reuse.finished((row, ov, refs, folder), res) if reuse else ():
+        for t in reuse.finished((row, ov, refs, folder), res, client) if reuse else ():
             nf = submit(*t[:3], 0, t[3])
             futs[nf] = (*t, 0)
             pending.add(nf)

@@ -49,7 +49,9 @@ class PointTask:
     hashes (bundle.py). versions: the client's software (cluster.PACKAGES); empty on a
     LocalCluster, whose workers run this interpreter's. render_group: the point's render group
     (reuse.py; "" renders without storing), render_read: folders of stored renders this worker
-    reads itself, label: the point's folder name (who rendered a stored render)."""
+    reads itself, label: the point's folder name (who rendered a stored render), render_store:
+    the sweep's store of renders, where a worker that shares the client's file system records
+    its render itself ("": recorded in the worker's folder and streamed to the client)."""
 
     overrides: tuple[str, ...]
     job: str
@@ -60,6 +62,7 @@ class PointTask:
     render_group: str = ""
     render_read: tuple[str, ...] = ()
     label: str = ""
+    render_store: str = ""
 
 
 def worker_name() -> str:
@@ -82,7 +85,8 @@ def run_point(task: PointTask, bundle: bytes | None = None, renders: list = ()) 
     when the point failed) with, for a point of a render group, "render" (the render it used)
     and "render_archive" (the zip of a render it made), or {"refused": one line} when this
     worker cannot run the sweep (other software, other files): the client then stops the sweep.
-    renders: [(key, zip bytes)] of stored renders sent to a worker that cannot read them."""
+    renders: unused (stored renders reach a worker that cannot read the client's paths through
+    its inbox, reuse.py); kept for the task's signature."""
     from poevp_optics.core import runtime
 
     from poevp_optics.apps.run.preflight import check_run
@@ -110,7 +114,7 @@ def run_point(task: PointTask, bundle: bytes | None = None, renders: list = ()) 
             report_paths_to_client(folder / "report.json", path_map)
             return {"row": {"status": "ok", "error": "", **flatten_report(report),
                             "point_seconds": time.perf_counter() - t0},
-                    "archive": pack_folder(folder), **render_result(cache)}
+                    "archive": pack_folder(folder), **render_result(cache, bool(task.render_store))}
     except Exception as e:  # noqa: BLE001 - a failed point is data, not a crash
         return {"row": {"status": "failed", "error": map_paths(one_line(e), path_map),
                         "point_seconds": time.perf_counter() - t0}}

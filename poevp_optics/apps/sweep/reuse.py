@@ -8,11 +8,22 @@ first point of each group that has no stored render (the *leader*) runs first an
 render; the group's other points are held back until it ends, then run and replay the stored
 render (or record their own, when the camera's guard band, and so the render's key, differs).
 A leader that fails releases its group: each point then renders for itself. The stored renders
-live in the sweep's folder, `renders/<group>-g<guard_px>/`: a worker writes only into its
-temporary folder, so a recording comes back to the client as zip bytes with the point's outputs
-(as they do) and the client puts it in place (checked, staged, renamed). Workers read them from
-there on a LocalCluster or with --shared-fs (checksums verified on each read); otherwise the
-client sends each stored render to the workers that need it (Dask scatter, once per render).
+live in the sweep's folder, `renders/<group>-g<guard_px>/` (several GB for a full-size run: 21
+frames at 1080x1920 with K = 5 is ~4 GB), and travel by file, never whole in memory:
+
+* Workers that share the client's file system (a LocalCluster, or --shared-fs) read them there
+  (checksums verified on each read) and record a render there themselves: staged beside the
+  store and renamed into place whole (render_cache.py's recording), so only its path comes back
+  with the point's result; the client verifies it.
+* Otherwise a worker records into a folder of its own, and the client pulls it file by file in
+  chunks of CHUNK_BYTES (a small task on that worker per chunk), writes them into a staging
+  folder, verifies and renames it into place, then asks the worker to remove its copy; a stored
+  render goes to every worker the same way, pushed in chunks (a small task per chunk pinned to
+  that worker) into the worker's inbox folder, verified there and renamed into place, once per
+  render and worker; a worker that joins later renders for itself.
+
+At most a chunk of a render is in the client's memory at a time.
+
 The table's columns `render_key`, `render_reused` and `render_by` say which render each point
 used, whether it replayed a stored one, and which point folder rendered it.
 """
@@ -21,10 +32,16 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from poevp_optics.render.render_cache import clean_stale, render_group, unpack, verify
+import os
+import shutil
+import tempfile
+
+from poevp_optics.render.render_cache import clean_stale, install, render_group, verify
 
 #: The results table's columns for reuse (module docstring).
 REUSE_COLUMNS = ("render_key", "render_reused", "render_by")
+#: Largest piece of a stored render in memory while it travels between client and worker (bytes).
+CHUNK_BYTES = 64 << 20
 
 
 def point_render_groups(scene, tasks, job: str, log=print) -> dict[str, str]:
@@ -82,7 +99,7 @@ class RenderReuse:
         self.stored: dict[str, list[str]] = {}            # group -> keys of its stored renders
         self.waiting: dict[str, list] = {}                # group -> tasks held back
         self.leaders: dict[str, str] = {}                 # leader's folder -> group
-        self._scattered: dict[str, object] = {}           # key -> Dask future of its bytes
+        self._scattered: dict[str, set] = {}              # key -> workers it was pushed to
         self.add_groups(groups)
 
     def add_groups(self, groups: dict[str, str]) -> None:
@@ -116,18 +133,23 @@ class RenderReuse:
                      f"{held} wait for their render")
         return now
 
-    def finished(self, task, res: dict) -> list:
-        """Store a recording that came back with `res`; the tasks its end releases."""
+    def finished(self, task, res: dict, client=None) -> list:
+        """Take in a render that the point `res` recorded (its path on a shared file system, or
+        pulled from its worker in chunks); the tasks its end releases."""
         g = self.group_of(task)
-        data = res.pop("render_archive", None)
         info = res.get("render") or {}
-        if data is not None and info.get("key"):
-            folder, why = unpack(data, self.store, info["key"])
-            if folder is None:
-                self.log(f"poevp sweep: the render of {task[3].name} did not arrive whole ({why}); its group "
-                         "renders again")
-            elif folder.name not in self.stored.setdefault(g, []):
-                self.stored[g].append(folder.name)
+        folder, why = None, None
+        if info.get("stored_at"):
+            folder = self.store / info["key"]
+            if Path(info["stored_at"]) != folder or verify(folder)[0] is None:
+                folder, why = None, f"{info['stored_at']} is not a complete render in {self.store}"
+        elif res.get("render_remote") and client is not None:
+            folder, why = pull(client, res.pop("render_remote"), self.store, info["key"])
+        if why:
+            self.log(f"poevp sweep: the render of {task[3].name} did not arrive whole ({why}); its group "
+                     "renders again")
+        elif folder is not None and folder.name not in self.stored.setdefault(g, []):
+            self.stored[g].append(folder.name)
         if self.leaders.pop(str(task[3]), None) is None:
             return []
         return self.waiting.pop(g, [])
@@ -136,45 +158,172 @@ class RenderReuse:
         """Where a worker finds stored renders itself (shared file system), else nothing."""
         return (str(self.store),) if self.shared else ()
 
+    def store_dir(self) -> str:
+        """Where a worker records a render itself (shared file system), else ""."""
+        return str(self.store) if self.shared else ""
+
     def payload(self, client, task) -> list:
-        """[(key, future of its bytes)] of the task's group's stored renders, for workers that
-        do not read the client's paths (scattered once per render)."""
+        """For workers that do not read the client's paths: the task's group's stored renders
+        pushed to every worker that lacks them (`push`, once per render and worker), where the
+        point finds them in the worker's inbox (`point_render_cache`). Returns [] (nothing
+        travels with the task)."""
         if self.shared:
             return []
-        from poevp_optics.render.render_cache import pack
-
-        out = []
+        workers = sorted(client.scheduler_info(n_workers=-1)["workers"])
         for key in self.stored.get(self.group_of(task), []):
-            if key not in self._scattered:
-                self._scattered[key] = client.scatter(pack(self.store / key), hash=True)
-            out.append((key, self._scattered[key]))
-        return out
+            sent = self._scattered.setdefault(key, set())
+            for addr in workers:
+                if addr not in sent:
+                    if push(client, addr, self.store / key, key):
+                        sent.add(addr)
+        return []
+
+
+# ---------------------------------------------------------------------------- moving a render in chunks
+def _plain(name: str) -> bool:
+    return "/" not in name and "\\" not in name and not name.startswith(".")
+
+
+def _own_folder(prefix: str) -> Path:
+    """tempdir/<prefix><host>-<pid> of this process; those of this host's gone processes are removed."""
+    import socket
+
+    from poevp_optics.apps.sweep.bundle import _alive
+
+    prefix = f"{prefix}{socket.gethostname().replace('-', '_')}-"
+    for old in Path(tempfile.gettempdir()).glob(prefix + "*"):
+        pid = old.name[len(prefix):]
+        if pid.isdigit() and int(pid) != os.getpid() and not _alive(int(pid)):
+            shutil.rmtree(old, ignore_errors=True)
+    return Path(tempfile.gettempdir()) / f"{prefix}{os.getpid()}"
+
+
+def _outbox() -> Path:
+    """This worker process's folder of renders it recorded for a client that pulls them."""
+    return _own_folder("poevp-renders-")
+
+
+def read_chunk(path: str, offset: int, size: int) -> bytes:
+    """On the worker: `size` bytes of `path` from `offset` (a piece of a render being pulled)."""
+    with open(path, "rb") as fh:
+        fh.seek(offset)
+        return fh.read(size)
+
+
+def drop_folder(path: str) -> None:
+    """On the worker: remove a pulled render's folder from its outbox."""
+    if Path(path).parent.name.startswith("poevp-renders-"):
+        shutil.rmtree(path, ignore_errors=True)
+
+
+def pull(client, remote: dict, store: Path, key: str) -> tuple[Path | None, str | None]:
+    """A render that a worker recorded in its outbox (`remote`: worker address, folder, [(file,
+    size)]), pulled chunk by chunk into a staging folder of `store`, verified and renamed into
+    `<store>/<key>`; the worker's copy is then removed. (folder, None) or (None, why)."""
+    store.mkdir(parents=True, exist_ok=True)
+    stage = Path(tempfile.mkdtemp(prefix=f".{key}.staging-{os.getpid()}-", dir=store))
+    where = dict(workers=[remote["worker"]], allow_other_workers=False, pure=False)
+    try:
+        for name, size in remote["files"]:
+            if not _plain(name):
+                return None, f"file {name!r} is not a plain file name"
+            with open(stage / name, "wb") as fh:
+                for off in range(0, int(size), CHUNK_BYTES):
+                    fh.write(client.submit(read_chunk, f"{remote['folder']}/{name}", off, CHUNK_BYTES,
+                                           **where).result())
+        man, why = verify(stage)
+        if man is None:
+            return None, why
+        return install(stage, store / key), None
+    except Exception as e:  # noqa: BLE001 - a worker gone mid-pull: the group renders again
+        return None, f"{type(e).__name__}: {e}"
+    finally:
+        if stage.exists():
+            shutil.rmtree(stage, ignore_errors=True)
+        try:
+            client.submit(drop_folder, remote["folder"], **where).result()
+        except Exception:  # noqa: BLE001 - the worker is gone, and its outbox with it at its next start
+            pass
+
+
+def _inbox() -> Path:
+    """This worker process's folder of stored renders a client pushed to it; those of this
+    host's worker processes that are gone are removed first."""
+    return _own_folder("poevp-inbox-")
+
+
+def write_chunk(key: str, name: str, offset: int, data: bytes) -> None:
+    """On the worker: a piece of file `name` of render `key` at `offset`, into the inbox."""
+    folder = _inbox() / f".{key}.incoming"
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / name
+    with open(path, "r+b" if path.exists() else "wb") as fh:
+        fh.seek(offset)
+        fh.write(data)
+
+
+def finish_push(key: str) -> bool:
+    """On the worker: the pushed render `key` verified and renamed into the inbox (else removed)."""
+    stage = _inbox() / f".{key}.incoming"
+    try:
+        if verify(stage)[0] is None:
+            return False
+        install(stage, _inbox() / key)
+        return True
+    finally:
+        if stage.exists():
+            shutil.rmtree(stage, ignore_errors=True)
+
+
+def push(client, worker: str, folder: Path, key: str) -> bool:
+    """The stored render `folder` pushed to `worker`'s inbox in chunks of CHUNK_BYTES, one in the
+    client's memory at a time (module docstring); whether it arrived whole."""
+    where = dict(workers=[worker], allow_other_workers=False, pure=False)
+    try:
+        for p in sorted(folder.iterdir()):
+            if p.is_file() and not p.is_symlink():
+                with open(p, "rb") as fh:
+                    off = 0
+                    while chunk := fh.read(CHUNK_BYTES):
+                        client.submit(write_chunk, key, p.name, off, chunk, **where).result()
+                        off += len(chunk)
+        return bool(client.submit(finish_push, key, **where).result())
+    except Exception:  # noqa: BLE001 - a worker gone meanwhile: its points render for themselves
+        return False
 
 
 def point_render_cache(task, renders, work: Path):
     """On the worker: the point's RenderCache (render/render_cache.py) for a sweep.PointTask
-    with a render group: the stored renders it reads (the client's folder, or the ones sent,
-    unpacked into `work`) and its own store; None without a group."""
+    with a render group: the stored renders it reads (the client's folder, or the ones pushed
+    into this worker's inbox) and where it records its own (the client's store on a shared file
+    system, else this process's outbox); None without a group."""
     if not task.render_group:
         return None
-    from poevp_optics.render.render_cache import RenderCache, unpack
+    from poevp_optics.render.render_cache import RenderCache
 
-    store = work / "renders"
-    for key, data in renders or ():
-        unpack(data, store, key)
-    return RenderCache(task.render_group, (*map(Path, task.render_read), store), store, task.label)
+    read = tuple(map(Path, task.render_read)) if task.render_store else (*map(Path, task.render_read), _inbox())
+    store = Path(task.render_store) if task.render_store else _outbox()
+    return RenderCache(task.render_group, read, store, task.label)
 
 
-def render_result(cache) -> dict:
-    """run_point's "render" entry and, for a render this point made, its zip."""
+def render_result(cache, shared: bool) -> dict:
+    """run_point's "render" entry: the render it used and, for a render this point recorded, its
+    path in the shared store (`stored_at`) or, off a shared file system, where the client pulls
+    it from (`render_remote`: this worker, the folder, its files and their sizes)."""
     if cache is None:
         return {}
-    from poevp_optics.render.render_cache import pack
-
     o = cache.outcome
     out = {"render": {k: o[k] for k in ("key", "reused", "rendered_by")}}
     if o.get("stored"):
-        out["render_archive"] = pack(Path(o["stored"]))
+        folder = Path(o["stored"])
+        if shared:
+            out["render"]["stored_at"] = str(folder)
+        else:
+            from distributed import get_worker
+
+            out["render_remote"] = {"worker": get_worker().address, "folder": str(folder),
+                                    "files": [(p.name, p.stat().st_size) for p in sorted(folder.iterdir())
+                                              if p.is_file()]}
     return out
 
 

@@ -1,0 +1,156 @@
+"""How much of a shared render the sweep's client holds in memory: peak RSS of the client process
+(VmHWM) for a 2-point sweep that shares one render, with the render moved between worker and
+client as one zip in memory (the code at `--before`, a git revision) and by file (this tree: by
+path on a shared file system, in chunks of apps/sweep/reuse.CHUNK_BYTES otherwise).
+
+Two clusters: an embedded LocalCluster (shared file system: the worker records the render in the
+sweep's folder) and an external `dask scheduler` with one `dask worker` in its own folder, no
+--shared-fs (a scene bundle: the render is pulled from the worker in chunks, and sent to it in
+chunks for the second point). Each sweep runs in a fresh process; its outputs are compared
+file by file with the other revision's (images and arrays byte for byte, report.json without
+timings). Not a timed test: a table.
+
+    .venv/bin/python -m benchmarks.render_transport [--before REV] [--results]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from benchmarks.common import add_results_flag, machine_line, markdown_table, output_folder, save_text
+from benchmarks.sweep_reuse import fingerprint
+from poevp_optics.apps.sweep.reuse import CHUNK_BYTES
+
+ROOT = Path(__file__).resolve().parents[1]
+SCENE = "scenes/highbeam_plate"
+#: 540x960, 3 frames of 3 radiance nodes: a stored render of ~0.1 GB
+BASE = ["render.resolution=[540,960]", "timing.frames=3", "render.spp=1", "render.subframes=3",
+        "mask.law='threshold_exp'", "predictor.name='oracle'", "outputs.previews=false",
+        "outputs.contact_sheet=false", "outputs.radiance_exr=false"]
+GRID = ["mask.a=0.5,0.9"]
+#: the revision before the render travelled by file (its sweeps moved zip bytes)
+BEFORE = "39e82ed"
+
+CLIENT = """
+import json, sys
+from poevp_optics.cli import main
+rc = main(sys.argv[1:])
+hwm = [l for l in open('/proc/self/status') if l.startswith('VmHWM')][0].split()[1]
+print(json.dumps({'rc': rc, 'vmhwm_kib': int(hwm)}))
+"""
+
+
+def checkout(rev: str, dest: Path) -> Path:
+    """The package as it was at `rev` (git archive), for PYTHONPATH."""
+    dest.mkdir(parents=True)
+    archive = subprocess.run(["git", "-C", str(ROOT), "archive", rev, "poevp_optics"], check=True,
+                             capture_output=True).stdout
+    subprocess.run(["tar", "-x", "-C", str(dest)], input=archive, check=True)
+    return dest
+
+
+def client_run(pythonpath: Path, out: Path, extra: list[str]) -> dict:
+    args = ["sweep", SCENE, *(a for o in BASE for a in ("--set", o)), *(a for g in GRID for a in ("--grid", g)),
+            "--out", str(out), "--quiet", *extra]
+    env = {**os.environ, "PYTHONPATH": str(pythonpath)}
+    t0 = time.perf_counter()
+    p = subprocess.run([sys.executable, "-c", CLIENT, *args], cwd=ROOT, env=env, capture_output=True, text=True)
+    wall = time.perf_counter() - t0
+    last = p.stdout.strip().splitlines()[-1] if p.stdout.strip() else "{}"
+    res = json.loads(last) if last.startswith("{") else {}
+    if res.get("rc") != 0:
+        raise SystemExit(f"render_transport: sweep failed ({p.returncode}): {p.stderr[-2000:]}")
+    return {**res, "wall_s": wall}
+
+
+class External:
+    """A `dask scheduler` and one `dask worker` in their own folders, on this machine."""
+
+    def __init__(self, tmp: Path, pythonpath: Path):
+        self.tmp, self.procs = tmp, []
+        self.sf = tmp / "scheduler.json"
+        env = {**os.environ, "PYTHONPATH": str(pythonpath), "TMPDIR": str(tmp)}
+        dask = str(Path(sys.executable).parent / "dask")
+        self.procs.append(subprocess.Popen([dask, "scheduler", "--scheduler-file", str(self.sf), "--no-dashboard",
+                                            "--host", "127.0.0.1"], cwd=tmp, env=env,
+                                           stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+        while not self.sf.is_file():
+            time.sleep(0.2)
+        work = tmp / "worker"
+        work.mkdir()
+        self.procs.append(subprocess.Popen([dask, "worker", "--scheduler-file", str(self.sf), "--nworkers", "1",
+                                            "--nthreads", "1", "--no-dashboard", "--local-directory", str(work)],
+                                           cwd=work, env=env, stdout=subprocess.DEVNULL,
+                                           stderr=subprocess.DEVNULL))
+
+    def close(self):
+        for p in reversed(self.procs):
+            p.terminate()
+            p.wait(timeout=60)
+
+
+def measure(label: str, pythonpath: Path, tmp: Path) -> dict:
+    out = {}
+    local = tmp / f"{label}-local"
+    out["local"] = {**client_run(pythonpath, local, ["--workers", "1"]), "points": fingerprint(local / "points")}
+    ext = External(tmp / f"{label}-cluster", pythonpath)
+    try:
+        remote = tmp / f"{label}-external"
+        out["external"] = {**client_run(pythonpath, remote, ["--scheduler-file", str(ext.sf)]),
+                           "points": fingerprint(remote / "points")}
+    finally:
+        ext.close()
+    sizes = [sum(f.stat().st_size for f in d.iterdir()) for d in (local / "renders").iterdir() if d.is_dir()]
+    out["render_bytes"] = max(sizes) if sizes else 0
+    return out
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--before", default=BEFORE, help=f"git revision whose sweeps moved zip bytes (default {BEFORE})")
+    add_results_flag(ap)
+    args = ap.parse_args(argv)
+    dest = output_folder(args.results)
+    tmp = Path(tempfile.mkdtemp(prefix="poevp-render-transport-"))
+    try:
+        old = measure("before", checkout(args.before, tmp / "old"), tmp)
+        new = measure("after", ROOT, tmp)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    mb = 1 << 20
+    rows, same = [], True
+    for where, what in (("local", "LocalCluster, 1 worker (shared file system)"),
+                        ("external", "dask scheduler + 1 worker, own folders (scene bundle)")):
+        b, a = old[where], new[where]
+        same &= b["points"] == a["points"]
+        rows.append([what, b["vmhwm_kib"] * 1024 / mb, a["vmhwm_kib"] * 1024 / mb,
+                     (b["vmhwm_kib"] - a["vmhwm_kib"]) * 1024 / mb, b["wall_s"], a["wall_s"],
+                     "yes" if b["points"] == a["points"] else "NO"])
+    header = ["cluster", "client peak RSS before (MiB)", "after (MiB)", "saved (MiB)", "wall before (s)",
+              "wall after (s)", "outputs identical"]
+    text = (f"# A shared render between Dask worker and client: in memory vs by file\n\n"
+            f"`poevp sweep {SCENE}` with {', '.join(BASE[:4])}, grid {' '.join(GRID)}: 2 points, one render "
+            f"of {new['render_bytes'] / mb:.0f} MiB on disk (recorded by the first point, replayed by the "
+            f"second). Before: revision {args.before}, the render a zip in memory (worker -> client in the "
+            f"point's result; client -> worker by Dask scatter). After: this tree, by path on a shared "
+            f"file system, in chunks of {CHUNK_BYTES // mb} MiB otherwise. Client peak RSS is its VmHWM (the client "
+            f"process alone; the workers are other processes).\n\nMachine: {machine_line()}.\n\n"
+            f"{markdown_table(header, rows)}\n\nOutputs of every point: "
+            f"{'identical' if same else 'DIFFERENT'} before and after (images and arrays byte for byte, "
+            f"report.json without timings).\n")
+    print(text)
+    save_text(dest / "render_transport.md", text)
+    if not same:
+        raise SystemExit("render_transport: the outputs differ")
+
+
+if __name__ == "__main__":
+    main()
