@@ -691,8 +691,9 @@ def page(result: dict) -> str:
     main = [r for r in rows if not r.get("factor")]
     head = ["# Plate recognition: LDR, exposure fusion and POE-VP", "",
             f"Run {result['date']} ({result['label']} settings), `{result['command']}`, "
-            f"{result['seconds'] / 60:.0f} min on {result['machine']}. Road scenes at camera scale "
-            f"{result['road_scale']} (of the scene's mirrors; the resolution is in each condition). Cells: reads/frames = % [Wilson 95 %]; full ALPR = PP-OCRv4 detection + "
+            f"{result['seconds'] / 60:.0f} min on {result['machine']}."
+            + (f" Road scenes at camera scale {result['road_scale']} (of the scene's mirrors; the resolution is "
+               "in each condition)." if result.get("road_scale", "-") != "-" else "") + " Cells: reads/frames = % [Wilson 95 %]; full ALPR = PP-OCRv4 detection + "
             "recognition on the whole 8-bit frame, every character (paper Eq. 4); recognition only = the "
             "recogniser on the known plate box.", ""]
     if result.get("renders"):
@@ -797,9 +798,13 @@ def write_csv(path: Path, rows: list[dict]) -> None:
 PROTOCOL = __doc__.split("Scenes and conditions:", 1)[1].split("Writes recognition.md", 1)[0].strip()
 
 
-def run(cfg: Config, log=print) -> dict:
+def run_sections(cfg: Config, log=print) -> dict:
+    """Every section of cfg.sections in one process, in SECTIONS order: rows, example frames,
+    showcase, road render times, the fusion-weight deviation and the demo plate's speed."""
+    from poevp_optics.core import runtime
+
+    runtime.set_threads(2)
     reader = Reader(cache={} if cfg.fresh else load_ocr_cache(cfg.cache))
-    t0 = time.perf_counter()
     seqs, dev = {}, None
     if "paper_camera" in cfg.sections or "fusion_attribution" in cfg.sections:
         seqs = paper_protocol(reader, cfg, "paper", log)
@@ -807,20 +812,56 @@ def run(cfg: Config, log=print) -> dict:
             reader.rows = [r for r in reader.rows if r.get("factor")]
     if "fusion_attribution" in cfg.sections:
         dev = fusion_attribution(reader, seqs, log)
-    save_ocr_cache(reader.cache, cfg.cache)
+        save_ocr_cache(reader.cache, cfg.cache)
     if "physical_camera" in cfg.sections:
         paper_protocol(reader, cfg, "physical", log)
     if "highbeam_plate" in cfg.sections:
         highbeam(reader, cfg, log)
-    save_ocr_cache(reader.cache, cfg.cache)
+        save_ocr_cache(reader.cache, cfg.cache)
     for scene in ROAD_TEXT_KEYS:
         if scene in cfg.sections:
             road_scene(reader, cfg, scene, log)
             save_ocr_cache(reader.cache, cfg.cache)
-    speed = plate_speed_px(next(iter(seqs.values()))) if seqs else None
-    return {"rows": reader.rows, "examples": reader.examples, "showcase": reader.showcase, "mertens_dev": dev,
-            "demo_speed_px": speed, "renders": reader.renders, "demo_shape": tuple(next(iter(seqs.values())).hdr[0].shape) if seqs else None,
-            "seconds": time.perf_counter() - t0}
+    save_ocr_cache(reader.cache, cfg.cache)
+    first = next(iter(seqs.values()), None)
+    return {"rows": reader.rows, "examples": reader.examples, "showcase": reader.showcase, "renders": reader.renders,
+            "mertens_dev": dev, "demo_speed_px": plate_speed_px(first) if first else None,
+            "demo_shape": tuple(first.hdr[0].shape) if first else None}
+
+
+#: How `--jobs` splits the sections among processes (the fusion attribution needs the paper
+#: camera's sequences, so they share one).
+JOB_GROUPS = (("paper_camera", "fusion_attribution"), ("physical_camera",), ("highbeam_plate",), ("night_road",),
+              ("wet_night_road",), ("fog_highway",))
+
+
+def _job(cfg: Config) -> dict:
+    return run_sections(cfg, log=lambda *a: print(*a, flush=True))
+
+
+def run(cfg: Config, jobs: int = 1, log=print) -> dict:
+    """All sections: in this process (jobs = 1) or spread over `jobs` processes (each reads the OCR
+    cache and merges its readings back); rows come back in SECTIONS order."""
+    t0 = time.perf_counter()
+    if jobs <= 1:
+        res = run_sections(cfg, log)
+    else:
+        import concurrent.futures as cf
+        import multiprocessing as mp
+
+        groups = [tuple(s for s in g if s in cfg.sections) for g in JOB_GROUPS]
+        groups = [g for g in groups if g]
+        with cf.ProcessPoolExecutor(max_workers=jobs, mp_context=mp.get_context("spawn")) as pool:
+            parts = list(pool.map(_job, [dataclasses.replace(cfg, sections=g) for g in groups]))
+        res = {"rows": [], "examples": {}, "showcase": {}, "renders": {}, "mertens_dev": None, "demo_speed_px": None,
+               "demo_shape": None}
+        for part in parts:
+            res["rows"] += part["rows"]
+            for k in ("examples", "showcase", "renders"):
+                res[k].update(part[k])
+            for k in ("mertens_dev", "demo_speed_px", "demo_shape"):
+                res[k] = res[k] if part[k] is None else part[k]
+    return {**res, "seconds": time.perf_counter() - t0}
 
 
 def main(argv=None):
@@ -835,6 +876,7 @@ def main(argv=None):
     ap.add_argument("--sections", help=f"comma-separated subset of {','.join(SECTIONS)} (default all)")
     ap.add_argument("--fresh", action="store_true", help="render and read everything again (by default renders "
                     "and OCR readings are reused by content from the cache folder)")
+    ap.add_argument("--jobs", type=int, default=1, help="processes to spread the sections over (default 1)")
     ap.add_argument("--cache", type=Path, default=CACHE, help=f"the cache folder (default {CACHE.relative_to(ROOT)})")
     add_results_flag(ap)
     a = ap.parse_args(argv)
@@ -847,7 +889,7 @@ def main(argv=None):
         cfg = dataclasses.replace(cfg, sections=secs)
     runtime.set_threads(2)
     dest = output_folder(a.results)
-    res = run(cfg)
+    res = run(cfg, a.jobs)
     rows = res["rows"]
     if not rows:
         sys.exit("benchmarks.recognition: no frame was scored")
