@@ -546,6 +546,12 @@ def answer(rows) -> list[str]:
     """The headline: per scene and camera, pooled full ALPR of LDR, the better fusion, the best
     POE-VP predictor and the oracle (all from the rows)."""
     out = []
+    phys = [r for r in rows if r["camera"] == "physical camera"]
+    if phys:
+        by = _cells(phys, lambda r: r["method"])
+        scenes = ", ".join(dict.fromkeys(r["scene"] for r in phys))
+        out.append(f"- **The physical camera, every scene and condition pooled** ({scenes}; full ALPR): " + "; ".join(
+            f"{m} {wilson_cell(sum(r['alpr_ok'] for r in rr), len(rr))}" for m, rr in by.items()) + ".")
     for (scene, camera), sel in _cells(rows, lambda r: (r["scene"], r["camera"])).items():
         by = _cells(sel, lambda r: r["method"])
 
