@@ -85,16 +85,20 @@ class ExposureController:
     it is the camera's memory of past captures."""
 
     def __init__(self, first_guess: float, clip_step: float, radius_px: int, saturation_e: float,
-                 extrapolate: bool = False):
+                 extrapolate: bool = False, white_step: float | None = None):
         """first_guess: assumed over-exposure of a never-measured clipped region (x saturation);
         clip_step: the guess after a repeated clip (x the new lower bound);
         radius_px: motion radius over which a region's history is carried (mirrors);
         saturation_e: electrons at which the sensor clips;
-        extrapolate: keep the previous demand too, for `moved_e`."""
+        extrapolate: keep the previous demand too, for `moved_e`;
+        white_step: the bracket where the clipped mirror was white (its exposure the scene's
+        own: a lower bound of only ~1x), default clip_step (exposure_time.py sets clip_step to
+        its wider bracket for captures dimmed by the mask or a shortened exposure)."""
         self.first_guess = float(first_guess)
         self.clip_step = float(clip_step)
         self.radius_px = int(radius_px)
         self.saturation_e = float(saturation_e)
+        self.white_step = self.clip_step if white_step is None else float(white_step)
         self.demand_e: np.ndarray | None = None
         self.clip_frames: np.ndarray | None = None
         self.rel: np.ndarray | None = None
@@ -107,7 +111,9 @@ class ExposureController:
         had relative to white (the displayed mask)."""
         e = np.maximum(np.nan_to_num(np.asarray(e_white, dtype=np.float64), nan=0.0, posinf=1e30), 0.0)
         clip = np.asarray(clipped, dtype=bool)
-        step = np.maximum(e, self.saturation_e) * self.clip_step      # k x lower bound
+        k = self.clip_step if self.white_step == self.clip_step else np.where(
+            np.asarray(rel, dtype=np.float64) < 1.0 - 1e-6, self.clip_step, self.white_step)
+        step = np.maximum(e, self.saturation_e) * k                  # k x lower bound
         if self.demand_e is not None:
             frames = grey_dilate(self.clip_frames, self.radius_px)
             carried = grey_dilate(self.demand_e, self.radius_px).astype(np.float64)

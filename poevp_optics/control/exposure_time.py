@@ -51,11 +51,12 @@ continuous and a capture well below the band is still measured (a 12-bit capture
 scale holds ~100 e- of a ~10 ke- well: SNR ~10), so with this stage the controller brackets a
 region clipped again by `mask.time_clip_step` (100) x L (control/loop_step.py builds the
 ExposureController so): the next capture is unclipped for any X < time_clip_step x L / target,
-and the one after is exact. With a variable ND in the path the search stays the ND's
+and the one after is exact. A region clipped behind a white mirror at the scene's exposure
+(the white initialisation frames: L is only ~1x) keeps `mask.clip_step` and so the controller's
+prior (`mask.first_guess`). With a variable ND in the path the search stays the ND's
 (`mask.clip_step`, which such a scene sets for its ND: night_road's 5 lands a plate 10x brighter
-than its prior in the band on the frame after the clip). A region first seen clipped still starts from the controller's prior
-(`mask.first_guess`). A plate 1e4x over saturation is then in the band on the third loop frame
-(tests).
+than its prior in the band on the frame after the clip). A plate 1e4x over saturation is then
+in the band on the third loop frame (tests).
 
 Fixed T_e: `mask.exposure_time_s` > 0 sets T_e for every frame (B from it as above; the
 scene's own timing.exposure_s gives the scene's schedule); 0 (default) lets the controller

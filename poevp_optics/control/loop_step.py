@@ -343,7 +343,8 @@ class LoopStep:
                                camera.dmd.spec.bits) if camera.dmd else None
         self.controller = ExposureController(mask.first_guess, exposure_time.clip_step(mask, camera, attenuator),
                                              int(np.ceil(3 * mask.smooth_px)),
-                                             p.saturation_capacity_e, mask.carry == "extrapolate") if camera.dmd else None
+                                             p.saturation_capacity_e, mask.carry == "extrapolate",
+                                             white_step=mask.clip_step) if camera.dmd else None
 
     @property
     def lift(self) -> float:
