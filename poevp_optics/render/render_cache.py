@@ -36,7 +36,6 @@ from __future__ import annotations
 import dataclasses
 import enum
 import hashlib
-import io
 import json
 import os
 import shutil
@@ -466,38 +465,3 @@ class RenderCache:
             folder = self._recording.commit()
             self.outcome["stored"] = str(folder) if folder else None
             self._recording = None
-
-
-def pack(folder: Path) -> bytes:
-    """A stored render folder as zip bytes (names relative to it)."""
-    import zipfile
-
-    buf = io.BytesIO()
-    with zipfile.ZipFile(buf, "w", zipfile.ZIP_STORED) as zf:
-        for p in sorted(folder.iterdir()):
-            if p.is_file() and not p.is_symlink():
-                zf.writestr(p.name, p.read_bytes())
-    return buf.getvalue()
-
-
-def unpack(data: bytes, store: Path, key: str) -> tuple[Path | None, str | None]:
-    """Write `pack`'s bytes as `<store>/<key>` (staged, checked, renamed into place); returns
-    (folder, None), or (None, why) when they do not hold a complete render."""
-    import zipfile
-
-    store.mkdir(parents=True, exist_ok=True)
-    stage = Path(tempfile.mkdtemp(prefix=f".{key}.staging-{os.getpid()}-", dir=store))
-    try:
-        with zipfile.ZipFile(io.BytesIO(data)) as zf:
-            for info in zf.infolist():
-                name = info.filename
-                if "/" in name or "\\" in name or name.startswith(".") or info.is_dir():
-                    return None, f"member {name!r} is not a plain file name"
-                (stage / name).write_bytes(zf.read(info))
-        man, why = verify(stage)
-        if man is None:
-            return None, why
-        return install(stage, store / key), None
-    finally:
-        if stage.exists():
-            shutil.rmtree(stage, ignore_errors=True)
