@@ -1,7 +1,9 @@
 """How much of a shared render the sweep's client holds in memory: peak RSS of the client process
 (VmHWM) for a 2-point sweep that shares one render, with the render moved between worker and
-client as one zip in memory (the code at `--before`, a git revision) and by file (this tree: by
-path on a shared file system, in chunks of apps/sweep/reuse.CHUNK_BYTES otherwise).
+client as one zip in memory (the code at `--before`, a git revision) and by file (the code at
+`--after`, default HEAD: by path on a shared file system, in chunks of
+apps/sweep/reuse.CHUNK_BYTES otherwise). Both are taken from git (`git archive`), so neither
+sees uncommitted edits.
 
 Two clusters: an embedded LocalCluster (shared file system: the worker records the render in the
 sweep's folder) and an external `dask scheduler` with one `dask worker` in its own folder, no
@@ -10,7 +12,7 @@ chunks for the second point). Each sweep runs in a fresh process; its outputs ar
 file by file with the other revision's (images and arrays byte for byte, report.json without
 timings). Not a timed test: a table.
 
-    .venv/bin/python -m benchmarks.render_transport [--before REV] [--results]
+    .venv/bin/python -m benchmarks.render_transport [--before REV] [--after REV] [--results]
 """
 
 from __future__ import annotations
@@ -31,11 +33,13 @@ from poevp_optics.apps.sweep.reuse import CHUNK_BYTES
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENE = "scenes/highbeam_plate"
-#: 540x960, 3 frames of 3 radiance nodes: a stored render of ~0.1 GB
-BASE = ["render.resolution=[540,960]", "timing.frames=3", "render.spp=1", "render.subframes=3",
+#: 360x640, 3 frames of 3 radiance nodes: a stored render of ~50 MB
+BASE = ["render.resolution=[360,640]", "timing.frames=3", "render.spp=2", "render.subframes=3",
         "mask.law='threshold_exp'", "predictor.name='oracle'", "outputs.previews=false",
         "outputs.contact_sheet=false", "outputs.radiance_exr=false"]
 GRID = ["mask.a=0.5,0.9"]
+#: --resolution H W: another render size (the --set of BASE otherwise)
+RESOLUTION: list[str] = []
 #: the revision before the render travelled by file (its sweeps moved zip bytes)
 BEFORE = "39e82ed"
 
@@ -54,11 +58,13 @@ def checkout(rev: str, dest: Path) -> Path:
     archive = subprocess.run(["git", "-C", str(ROOT), "archive", rev, "poevp_optics"], check=True,
                              capture_output=True).stdout
     subprocess.run(["tar", "-x", "-C", str(dest)], input=archive, check=True)
+    for data in ("assets", "scenes"):              # the package finds them beside itself (core/paths.py)
+        (dest / data).symlink_to(ROOT / data)
     return dest
 
 
 def client_run(pythonpath: Path, out: Path, extra: list[str]) -> dict:
-    args = ["sweep", SCENE, *(a for o in BASE for a in ("--set", o)), *(a for g in GRID for a in ("--grid", g)),
+    args = ["sweep", SCENE, *(a for o in BASE for a in ("--set", o)), *RESOLUTION, *(a for g in GRID for a in ("--grid", g)),
             "--out", str(out), "--quiet", *extra]
     env = {**os.environ, "PYTHONPATH": str(pythonpath)}
     t0 = time.perf_counter()
@@ -76,6 +82,7 @@ class External:
 
     def __init__(self, tmp: Path, pythonpath: Path):
         self.tmp, self.procs = tmp, []
+        tmp.mkdir(parents=True)
         self.sf = tmp / "scheduler.json"
         env = {**os.environ, "PYTHONPATH": str(pythonpath), "TMPDIR": str(tmp)}
         dask = str(Path(sys.executable).parent / "dask")
@@ -116,13 +123,18 @@ def measure(label: str, pythonpath: Path, tmp: Path) -> dict:
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--before", default=BEFORE, help=f"git revision whose sweeps moved zip bytes (default {BEFORE})")
+    ap.add_argument("--resolution", nargs=2, type=int, metavar=("H", "W"),
+                    help="render resolution instead of 360 640 (the stored render grows with H x W)")
+    ap.add_argument("--after", default="HEAD", help="git revision whose sweeps move renders by file (default HEAD)")
     add_results_flag(ap)
     args = ap.parse_args(argv)
+    if args.resolution:
+        RESOLUTION[:] = ["--set", f"render.resolution=[{args.resolution[0]},{args.resolution[1]}]"]
     dest = output_folder(args.results)
     tmp = Path(tempfile.mkdtemp(prefix="poevp-render-transport-"))
     try:
         old = measure("before", checkout(args.before, tmp / "old"), tmp)
-        new = measure("after", ROOT, tmp)
+        new = measure("after", checkout(args.after, tmp / "new"), tmp)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     mb = 1 << 20
@@ -137,17 +149,18 @@ def main(argv=None):
     header = ["cluster", "client peak RSS before (MiB)", "after (MiB)", "saved (MiB)", "wall before (s)",
               "wall after (s)", "outputs identical"]
     text = (f"# A shared render between Dask worker and client: in memory vs by file\n\n"
-            f"`poevp sweep {SCENE}` with {', '.join(BASE[:4])}, grid {' '.join(GRID)}: 2 points, one render "
+            f"`poevp sweep {SCENE}` with {', '.join(BASE[:4])}{' ' + ' '.join(RESOLUTION) if RESOLUTION else ''}, grid {' '.join(GRID)}: 2 points, one render "
             f"of {new['render_bytes'] / mb:.0f} MiB on disk (recorded by the first point, replayed by the "
             f"second). Before: revision {args.before}, the render a zip in memory (worker -> client in the "
-            f"point's result; client -> worker by Dask scatter). After: this tree, by path on a shared "
+            f"point's result; client -> worker by Dask scatter). After: revision {args.after}, by path on a shared "
             f"file system, in chunks of {CHUNK_BYTES // mb} MiB otherwise. Client peak RSS is its VmHWM (the client "
             f"process alone; the workers are other processes).\n\nMachine: {machine_line()}.\n\n"
             f"{markdown_table(header, rows)}\n\nOutputs of every point: "
             f"{'identical' if same else 'DIFFERENT'} before and after (images and arrays byte for byte, "
             f"report.json without timings).\n")
     print(text)
-    save_text(dest / "render_transport.md", text)
+    name = "render_transport" + (f"_{args.resolution[0]}x{args.resolution[1]}" if args.resolution else "")
+    save_text(dest / f"{name}.md", text)
     if not same:
         raise SystemExit("render_transport: the outputs differ")
 
