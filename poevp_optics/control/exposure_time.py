@@ -9,21 +9,22 @@ global variable ND (camera/attenuator.py) takes ~20 ms to settle, so at 30 fps w
 exposures it cannot follow a frame. The sensor's exposure time needs no settling: it is set per
 frame, causally, like the mask.
 
-What. Per frame, from the same estimate the mask law uses (the smooth envelope of the
-controller's demand, control/masks.py `controller_demand_e`, through the ND's setting), the
-controller picks
+What. Per frame, from the controller's demand (through the ND's setting), the controller picks
 
-- T_e, the sensor's exposure, within [SENSOR_MIN_EXPOSURE_S, timing.exposure_s], centred on the
-  scene's exposure (so the frame still shows the middle of its exposure slot);
-- B, the largest bit depth whose PWM fits T_e when every plane lasts at least the controller's
-  shortest plane t_p (camera/dmd.py DMD_CONTROLLERS; 105 us on the DLPC900, whose shorter
-  planes need an LED gated off, which a camera imaging the scene's own light has not):
-  (2^B - 1) t_p <= T_e, B <= dmd.bits. The DMD shows its B planes in a window equal to the
-  exposure (so the duty integral is the closed form q / (2^B - 1) over the exposure); below the
-  shortest 2-bit window (3 t_p) the mask is binary (B = 1), its one pattern shown for
-  max(T_e, t_p) around the exposure. A mirror shows the top B bits of its mask level
-  (camera/dmd.py `displayed_levels`; the DLPC900 takes a B-bit pattern from a bit field of the
-  stored image);
+- T_e, the sensor's exposure, centred on the scene's exposure (the frame still shows the middle
+  of its slot), within [`shortest_exposure_s`, timing.exposure_s]: the shortest is the sensor's
+  minimum (SENSOR_MIN_EXPOSURE_S) or the shortest window holding the mask's dmd.bits planes,
+  (2^bits - 1) t_p, t_p the controller's shortest plane (camera/dmd.py DMD_CONTROLLERS; 105 us
+  on the DLPC900, whose shorter planes need an LED gated off, which a camera imaging the
+  scene's own light has not): 26.8 ms for 8 bits there, so on the DLPC900 T_e moves only
+  between 26.8 and 30 ms (below, "Shortest choice");
+- B, the largest bit depth whose PWM fits T_e with every plane >= t_p, (2^B - 1) t_p <= T_e,
+  B <= dmd.bits: dmd.bits for every chosen T_e; fewer only for a fixed T_e (`at_exposure`:
+  below the shortest 2-bit window, 3 t_p, the mask is binary, its one pattern shown for
+  max(T_e, t_p) around the exposure). The DMD shows its B planes in a window equal to the
+  exposure, so the duty integral is the closed form q / (2^B - 1) over the exposure; a mirror
+  shows the top B bits of its mask level (camera/dmd.py `displayed_levels`; the DLPC900 takes a
+  B-bit pattern from a bit field of the stored image);
 
 so that the reference demand D_ref lands at the aim (`mask.target` x full scale) at the fine
 level: `mask.fine_steps` (20) steps above zero, a step of 5 %, or the top level when B has fewer
@@ -57,6 +58,18 @@ prior (`mask.first_guess`). With a variable ND in the path the search stays the 
 (`mask.clip_step`, which such a scene sets for its ND: night_road's 5 lands a plate 10x brighter
 than its prior in the band on the frame after the clip). A plate 1e4x over saturation is then
 in the band on the third loop frame (tests).
+
+Shortest choice: the controller never shortens T_e below (2^dmd.bits - 1) t_p (26.8 ms for
+8 bits on the DLPC900; the sensor's minimum with an ideal controller), `shortest_exposure_s`.
+With planes at their shortest t_p, a mirror's smallest step passes t_p x the radiance whatever
+T_e is: a highlight that needs an on-time tau of white-equivalent exposure sits at level
+tau / t_p, so shortening T_e further only removes bits (the darker parts of the frame get
+coarser) and never brings the highlight to a finer level. On the DLPC900 the fine range at the
+aim therefore needs tau >= fine_steps x t_p = 2.1 ms, i.e. a highlight at most ~9x over
+saturation at 30 ms: beyond, only the ND (which dims the light itself) or gated illumination
+helps. Measured on the paper protocol with the DLPC900 and T_e allowed down to the 5-bit window
+(3.26 ms), the plate sat at levels 0-6 of 31 and read less than at 30 ms. A fixed T_e may be
+shorter: B then falls (binary below 315 us; the report's `binary_mask`).
 
 Fixed T_e: `mask.exposure_time_s` > 0 sets T_e for every frame (B from it as above; the
 scene's own timing.exposure_s gives the scene's schedule); 0 (default) lets the controller
@@ -166,6 +179,14 @@ def reference_demand(demand_e: np.ndarray, reach_e: float, min_mirrors: int) -> 
     return best
 
 
+def shortest_exposure_s(dmd_spec) -> float:
+    """The shortest T_e the controller chooses (s): the sensor's minimum, or the shortest window
+    that keeps the mask's full bit depth, (2^bits - 1) t_p (26.8 ms for 8 bits on the DLPC900),
+    whichever is longer. Below it the planes stay at t_p, so the light a mirror's smallest step
+    passes (t_p x radiance) does not shrink while the mask loses bits (module docstring)."""
+    return max(SENSOR_MIN_EXPOSURE_S, ((1 << dmd_spec.bits) - 1) * min_plane_s(dmd_spec))
+
+
 def choose(camera, mask, demand_e: np.ndarray, index: int, nd: float = 1.0, min_mirrors: int = 24,
            with_nd: bool = False) -> FrameExposure:
     """T_e and B for frame `index` (module docstring). demand_e: the all-white electrons per
@@ -192,15 +213,10 @@ def choose(camera, mask, demand_e: np.ndarray, index: int, nd: float = 1.0, min_
         return nominal(camera) if nd == 1.0 else FrameExposure(t.exposure_s, spec.bits, t.dmd_window_s, True, nd)
     from poevp_optics.camera.dmd import throughput_on
 
-    plane, thr = min_plane_s(spec), throughput_on(spec)
-    b = spec.bits
-    for _ in range(spec.bits + 1):           # B falls as T_e shortens, T_e as B falls: to the fixed point
-        te = e_aim / (d_ref * fine_relative(b, mask.fine_steps, spec.contrast_ratio)) * white_nom / thr
-        te = float(min(max(te, SENSOR_MIN_EXPOSURE_S), t.exposure_s))
-        nb = max_bits(te, plane, spec.bits)
-        if nb >= b:
-            break
-        b = nb
+    thr = throughput_on(spec)
+    fine = fine_relative(spec.bits, mask.fine_steps, spec.contrast_ratio)
+    te = e_aim / (d_ref * fine) * white_nom / thr       # D_ref at the fine level at the aim
+    te = float(min(max(te, shortest_exposure_s(spec)), t.exposure_s))   # >= the full-depth window: B = dmd.bits
     return at_exposure(camera, te, nd)
 
 
@@ -240,4 +256,4 @@ def clip_step(mask, camera, attenuator=None) -> float:
 
 __all__ = ["FrameExposure", "SENSOR_MIN_EXPOSURE_S", "at_exposure", "choose", "clip_step", "exposure_time_problem",
            "fine_relative", "frame_schedule", "is_active", "max_bits", "min_plane_s", "nominal", "reference_demand",
-           "searches"]
+           "searches", "shortest_exposure_s"]

@@ -115,34 +115,36 @@ def test_chosen_bits_are_the_largest_whose_planes_fit_the_exposure():
     assert et.at_exposure(cam, 0.0268).bits == 8 and et.at_exposure(cam, 0.0267).bits == 7
 
 
-def test_the_controller_keeps_the_reference_demand_at_its_fine_level_with_the_dlpc900():
-    """With 105 us planes the chosen B fits T_e, and the brightest served highlight sits at the
-    fine level (20 of 255, or the top of a shallower B) at the aim: D T_e / T x rel(level) = aim.
-    A highlight the fine level serves at 30 ms (up to 7.6x) and a lamp core smaller than
-    serve_min_mirrors (24) keep the scene's exposure."""
+def test_the_controller_keeps_the_reference_demand_at_its_fine_level_or_the_full_depth_window():
+    """The brightest served highlight sits at the fine level (20 of 255) at the aim:
+    D T_e / T x rel(20) = aim, with an ideal controller down to the sensor's minimum; on the
+    DLPC900 T_e stops at the 8-bit window 255 x 105 us = 26.775 ms (shorter would only drop bits:
+    its smallest step passes 105 us of light whatever T_e). A highlight the fine level serves at
+    30 ms (up to 7.6x) and a lamp core smaller than serve_min_mirrors (24) keep the scene's
+    exposure."""
     from poevp_optics.control.exposure_control import full_scale_electrons
     from poevp_optics.control.masks import MaskSpec
 
-    cam = _camera("dlpc900_dlp6500")
     mask = MaskSpec(law="exposure_controller", target=0.6, band_low=0.4, band_high=0.9)
-    sat = cam.params.saturation_capacity_e
-    aim = float(full_scale_electrons(cam.params, mask.target))
-    demand = np.full((16, 16), 0.1 * sat)
-    assert et.choose(cam, mask, demand, 0).nominal
-    demand[2:12, 2:12] = 5.0 * sat                                      # at 30 ms already at level >= 20
-    assert et.choose(cam, mask, demand, 0).nominal
-    lamp = demand.copy()
-    lamp[13:15, 13:16] = 1e5 * sat                                      # a 6-mirror lamp core
-    assert et.choose(cam, mask, lamp, 0).nominal
-    for over in (30.0, 300.0, 1000.0, 1300.0):
-        d = lamp.copy()
-        d[2:12, 2:12] = over * sat                                      # a 100-mirror plate beyond reach
-        fx = et.choose(cam, mask, d, 0)
-        top = (1 << fx.bits) - 1
-        assert not fx.nominal and ((1 << fx.bits) - 1) * PLANE_S <= max(fx.exposure_s, PLANE_S) * (1 + 1e-12)
-        k = min(20, top)
-        got = over * sat * fx.exposure_s / T * (k / top + (1 - k / top) / 1000.0)
-        assert abs(got / aim - 1) < 1e-6 or fx.exposure_s == et.SENSOR_MIN_EXPOSURE_S, (over, fx)
+    for controller, floor in (("ideal", et.SENSOR_MIN_EXPOSURE_S), ("dlpc900_dlp6500", 255 * PLANE_S)):
+        cam = _camera(controller)
+        assert abs(et.shortest_exposure_s(cam.dmd_spec) / floor - 1) < 1e-12
+        sat = cam.params.saturation_capacity_e
+        aim = float(full_scale_electrons(cam.params, mask.target))
+        demand = np.full((16, 16), 0.1 * sat)
+        assert et.choose(cam, mask, demand, 0).nominal
+        demand[2:12, 2:12] = 5.0 * sat                                  # at 30 ms already at level >= 20
+        assert et.choose(cam, mask, demand, 0).nominal
+        lamp = demand.copy()
+        lamp[13:15, 13:16] = 1e5 * sat                                  # a 6-mirror lamp core
+        assert et.choose(cam, mask, lamp, 0).nominal
+        for over in (8.0, 30.0, 300.0, 1000.0, 1e4, 1e5):
+            d = lamp.copy()
+            d[2:12, 2:12] = over * sat                                  # a 100-mirror plate
+            fx = et.choose(cam, mask, d, 0)
+            assert fx.bits == 8 and fx.window_s == fx.exposure_s and floor * (1 - 1e-12) <= fx.exposure_s < T
+            got = over * sat * fx.exposure_s / T * (20 / 255 + (235 / 255) / 1000.0)
+            assert abs(got / aim - 1) < 1e-6 or abs(fx.exposure_s / floor - 1) < 1e-12, (controller, over, fx)
 
 
 @pytest.mark.parametrize("value, says", [
