@@ -9,7 +9,7 @@ choices; adding a predictor is one `PREDICTORS.register(...)` with a factory.
 | flow        | DIS optical flow (ultrafast, log curve above 255), one phase-correlation translation per saturated region, forward splat of bright moving pixels | Kroeger et al., ECCV 2016 (DIS); Kuglin & Hines 1975 |
 | dmvfn       | dynamic multi-scale voxel flow network, 9 blocks, routing            | Hu et al., CVPR 2023 |
 | dmvfn_lite  | same block design, grey, quarter resolution, 3 blocks, no routing    | ours, after Hu et al. |
-| track       | `flow` + each saturated region followed back three frames, constant acceleration (least squares) | ours; SORT-style box tracking (Bewley et al. 2016) |
+| track       | `flow` + each saturated region followed back three frames, constant acceleration (least squares) relative to the frame's global motion (our camera's pitch and yaw: the shift the lights share) | ours; SORT-style box tracking (Bewley et al. 2016) |
 | track_net   | `track` with a trained torch motion model choosing the extrapolation from the chain (no preferred direction) | ours |
 
 Every predictor takes `history` (oldest first, at least `needs_frames` frames; the loop passes

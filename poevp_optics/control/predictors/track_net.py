@@ -24,6 +24,13 @@ well under a millisecond per region on a CPU. Trained by apps/train/train_track.
 (the tracker's own measurement noise) against the true next displacement, loss what the mask
 needs: 1 - the IoU of the region's box with itself moved by the error, plus 0.01 per px of
 centroid error (not pixel PSNR). The growth of a region (track.py) is `track`'s closed form.
+
+In the loop the network extrapolates each region's motion relative to the frame's global motion
+(its chain less the global shifts: our camera's pitch and yaw, track.py step 1), and the global
+motion is continued as `track` continues it (`closed_form_global`: a pitch oscillation or steady
+motion); the two are added. Where no global motion is found (one car alone, or no camera motion)
+the relative chain is the chain itself. The training paths (one car, no camera motion) hold no
+global motion, so their chains are the same either way.
 Weights: safetensors with the config and the training record in the metadata (never pickle).
 """
 
@@ -65,19 +72,6 @@ def chain_arrays(tracks, relative: bool = False) -> tuple[np.ndarray, np.ndarray
             disp[i, :k] = (t.relative() if relative else np.asarray(t.displacements, np.float64))[:k]
             valid[i, :k] = 1.0
             resp[i, :k] = np.asarray(t.responses[:k], np.float32)
-    return disp, valid, resp
-
-
-def global_arrays(track) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """`chain_arrays` of the frame's global chain (one row; the same for every region of a frame)."""
-    disp = np.zeros((1, MAX_CHAIN, 2), np.float32)
-    valid = np.zeros((1, MAX_CHAIN), np.float32)
-    resp = np.zeros((1, MAX_CHAIN), np.float32)
-    k = min(len(track.global_shifts), MAX_CHAIN)
-    if k:
-        disp[0, :k] = np.asarray(track.global_shifts[:k], np.float32)
-        valid[0, :k] = 1.0
-        resp[0, :k] = np.asarray(track.global_responses[:k], np.float32)
     return disp, valid, resp
 
 
