@@ -45,7 +45,9 @@ BEFORE = "39e82ed"
 
 CLIENT = """
 import json, sys
+import poevp_optics
 from poevp_optics.cli import main
+assert poevp_optics.__file__.startswith(sys.path[0] or '.'), poevp_optics.__file__
 rc = main(sys.argv[1:])
 hwm = [l for l in open('/proc/self/status') if l.startswith('VmHWM')][0].split()[1]
 print(json.dumps({'rc': rc, 'vmhwm_kib': int(hwm)}))
@@ -68,7 +70,10 @@ def client_run(pythonpath: Path, out: Path, extra: list[str]) -> dict:
             "--out", str(out), "--quiet", *extra]
     env = {**os.environ, "PYTHONPATH": str(pythonpath)}
     t0 = time.perf_counter()
-    p = subprocess.run([sys.executable, "-c", CLIENT, *args], cwd=ROOT, env=env, capture_output=True, text=True)
+    # run from the checkout (its scenes/ and assets/ link to this repository's): `-c` puts the
+    # working folder first on sys.path, so the checkout's package is the one imported
+    p = subprocess.run([sys.executable, "-c", CLIENT, *args], cwd=pythonpath, env=env, capture_output=True,
+                       text=True)
     wall = time.perf_counter() - t0
     last = p.stdout.strip().splitlines()[-1] if p.stdout.strip() else "{}"
     res = json.loads(last) if last.startswith("{") else {}
