@@ -44,10 +44,10 @@ RESOLUTION: list[str] = []
 BEFORE = "39e82ed"
 
 CLIENT = """
-import json, sys
+import json, os, sys
 import poevp_optics
 from poevp_optics.cli import main
-assert poevp_optics.__file__.startswith(sys.path[0] or '.'), poevp_optics.__file__
+assert poevp_optics.__file__.startswith(os.getcwd()), poevp_optics.__file__
 rc = main(sys.argv[1:])
 hwm = [l for l in open('/proc/self/status') if l.startswith('VmHWM')][0].split()[1]
 print(json.dumps({'rc': rc, 'vmhwm_kib': int(hwm)}))
