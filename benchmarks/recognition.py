@@ -835,10 +835,10 @@ def run_sections(cfg: Config, log=print) -> dict:
             "demo_shape": tuple(first.hdr[0].shape) if first else None}
 
 
-#: How `--jobs` splits the sections among processes (the fusion attribution needs the paper
-#: camera's sequences, so they share one).
-JOB_GROUPS = (("paper_camera", "fusion_attribution"), ("physical_camera",), ("highbeam_plate",), ("night_road",),
-              ("wet_night_road",), ("fog_highway",))
+#: How `--jobs` splits the sections among processes, the longest first (the fusion attribution
+#: needs the paper camera's sequences, so they share one); rows come back in SECTIONS order.
+JOB_GROUPS = (("night_road",), ("wet_night_road",), ("fog_highway",), ("highbeam_plate",),
+              ("paper_camera", "fusion_attribution"), ("physical_camera",))
 
 
 def _job(cfg: Config) -> dict:
@@ -858,7 +858,8 @@ def run(cfg: Config, jobs: int = 1, log=print) -> dict:
         groups = [tuple(s for s in g if s in cfg.sections) for g in JOB_GROUPS]
         groups = [g for g in groups if g]
         with cf.ProcessPoolExecutor(max_workers=jobs, mp_context=mp.get_context("spawn")) as pool:
-            parts = list(pool.map(_job, [dataclasses.replace(cfg, sections=g) for g in groups]))
+            done = dict(zip(groups, pool.map(_job, [dataclasses.replace(cfg, sections=g) for g in groups])))
+        parts = [done[g] for g in sorted(groups, key=lambda g: SECTIONS.index(g[0]))]
         res = {"rows": [], "examples": {}, "showcase": {}, "renders": {}, "mertens_dev": None, "demo_speed_px": None,
                "demo_shape": None}
         for part in parts:
