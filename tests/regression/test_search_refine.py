@@ -73,7 +73,8 @@ def test_refined_settings_run_by_the_camera_put_the_plate_in_the_band(searched):
         folder, rep = run_point(out, BASE, values, f"refined{len(ran)}")
         return [(folder, {"value": metric_value(rep, METRIC), "constraints": []})]
 
-    r = refine_best(load_scenes([str(SCENES / "smoke")], [BASE]), question(), out, best, run_points, log=lambda *a: None)
+    r = refine_best(load_scenes([str(SCENES / "smoke")], [BASE]), question(), out, best, run_points,
+                    log=lambda *a: None)
     assert json.loads((out / FILE).read_text()) == json.loads(json.dumps(r))
     assert r["refined"] and len(ran) == 1 and r["frames"] == [2]
     assert r["model_after"] < 0.01 * r["model_before"]
