@@ -1,7 +1,7 @@
 """How much of a shared render the sweep's client holds in memory: peak RSS of the client process
 (VmHWM) for a 2-point sweep that shares one render, with the render moved between worker and
 client as one zip in memory (the code at `--before`, a git revision) and by file (the code at
-`--after`, default HEAD: by path on a shared file system, in chunks of
+`--after`: by path on a shared file system, in chunks of
 apps/sweep/reuse.CHUNK_BYTES otherwise). Both are taken from git (`git archive`), so neither
 sees uncommitted edits.
 
@@ -28,7 +28,7 @@ import time
 from pathlib import Path
 
 from benchmarks.common import add_results_flag, machine_line, markdown_table, output_folder, save_text
-from benchmarks.sweep_reuse import fingerprint
+from benchmarks.sweep_reuse import _untimed
 from poevp_optics.apps.sweep.reuse import CHUNK_BYTES
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -40,8 +40,9 @@ BASE = ["render.resolution=[360,640]", "timing.frames=3", "render.spp=2", "rende
 GRID = ["mask.a=0.5,0.9"]
 #: --resolution H W: another render size (the --set of BASE otherwise)
 RESOLUTION: list[str] = []
-#: the revision before the render travelled by file (its sweeps moved zip bytes)
-BEFORE = "39e82ed"
+#: the commit that moved renders by file (AFTER) and its parent (BEFORE: zip bytes in memory); the
+#: two differ in nothing else, so the outputs must be identical
+BEFORE, AFTER = "281f3df", "a23d696"
 
 CLIENT = """
 import json, os, sys
@@ -52,6 +53,28 @@ rc = main(sys.argv[1:])
 hwm = [l for l in open('/proc/self/status') if l.startswith('VmHWM')][0].split()[1]
 print(json.dumps({'rc': rc, 'vmhwm_kib': int(hwm)}))
 """
+
+
+def fingerprint(points: Path, root: Path) -> dict:
+    """Point folder -> {file: SHA-256 of its bytes}; report.json untimed, with the checkout's
+    folder (where each revision's scenes and assets are reached) written as <root>."""
+    import hashlib
+
+    out = {}
+    for p in sorted(points.iterdir()):
+        if not p.is_dir():
+            continue
+        files = {}
+        for f in sorted(p.rglob("*")):
+            if not f.is_file() or f.name.startswith(".") or f.name == "report.html":
+                continue
+            data = f.read_bytes()
+            if f.name == "report.json":
+                text = json.dumps(_untimed(json.loads(data)), sort_keys=True)
+                data = text.replace(str(root), "<root>").encode()
+            files[str(f.relative_to(p))] = hashlib.sha256(data).hexdigest()
+        out[p.name] = files
+    return out
 
 
 def checkout(rev: str, dest: Path) -> Path:
@@ -66,7 +89,8 @@ def checkout(rev: str, dest: Path) -> Path:
 
 
 def client_run(pythonpath: Path, out: Path, extra: list[str]) -> dict:
-    args = ["sweep", SCENE, *(a for o in BASE for a in ("--set", o)), *RESOLUTION, *(a for g in GRID for a in ("--grid", g)),
+    args = ["sweep", SCENE, *(a for o in BASE for a in ("--set", o)), *RESOLUTION,
+            *(a for g in GRID for a in ("--grid", g)),
             "--out", str(out), "--quiet", *extra]
     env = {**os.environ, "PYTHONPATH": str(pythonpath)}
     t0 = time.perf_counter()
@@ -112,12 +136,13 @@ class External:
 def measure(label: str, pythonpath: Path, tmp: Path) -> dict:
     out = {}
     local = tmp / f"{label}-local"
-    out["local"] = {**client_run(pythonpath, local, ["--workers", "1"]), "points": fingerprint(local / "points")}
+    out["local"] = {**client_run(pythonpath, local, ["--workers", "1"]),
+                    "points": fingerprint(local / "points", pythonpath)}
     ext = External(tmp / f"{label}-cluster", pythonpath)
     try:
         remote = tmp / f"{label}-external"
         out["external"] = {**client_run(pythonpath, remote, ["--scheduler-file", str(ext.sf)]),
-                           "points": fingerprint(remote / "points")}
+                           "points": fingerprint(remote / "points", pythonpath)}
     finally:
         ext.close()
     sizes = [sum(f.stat().st_size for f in d.iterdir()) for d in (local / "renders").iterdir() if d.is_dir()]
@@ -130,7 +155,7 @@ def main(argv=None):
     ap.add_argument("--before", default=BEFORE, help=f"git revision whose sweeps moved zip bytes (default {BEFORE})")
     ap.add_argument("--resolution", nargs=2, type=int, metavar=("H", "W"),
                     help="render resolution instead of 360 640 (the stored render grows with H x W)")
-    ap.add_argument("--after", default="HEAD", help="git revision whose sweeps move renders by file (default HEAD)")
+    ap.add_argument("--after", default=AFTER, help=f"git revision whose sweeps move renders by file (default {AFTER})")
     add_results_flag(ap)
     args = ap.parse_args(argv)
     if args.resolution:
@@ -154,7 +179,8 @@ def main(argv=None):
     header = ["cluster", "client peak RSS before (MiB)", "after (MiB)", "saved (MiB)", "wall before (s)",
               "wall after (s)", "outputs identical"]
     text = (f"# A shared render between Dask worker and client: in memory vs by file\n\n"
-            f"`poevp sweep {SCENE}` with {', '.join(BASE[:4])}{' ' + ' '.join(RESOLUTION) if RESOLUTION else ''}, grid {' '.join(GRID)}: 2 points, one render "
+            f"`poevp sweep {SCENE}` with {', '.join(BASE[:4])}{' ' + ' '.join(RESOLUTION) if RESOLUTION else ''}, "
+            f"grid {' '.join(GRID)}: 2 points, one render "
             f"of {new['render_bytes'] / mb:.0f} MiB on disk (recorded by the first point, replayed by the "
             f"second). Before: revision {args.before}, the render a zip in memory (worker -> client in the "
             f"point's result; client -> worker by Dask scatter). After: revision {args.after}, by path on a shared "
