@@ -176,18 +176,18 @@ def main(argv=None):
         rows.append([what, b["vmhwm_kib"] * 1024 / mb, a["vmhwm_kib"] * 1024 / mb,
                      (b["vmhwm_kib"] - a["vmhwm_kib"]) * 1024 / mb, b["wall_s"], a["wall_s"],
                      "yes" if b["points"] == a["points"] else "NO"])
-    header = ["cluster", "client peak RSS before (MiB)", "after (MiB)", "saved (MiB)", "wall before (s)",
-              "wall after (s)", "outputs identical"]
+    header = ["cluster", "client peak RSS, render in memory (MiB)", "render by file (MiB)", "saved (MiB)",
+              "wall in memory (s)", "wall by file (s)", "outputs identical"]
     text = (f"# A shared render between Dask worker and client: in memory vs by file\n\n"
             f"`poevp sweep {SCENE}` with {', '.join(BASE[:4])}{' ' + ' '.join(RESOLUTION) if RESOLUTION else ''}, "
             f"grid {' '.join(GRID)}: 2 points, one render "
             f"of {new['render_bytes'] / mb:.0f} MiB on disk (recorded by the first point, replayed by the "
-            f"second). Before: the render moved as one zip in memory (worker -> client in the "
-            f"point's result; client -> worker by Dask scatter). After: by path on a shared "
+            f"second). In memory: the render as one zip (worker -> client in the "
+            f"point's result; client -> worker by Dask scatter). By file: by path on a shared "
             f"file system, in chunks of {CHUNK_BYTES // mb} MiB otherwise. Client peak RSS is its VmHWM (the client "
             f"process alone; the workers are other processes).\n\nMachine: {machine_line()}.\n\n"
             f"{markdown_table(header, rows)}\n\nOutputs of every point: "
-            f"{'identical' if same else 'DIFFERENT'} before and after (images and arrays byte for byte, "
+            f"{'identical' if same else 'DIFFERENT'} either way (images and arrays byte for byte, "
             f"report.json without timings).\n")
     print(text)
     name = "render_transport" + (f"_{args.resolution[0]}x{args.resolution[1]}" if args.resolution else "")
