@@ -179,7 +179,7 @@ def main(argv=None):
     header = ["cluster", "client peak RSS, render in memory (MiB)", "render by file (MiB)", "saved (MiB)",
               "wall in memory (s)", "wall by file (s)", "outputs identical"]
     text = (f"# A shared render between Dask worker and client: in memory vs by file\n\n"
-            f"`poevp sweep {SCENE}` with {', '.join(BASE[:4])}{' ' + ' '.join(RESOLUTION) if RESOLUTION else ''}, "
+            f"`poevp sweep {SCENE}` with {', '.join([*RESOLUTION[1:], *BASE[1:4]] if RESOLUTION else BASE[:4])}, "
             f"grid {' '.join(GRID)}: 2 points, one render "
             f"of {new['render_bytes'] / mb:.0f} MiB on disk (recorded by the first point, replayed by the "
             f"second). In memory: the render as one zip (worker -> client in the "
