@@ -365,6 +365,33 @@ class Camera:
         return self.capture(subframes, command.levels, frame_index, seed, switch=command.switch,
                             transmission=command.transmission, exposure=command.exposure, **timing)
 
+    def _exposure_weights(self, mask_levels, frame_index: int, k: int, basis, times_s, switch, exposure):
+        """Each of the K samples' exposure weight per mirror (s, DrJit Floats on the extended
+        mirror grid): the late mask's, the emitter groups' exact tables, the PWM's, or the white
+        exposure without a DMD (arguments as for `capture`)."""
+        import drjit as dr
+        from drjit.auto import Float
+
+        n_mirrors = self.mirror_shape[0] * self.mirror_shape[1]
+        if switch is not None:
+            weights, _ = self.dmd.late_exposure_weights(mask_levels, switch[0], self.schedule(frame_index, exposure),
+                                                        self.nodes_rel(frame_index, k, times_s, exposure), switch[1])
+        elif basis:
+            lit = self.dmd is not None and mask_levels is not None
+            tables = self.basis_tables(frame_index, tuple(basis), lit, exposure)
+            if lit:
+                weights = self.dmd.table_weights(mask_levels, tables)
+            else:
+                weights = [dr.full(Float, float(t[0]), n_mirrors) for t in tables]
+        elif self.dmd is not None and mask_levels is not None:
+            weights, _ = self.dmd.exposure_weights(mask_levels, self.schedule(frame_index, exposure),
+                                                   self.nodes_rel(frame_index, k, times_s, exposure))
+        else:
+            thr = throughput_on(self.dmd_spec) if self.dmd is not None else 1.0
+            dt = node_time_weights_s(self.timing.exposure_s, self.nodes_rel(frame_index, k, times_s))
+            weights = [dr.full(Float, float(d * thr), n_mirrors) for d in dt]
+        return weights
+
     def capture(self, subframes, mask_levels, frame_index: int, seed: int,
                 basis: tuple[str, ...] = (), times_s=None, switch=None, transmission: float = 1.0,
                 exposure=None) -> Capture:
@@ -388,7 +415,6 @@ class Camera:
         self._check_inputs(subframes, mask_levels, frame_index, transmission)
         k = len(subframes)
         h, w = self.shape
-        n_mirrors = self.mirror_shape[0] * self.mirror_shape[1]
         secs = {}
         t_obj = time.perf_counter()
         subframes = [self.dmd_image(s) for s in subframes]       # objective: before the mirrors
@@ -398,23 +424,7 @@ class Camera:
         if switch is not None and (basis or self.dmd is None):
             raise ValueError(f"frame {frame_index}: a late mask needs a DMD and time samples, not "
                              "emitter-group images (flickering lamps)")
-        if switch is not None:
-            weights, _ = self.dmd.late_exposure_weights(mask_levels, switch[0], self.schedule(frame_index, exposure),
-                                                        self.nodes_rel(frame_index, k, times_s, exposure), switch[1])
-        elif basis:
-            lit = self.dmd is not None and mask_levels is not None
-            tables = self.basis_tables(frame_index, tuple(basis), lit, exposure)
-            if lit:
-                weights = self.dmd.table_weights(mask_levels, tables)
-            else:
-                weights = [dr.full(Float, float(t[0]), n_mirrors) for t in tables]
-        elif self.dmd is not None and mask_levels is not None:
-            weights, _ = self.dmd.exposure_weights(mask_levels, self.schedule(frame_index, exposure),
-                                                   self.nodes_rel(frame_index, k, times_s, exposure))
-        else:
-            thr = throughput_on(self.dmd_spec) if self.dmd is not None else 1.0
-            dt = node_time_weights_s(self.timing.exposure_s, self.nodes_rel(frame_index, k, times_s))
-            weights = [dr.full(Float, float(d * thr), n_mirrors) for d in dt]
+        weights = self._exposure_weights(mask_levels, frame_index, k, basis, times_s, switch, exposure)
         if transmission != 1.0:
             weights = [wt * float(transmission) for wt in weights]
         plane = weights[0] * subs[0]

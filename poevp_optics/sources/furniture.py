@@ -18,7 +18,7 @@ facades as parametric meshes (trimesh, manifold3d), one mesh per material, place
 | legend         | str    | -    | ""           | a sign's text (its face texture: black on white sheeting, with a border) |
 | lit_fraction   | float  | 1    | 0.3          | a building's share of lit windows (at least one lit and one dark per run) |
 | seed           | int    | -    | 0            | draws of tree and building sizes, the lit windows and the asphalt's pattern |
-| albedo         | float  | 1    | 0.09         | asphalt: the albedo map's mean (dry asphalt 0.05-0.18: render/materials/asphalt.py) |
+| albedo         | float  | 1    | 0.09         | asphalt: the albedo map's mean (dry asphalt 0.05-0.18: sources/asphalt.py) |
 | roughness      | float  | 1    | 0.8          | asphalt: the roughness map's mean (`principled` roughness) |
 | tile_m         | float  | m    | 2.0          | asphalt: the side of the square one map covers (the maps tile the surface) |
 
@@ -40,7 +40,7 @@ Kinds and their parts (one PLY each, `$furniture_<id>_<part>`), with the kind's 
   post's traffic face, its top 70 mm below the post's (EN 12899-3 retroreflectors, sheeting of an
   EN 12899-1 class: render/materials/furniture_sheeting.py).
 * road_stud: `bodies`, 100 x 100 x 18 mm studs (EN 1463-1 height class H1 <= 18 mm) every 12 m;
-  `reflectors`, each stud's lens (furniture_sheeting.STUD_LENS_M, 80 x 12 mm) on its traffic face,
+  `reflectors`, each stud's lens (STUD_LENS_M, 80 x 12 mm) on its traffic face,
   for a `retroreflective` BSDF with `en1463_1:PRP1`.
 * sign: `post`, a 76 mm steel tube from the road to the face's top; `back`, the 3 mm aluminium
   blank behind the face; the face itself is a Mitsuba `rectangle` placed by
@@ -61,7 +61,7 @@ Kinds and their parts (one PLY each, `$furniture_<id>_<part>`), with the kind's 
 * asphalt: no mesh; a carriageway surface for a Mitsuba `rectangle` placed by
   `$furniture_<id>_matrix` (width_m across the run line, default 7.0 m; length_m along it), with
   the seeded maps `$furniture_<id>_albedo_map` and `$furniture_<id>_roughness_map`
-  (render/materials/asphalt.py, 16-bit PNG: read them `raw`) repeated `$furniture_<id>_tiles_u`
+  (sources/asphalt.py, 16-bit PNG: read them `raw`) repeated `$furniture_<id>_tiles_u`
   times across and `$furniture_<id>_tiles_v` along (the bitmaps' `to_uv` scale).
 
 Every solid part is closed (trimesh boxes, cylinders and icospheres; the W-beam a manifold3d
@@ -80,6 +80,11 @@ import numpy as np
 
 from poevp_optics.core.params import param
 from poevp_optics.core.registry import Registry
+
+#: A road stud's reflector lens (width, height) in m: one face of a 100 x 100 x 18 mm stud
+#: (EN 1463-1 class H1: <= 18 mm above the road), its lens 80 mm wide and 12 mm tall
+#: (its R per lens area: render/materials/furniture_sheeting.py).
+STUD_LENS_M = (0.080, 0.012)
 
 #: Layout version (part of the cached files' names).
 MESH_VERSION = 1
@@ -223,8 +228,6 @@ def check(f: Furniture) -> None:
         need(f.width_m >= DELINEATOR_REFLECTOR_M[0] + 0.01 and f.depth_m > 0, "width_m",
              f"the post must be wider than its {DELINEATOR_REFLECTOR_M[0]:g} m reflector (and depth_m > 0)")
     if f.kind == "road_stud":
-        from poevp_optics.render.materials.furniture_sheeting import STUD_LENS_M
-
         need(f.height_m >= STUD_LENS_M[1] + 0.002, "height_m", f"the stud ({f.height_m:g} m) is lower than its "
              f"{STUD_LENS_M[1]:g} m lens")
         need(f.width_m >= STUD_LENS_M[0] + 0.005 and f.depth_m > 0, "width_m",
@@ -346,8 +349,6 @@ def furniture_meshes(f: Furniture) -> dict:
         refl = _quads([((0.0, yc, z - d - 0.001), (rw / 2, rh / 2)) for z in zs], normal_sign_z=-1)
         return {"posts": _concat(posts), "reflectors": refl}
     if f.kind == "road_stud":
-        from poevp_optics.render.materials.furniture_sheeting import STUD_LENS_M
-
         w, d = f.width_m / 2, f.depth_m / 2
         bodies = [_box(-w, w, 0.0, f.height_m, z - d, z + d) for z in zs]
         lw, lh = STUD_LENS_M
@@ -469,7 +470,7 @@ def face_texture(legend: str, width_m: float, height_m: float) -> np.ndarray:
     the face (the plates' font, sources/plates.py)."""
     from PIL import Image, ImageDraw
 
-    from poevp_optics.sources.plates import _font
+    from poevp_optics.sources.plates import plate_font
 
     w, h = max(8, round(width_m * FACE_PX_PER_M)), max(8, round(height_m * FACE_PX_PER_M))
     img = Image.new("L", (w, h), 255)
@@ -478,11 +479,11 @@ def face_texture(legend: str, width_m: float, height_m: float) -> np.ndarray:
     draw.rectangle([inset, inset, w - 1 - inset, h - 1 - inset], outline=0, width=stroke)
     if legend:
         size = 0.4 * h
-        font = _font(size)
+        font = plate_font(size)
         box = draw.textbbox((0, 0), legend, font=font)
         room = w - 2 * (inset + stroke) - 0.1 * w
         if box[2] - box[0] > room:
-            font = _font(size * room / (box[2] - box[0]))
+            font = plate_font(size * room / (box[2] - box[0]))
             box = draw.textbbox((0, 0), legend, font=font)
         draw.text(((w - (box[2] - box[0])) / 2 - box[0], (h - (box[3] - box[1])) / 2 - box[1]), legend, fill=0,
                   font=font)
@@ -493,10 +494,10 @@ def cached_face_path(legend: str, width_m: float, height_m: float) -> Path:
     """The face texture PNG in the cache (checksum and pixels checked before use)."""
     from poevp_optics.core.cache import cache_file, cached_path, digest
     from poevp_optics.core.io import read_png, write_png
-    from poevp_optics.sources.plates import _font_sha256
+    from poevp_optics.sources.plates import plate_font_sha256
 
     tex = face_texture(legend, width_m, height_m)
-    key = f"{legend}|{width_m:.6g}|{height_m:.6g}|{FACE_PX_PER_M}|{_font_sha256()[:16]}|v1"
+    key = f"{legend}|{width_m:.6g}|{height_m:.6g}|{FACE_PX_PER_M}|{plate_font_sha256()[:16]}|v1"
     path = cache_file("signs", f"sign_{digest(key)}.png")
 
     def problem(p: Path) -> str | None:
@@ -524,7 +525,7 @@ def xml_params(ident: str, spec: FurnitureSpec) -> dict[str, str]:
         out[f"{pre}_face_matrix"] = _matrix(world @ face)
         out[f"{pre}_face_texture"] = str(cached_face_path(f.legend, f.width_m, f.height_m))
     if f.kind == "asphalt":
-        from poevp_optics.render.materials.asphalt import cached_asphalt_maps
+        from poevp_optics.sources.asphalt import cached_asphalt_maps
 
         # rectangle [-1, 1]^2 (normal +z) -> width x length on the road, normal +y, from z = 0 on
         surface = np.eye(4)

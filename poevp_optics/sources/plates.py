@@ -115,14 +115,14 @@ def _rect_coverage(shape, x0, y0, x1, y1) -> np.ndarray:
 
 
 @functools.lru_cache(maxsize=8)
-def _font(size_px: float):
+def plate_font(size_px: float):
     from PIL import ImageFont
 
     return ImageFont.truetype(str(PLATE_FONT), size_px)
 
 
 @functools.lru_cache(maxsize=1)
-def _font_sha256() -> str:
+def plate_font_sha256() -> str:
     """SHA-256 of the font file (part of the cache key: another font draws other pixels)."""
     import hashlib
 
@@ -131,7 +131,7 @@ def _font_sha256() -> str:
 
 def _cap_ratio() -> float:
     """The font's cap height per em (the 'H' at 1000 px)."""
-    top = _font(1000.0).getbbox("H", anchor="ls")[1]
+    top = plate_font(1000.0).getbbox("H", anchor="ls")[1]
     return -top / 1000.0
 
 
@@ -144,7 +144,7 @@ def _text_coverage(text: str, shape, cap_px: float, centre_px: float, x_lo_px: f
     import cv2
     from PIL import Image, ImageDraw
 
-    font = _font(cap_px / _cap_ratio())
+    font = plate_font(cap_px / _cap_ratio())
     left, top, right, bottom = font.getbbox(text, anchor="ls")
     baseline_px = centre_px - 0.5 * (top + bottom)
     pad = 2
@@ -213,7 +213,7 @@ def cached_plate_path(text: str, width_px: int = 0, height_px: int = 0, *, plate
     from poevp_optics.core.io import read_png
 
     width_px, height_px = texture_size(plate_format, width_px, height_px)
-    key = f"{text}|{width_px}|{height_px}|{plate_format}|{int(band)}|{_font_sha256()[:16]}|v2"
+    key = f"{text}|{width_px}|{height_px}|{plate_format}|{int(band)}|{plate_font_sha256()[:16]}|v2"
     path = cache_file("plates", f"plate_{digest(key)}.png")
     texture = plate_texture(text, width_px, height_px, plate_format=plate_format, band=band)
 

@@ -1,4 +1,4 @@
-"""The asphalt albedo map as Mitsuba reads it (render/materials/asphalt.py, `raw` 16-bit PNG): a
+"""The asphalt albedo map as Mitsuba reads it (sources/asphalt.py, `raw` 16-bit PNG): a
 diffuse plane with the map under a uniform sky of radiance L reflects, at each point, rho(x) L
 (a Lambertian surface under a uniform hemisphere: L_out = rho L), so the mean over an orthographic
 view of one whole tile is mean(rho) L, with mean(rho) the map's own mean read back from the PNG

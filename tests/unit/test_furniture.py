@@ -1,6 +1,6 @@
 """Road furniture (sources/furniture.py): the meshes have the sizes their keys and the standards
 give, every solid part is closed, the XML parameters are bound, bad values are one line naming the
-key; the asphalt maps (render/materials/asphalt.py) have their stated mean."""
+key; the asphalt maps (sources/asphalt.py) have their stated mean."""
 
 from __future__ import annotations
 

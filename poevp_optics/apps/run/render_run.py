@@ -75,7 +75,7 @@ class RunResult:
     extensions: list = field(default_factory=list)   # the scene's report extensions and their state
 
 
-def _capture(spec, camera: Camera, step: LoopStep | None, ex: RenderedExposure, res: RunResult) -> FrameCapture:
+def capture_frame(spec, camera: Camera, step: LoopStep | None, ex: RenderedExposure, res: RunResult) -> FrameCapture:
     """LDR twin (DMD all white), the loop's mask, the encoded capture and its reconstruction."""
     i = ex.index
     truth = camera.dmd_image(ex.radiance.data)            # mirror grid: the image the objective forms there
@@ -216,7 +216,7 @@ def simulate(spec, camera: Camera, step: LoopStep | None, exposures, *, writer: 
     causal = step is not None and not step.needs_truth
     extensions = res.extensions = report_extensions(spec, causal)
     for ex in exposures:
-        fc = _capture(spec, camera, step, ex, res)                 # render -> capture -> reconstruct
+        fc = capture_frame(spec, camera, step, ex, res)                 # render -> capture -> reconstruct
         if ex.index == mid and not ex.basis and not spec.is_static:
             res.mid_frame = (ex, fc.mask)
         _metrics(spec, camera, fc)

@@ -101,7 +101,7 @@ def replay_frames(spec, stored: Path | None):
     plate white per such frame (90th percentile / 255, as its report), replaying the stored
     render in the folder `stored` when it holds a complete one, else rendering."""
     from poevp_optics.analysis.metrics import plate_white_fraction, to_8bit
-    from poevp_optics.apps.run.render_run import RunResult, _capture
+    from poevp_optics.apps.run.render_run import RunResult, capture_frame
     from poevp_optics.camera.camera import Camera
     from poevp_optics.control.differentiable_camera import FrameModel
     from poevp_optics.render.radiance import open_source
@@ -118,7 +118,7 @@ def replay_frames(spec, stored: Path | None):
     m = spec.mask
     models, whites = [], []
     for ex in source.exposures(False):
-        fc = _capture(spec, camera, step, ex, RunResult())
+        fc = capture_frame(spec, camera, step, ex, RunResult())
         if step.model is not None:
             step.observe(ex.index, fc.ldr, fc.enc, fc.est, fc.flags)
         pred = step.predictions.get(ex.index)
@@ -132,12 +132,33 @@ def replay_frames(spec, stored: Path | None):
     return models, whites
 
 
+def _replayed_models(scenes, specs, best: dict, out: Path):
+    """The best trial's frames as differentiable models, replayed from its stored renders:
+    (models, frames per scene, None), or ([], [], why not) when a replay differs from the trial
+    or has no frame to refine."""
+    import json
+
+    models, checks = [], []
+    for sc, sp, folder in zip(scenes, specs, best["points"]):
+        report = json.loads((out / "points" / folder / "report.json").read_text())
+        key = (report.get("render_reuse") or {}).get("key")
+        frames, whites = replay_frames(sp, out / "renders" / key if key else None)
+        ran = (report.get("metrics", {}).get("plate_white_after_init") or {}).get("per_frame") or []
+        if [float(w) for w in whites] != [float(w) for w in ran]:
+            return [], [], (f"{sc.name}: the replayed run's plate whites {whites} differ from the best "
+                            f"trial's {ran} (points/{folder}); nothing refined")
+        if not frames:
+            return [], [], (f"{sc.name}: no frame after the white initialisation frames has a plate box "
+                             "and a mask from the law; nothing to refine")
+        models += frames
+        checks.append(len(frames))
+    return models, checks, None
+
+
 def refine_best(scenes, q, out: Path, best: dict, run_points, log=print) -> dict:
     """The refinement of `best` (best.json's dict) for the search `q` over `scenes`
     (search.SearchScene); run_points(tasks) runs points as the search's trials run and returns
     {folder name: result}. Writes and returns refined.json's dict (module docstring)."""
-    import json
-
     from poevp_optics.apps.search.results import set_line
     from poevp_optics.control.differentiable_camera import FrameMean, refine
     from poevp_optics.scene.load import load_scene
@@ -155,22 +176,9 @@ def refine_best(scenes, q, out: Path, best: dict, run_points, log=print) -> dict
                    f"(mask.law = {LAW!r}); the best trial runs {', '.join(other)}")
     if why is not None:
         return _write(out, {**record, "refined": False, "note": why}, log)
-    models, checks = [], []
-    for sc, sp, folder in zip(scenes, specs, best["points"]):
-        report = json.loads((out / "points" / folder / "report.json").read_text())
-        key = (report.get("render_reuse") or {}).get("key")
-        frames, whites = replay_frames(sp, out / "renders" / key if key else None)
-        ran = (report.get("metrics", {}).get("plate_white_after_init") or {}).get("per_frame") or []
-        if [float(w) for w in whites] != [float(w) for w in ran]:
-            return _write(out, {**record, "refined": False,
-                                "note": f"{sc.name}: the replayed run's plate whites {whites} differ from the best "
-                                        f"trial's {ran} (points/{folder}); nothing refined"}, log)
-        if not frames:
-            return _write(out, {**record, "refined": False,
-                                "note": f"{sc.name}: no frame after the white initialisation frames has a plate box "
-                                        "and a mask from the law; nothing to refine"}, log)
-        models += frames
-        checks.append(len(frames))
+    models, checks, why = _replayed_models(scenes, specs, best, out)
+    if why is not None:
+        return _write(out, {**record, "refined": False, "note": why}, log)
     params = {p.key: p for p in q.params}
     theta0 = [float(getattr(specs[0].mask, k.split(".")[1])) for k in KEYS]
     bounds = []

@@ -350,7 +350,7 @@ class Materialized:
     path_map: tuple[tuple[str, str], ...] = field(default_factory=tuple)
 
 
-def _alive(pid: int) -> bool:
+def pid_alive(pid: int) -> bool:
     """Whether process `pid` runs (a zombie, killed but not yet reaped, does not)."""
     try:
         os.kill(pid, 0)
@@ -375,7 +375,7 @@ def point_workdir() -> Iterator[Path]:
             pid = int(old.name[len(WORKDIR_PREFIX) + len(host) + 1:].split("-", 1)[0])
         except ValueError:
             continue
-        if pid != os.getpid() and not _alive(pid):
+        if pid != os.getpid() and not pid_alive(pid):
             shutil.rmtree(old, ignore_errors=True)
     work = Path(tempfile.mkdtemp(prefix=f"{WORKDIR_PREFIX}{host}-{os.getpid()}-")).resolve()
     try:

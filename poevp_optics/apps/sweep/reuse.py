@@ -188,12 +188,12 @@ def _own_folder(prefix: str) -> Path:
     """tempdir/<prefix><host>-<pid> of this process; those of this host's gone processes are removed."""
     import socket
 
-    from poevp_optics.apps.sweep.bundle import _alive
+    from poevp_optics.apps.sweep.bundle import pid_alive
 
     prefix = f"{prefix}{socket.gethostname().replace('-', '_')}-"
     for old in Path(tempfile.gettempdir()).glob(prefix + "*"):
         pid = old.name[len(prefix):]
-        if pid.isdigit() and int(pid) != os.getpid() and not _alive(int(pid)):
+        if pid.isdigit() and int(pid) != os.getpid() and not pid_alive(int(pid)):
             shutil.rmtree(old, ignore_errors=True)
     return Path(tempfile.gettempdir()) / f"{prefix}{os.getpid()}"
 

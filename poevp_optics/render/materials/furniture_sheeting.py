@@ -41,13 +41,11 @@ sheeting returns ~32 % (3M / FHWA, FACTS.md).
 
 from __future__ import annotations
 
-from poevp_optics.render.materials.retroreflective import BEADED_EFFICIENCY, SheetingTable
+from poevp_optics.render.materials.sheeting_table import BEADED_EFFICIENCY, SheetingTable
+from poevp_optics.sources.furniture import STUD_LENS_M   # the stud lens the R is spread over
 
 #: Prismatic (truncated-cube) retroreflective efficiency, ~32 % (3M / FHWA figures in FACTS.md).
 PRISMATIC_EFFICIENCY = 0.32
-#: A road stud's reflector lens (width, height) in m: one face of a 100 x 100 x 18 mm stud
-#: (EN 1463-1 class H1: <= 18 mm above the road), its lens 80 mm wide and 12 mm tall.
-STUD_LENS_M = (0.080, 0.012)
 #: EN 1463-1 class PRP1, white: R (mcd lx-1) at alpha (deg) and beta2 (deg), module docstring.
 STUD_R_MCD = {"PRP1": {"alpha_deg": (0.3, 1.0), "beta_deg": (5.0, 20.0),
                        "r_mcd_per_lx": ((220.0, 20.0), (55.0, 5.0))}}
