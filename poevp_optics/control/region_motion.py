@@ -144,28 +144,45 @@ def match_regions(prev_labels: np.ndarray, prev_stats: np.ndarray, labels: np.nd
     measured = {k: np.array(v[:2], np.float64) for k, v in shifts.items() if v[2] >= min_response}
     centre = lambda st: np.array([st[0] + st[2] / 2.0, st[1] + st[3] / 2.0])
 
+    keys = list(measured)                      # the measured regions, in `shifts` order
+    index = {q: i for i, q in enumerate(keys)}
+    cents = np.array([centre(stats[q]) for q in keys], np.float64).reshape(-1, 2)
+    vecs = np.array([measured[q] for q in keys], np.float64).reshape(-1, 2)
+    supports: dict[int, int] = {}
+
+    def nearest(points: np.ndarray, c: np.ndarray) -> np.ndarray:
+        """Indices of `points` by distance from c (stable: equal distances keep their order)."""
+        return np.argsort(np.hypot(points[:, 0] - c[0], points[:, 1] - c[1]), kind="stable")
+
     def support(k: int) -> int:
         """How many of the RETRY_NEIGHBOURS regions nearest k share its shift (its own vehicle's
-        lights, not a far one's that happens to move by the twin's offset)."""
-        s = measured[k]
-        tol = max(AGREE_PX, AGREE_FRAC * float(np.hypot(*s)))
-        near = sorted((q for q in measured if q != k),
-                      key=lambda q: float(np.hypot(*(centre(stats[q]) - centre(stats[k])))))[:RETRY_NEIGHBOURS]
-        return sum(1 for q in near if float(np.hypot(*(measured[q] - s))) <= tol)
+        lights, not a far one's that happens to move by the twin's offset). Once per region:
+        O(n log n) each, so a frame of many small clipped speckles stays cheap."""
+        if k not in supports:
+            i = index[k]
+            s = vecs[i]
+            tol = max(AGREE_PX, AGREE_FRAC * float(np.hypot(*s)))
+            order = nearest(cents, cents[i])
+            near = order[order != i][:RETRY_NEIGHBOURS]
+            supports[k] = int(np.count_nonzero(np.hypot(vecs[near, 0] - s[0], vecs[near, 1] - s[1]) <= tol))
+        return supports[k]
 
+    winners = {}                               # earlier region -> the later region whose claim stands
+    for j, cl in claims.items():
+        top = max(c[0] for c in cl)
+        tied = [c for c in cl if c[0] >= top - IOU_TIE]
+        winners[j] = min(tied, key=lambda c: (-support(c[2]) if len(tied) > 1 else 0, c[1], -c[0]))[2]
     taken = set()
     for k, j in best.items():
-        top = max(c[0] for c in claims[j])
-        tied = [c for c in claims[j] if c[0] >= top - IOU_TIE]
-        winner = min(tied, key=lambda c: (-support(c[2]) if len(tied) > 1 else 0, c[1], -c[0]))[2]
+        winner = winners[j]
         growth = _pair(k, j, stats, prev_stats, shape)
         if winner == k and growth is not None:
             out[k] = replace(out[k], prev_label=j, growth=growth)
             taken.add(j)
     matched = [m for m in out.values() if m.prev_label]
+    matched_cents = np.array([centre(stats[m.label]) for m in matched], np.float64).reshape(-1, 2)
     for k in [k for k in shifts if not out[k].prev_label]:
-        near = sorted(matched, key=lambda m: float(np.hypot(*(centre(stats[m.label]) - centre(stats[k])))))
-        for m in near[:RETRY_NEIGHBOURS]:
+        for m in (matched[i] for i in nearest(matched_cents, centre(stats[k]))[:RETRY_NEIGHBOURS]):
             j, iou = _claim(k, *m.shift, labels, stats, prev_labels, prev_stats)
             growth = _pair(k, j, stats, prev_stats, shape) if j and j not in taken and iou >= RETRY_IOU else None
             if growth is not None:
