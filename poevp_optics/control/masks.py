@@ -20,7 +20,7 @@ transmission falls from 1 - a (1 - b) at x = Vs towards 1 - a, so with the simul
 hardware's (0.7, 0.2) from 0.44 at Vs to 0.41 at 255; it is continuous at Vs only when b = 1.
 It is the one reading under which the paper's own simulation (clipped 8-bit predictions, E = 9 to
 49) can unclip a plate at all: the ratio reading dims a clipped pixel by at most a Vs / 255 =
-0.71, the exponential one to 0 (benchmarks/results/table2.md). All three are shipped; at x = 255
+0.71, the exponential one to 0 (benchmarks/results/recognition.md, the paper's protocol). All three are shipped; at x = 255
 the exponential law is taken at its limit (0 for a < 1).
 Outputs are finite and clipped to [0, 255] everywhere, then scaled to the DMD's 2^B - 1 levels.
 `min_level` (default 0) bars the lowest levels: level 0 passes only the off-state leakage, whose

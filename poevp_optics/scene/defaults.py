@@ -12,8 +12,8 @@ gets that section's entry of BEST_LOOP for every key it does not set itself:
 
 A scene that names the key keeps the params dataclasses' own defaults for the rest (the
 paper's laws and loop stay one key away: `law = "threshold_exp"`, `mode = "open"`, `name =
-"flow"`). Why the default changed: benchmarks/results/evaluate_predictors.md (track_net in the
-demodulated loop reads the plate like flow and better on receding/reversal) and
+"flow"`). Why these defaults: benchmarks/results/recognition.md (the predictors in the demodulated
+loop, read side by side on the paper's protocol and the road scenes) and
 tests/unit/test_default_loop.py (a 100x highlight moving 8 px/frame unclips by the second loop
 frame; the paper's open loop with `flow` keeps it clipped: the flow-warped prediction of a
 clipped region falls just below 255 and the `target` law no longer reads it as clipped).
