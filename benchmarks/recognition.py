@@ -237,7 +237,7 @@ def paper_protocol(reader: Reader, cfg: Config, camera: str, log=print) -> dict:
     """Rows of the paper's protocol on the demo in `camera` ('paper' or 'physical'); returns
     {E: PaperSequence} of the paper camera (for the fusion attribution)."""
     from poevp_optics.apps.evaluate import paper_camera as pc
-    from poevp_optics.apps.evaluate.eval_paper import DEFAULT_LAWS, paper_exposures, paper_overrides
+    from poevp_optics.apps.evaluate.eval_paper import DEFAULT_LAWS, paper_exposures, paper_overrides, predictor_models
     from poevp_optics.camera.camera import Camera
     from poevp_optics.camera.sensor import resolve_sensor
     from poevp_optics.scene.load import load_scene
@@ -256,18 +256,8 @@ def paper_protocol(reader: Reader, cfg: Config, camera: str, log=print) -> dict:
             seq = pc.paper_sequence(spec)
             seqs[e] = seq
             sensor = resolve_sensor(spec.sensor)
-
-            def model_of(name):
-                from poevp_optics.control.predictors import PREDICTORS, make_predictor
-
-                if PREDICTORS[name].needs_truth:
-                    return None
-                if name not in runner.models:
-                    runner.models[name] = make_predictor(name, spec.predictor.weights, spec.predictor.resolution)
-                return runner.models[name]
-
             images, _ = pc.method_images(seq, (*BASELINES, *cfg.predictors), spec.resolved.loop.mask, pc.PaperEffects(),
-                                         model_of, contrast_ratio=spec.dmd.contrast_ratio,
+                                         predictor_models(runner, spec), contrast_ratio=spec.dmd.contrast_ratio,
                                          saturation_e=sensor.saturation_capacity_e, read_noise_e=sensor.read_noise_e,
                                          seed=spec.sensor.seed)
             reader.read_methods(images, seq.boxes, seq.texts, pc.INIT_FRAMES, **meta)

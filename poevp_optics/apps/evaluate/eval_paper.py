@@ -88,11 +88,9 @@ def paper_exposures(spec, cam: Camera) -> list:
     return list(open_source(spec.resolved.render, cam.guard_px).exposures(progress=False))
 
 
-def paper_camera_images(runner, spec, cfg):
-    """The paper's own simulation (apps/evaluate/paper_camera.py) of one E: images, seconds and frame boxes,
-    with the predictors built once in runner.models."""
-    from poevp_optics.apps.evaluate import paper_camera as pc
-    from poevp_optics.camera.sensor import resolve_sensor
+def predictor_models(runner, spec):
+    """name -> the predictor the paper camera's loop runs (None for one that needs the truth),
+    each built once and kept in runner.models."""
     from poevp_optics.control.predictors import PREDICTORS, make_predictor
 
     def model_of(name):
@@ -102,6 +100,16 @@ def paper_camera_images(runner, spec, cfg):
             runner.models[name] = make_predictor(name, spec.predictor.weights, spec.predictor.resolution)
         return runner.models[name]
 
+    return model_of
+
+
+def paper_camera_images(runner, spec, cfg):
+    """The paper's own simulation (apps/evaluate/paper_camera.py) of one E: images, seconds and frame boxes,
+    with the predictors built once in runner.models."""
+    from poevp_optics.apps.evaluate import paper_camera as pc
+    from poevp_optics.camera.sensor import resolve_sensor
+
+    model_of = predictor_models(runner, spec)
     seq = pc.paper_sequence(spec)
     sensor = resolve_sensor(spec.sensor)
     images, secs = pc.method_images(seq, cfg.methods, spec.resolved.loop.mask, pc.effects_from(cfg.paper_effects), model_of,
