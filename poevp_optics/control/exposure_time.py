@@ -236,16 +236,41 @@ def exposure_time_problem(mask, dmd_spec, timing) -> tuple[str, str] | None:
     return None
 
 
+#: The least span timing.exposure_s / shortest_exposure_s for which T_e is chosen per frame: one
+#: mask bracket (`mask.clip_step`'s default 2). On the DLPC900 at 28-30 ms frames T_e spans only
+#: 1.04-1.12x (the full 8-bit window is 26.8 ms), so it stays at the scene's exposure there.
+MIN_TIME_SPAN = 2.0
+
+
 def is_active(mask, camera) -> bool:
-    """True when the frame's exposure is chosen here: the exposure controller's law with a DMD."""
-    return mask.law == "exposure_controller" and camera.dmd is not None
+    """True when the frame's exposure is chosen here: the exposure controller's law with a DMD,
+    and T_e fixed by the scene (`mask.exposure_time_s`) or chosen per frame
+    (`mask.exposure_time_auto`) where it spans at least MIN_TIME_SPAN.
+
+    Per-frame choice is opt-in. Measured with the ideal controller (its T_e spans ~1400x) in the
+    quick evaluation (highbeam_plate, 40 px/frame, E = 9), it brought the plate's mirrors to their
+    fine levels but lowered whole-frame reads (flow 2/3 -> 0/3), as on the paper's protocol at
+    E = 49 (oracle 5/6 -> 0/6): one exposure for the frame sets the highlight's centre at the fine
+    level and the plate's far end below what the detector finds (docs/physics/exposure-time.md)."""
+    if mask.law != "exposure_controller" or camera.dmd is None:
+        return False
+    if mask.exposure_time_s > 0:
+        return True
+    span = camera.timing.exposure_s / shortest_exposure_s(camera.dmd_spec)
+    return bool(mask.exposure_time_auto) and span >= MIN_TIME_SPAN
 
 
 def searches(mask, camera, attenuator=None) -> bool:
     """True when T_e does the search after a clip: chosen per frame, no variable ND in the path
-    (with an ND the search is the ND's, bracketed as the scene set it for the ND)."""
+    (with an ND the search is the ND's, bracketed as the scene set it for the ND), and T_e able
+    to span the bracket, timing.exposure_s / shortest_exposure_s >= `mask.time_clip_step`. On the
+    DLPC900 at a 28-30 ms exposure T_e spans only 28 / 26.8 = 1.04x: the mask does the search with
+    its own `mask.clip_step`, since a 100x bracket the exposure time cannot follow would push the
+    mask itself to its coarse lowest levels."""
     nd = attenuator is not None and attenuator.enabled
-    return is_active(mask, camera) and mask.exposure_time_s <= 0 and not nd
+    if not is_active(mask, camera) or mask.exposure_time_s > 0 or nd:
+        return False
+    return camera.timing.exposure_s / shortest_exposure_s(camera.dmd_spec) >= mask.time_clip_step
 
 
 def clip_step(mask, camera, attenuator=None) -> float:

@@ -296,7 +296,8 @@ class MaskSpec:
     min_level: int = param(0, min=0, max=65535)         # lowest DMD level a law may use
     carry: str = param("dilate", choices=CARRY_MODES)    # exposure_controller: history carried to the next frame
     # exposure_controller's exposure time and DMD bit depth per frame (control/exposure_time.py):
-    exposure_time_s: float = param(0.0, min=0, max=100.0)   # fixed sensor exposure T_e, s (0: chosen per frame)
+    exposure_time_auto: bool = param(False)                 # choose T_e per frame (off: the scene's exposure)
+    exposure_time_s: float = param(0.0, min=0, max=100.0)   # fixed sensor exposure T_e, s (0: not fixed)
     fine_steps: int = param(20, min=1, max=65535)           # levels above zero the reference demand is put at
     time_clip_step: float = param(100.0, min=1, max=1e9)    # T_e after a clip: for this x the lower bound
 

@@ -40,7 +40,7 @@ def test_a_plate_1e4x_over_saturation_is_in_the_band_on_the_third_loop_frame(mod
     from poevp_optics.control.predictors import PredictorSpec
 
     cam = _camera()
-    mask = MaskSpec(law="exposure_controller", target=0.6, band_low=0.4, band_high=0.9, smooth_px=1.0)
+    mask = MaskSpec(law="exposure_controller", exposure_time_auto=True, target=0.6, band_low=0.4, band_high=0.9, smooth_px=1.0)
     step = LoopStep(cam, mask, LoopSpec(mode=mode, init_frames=2), PredictorSpec(name="hold"))
     per_sat = cam.electrons_per_radiance() * cam.white_exposure_s(0) / cam.params.saturation_capacity_e
     g = cam.guard_px
@@ -125,7 +125,7 @@ def test_the_controller_keeps_the_reference_demand_at_its_fine_level_or_the_full
     from poevp_optics.control.exposure_control import full_scale_electrons
     from poevp_optics.control.masks import MaskSpec
 
-    mask = MaskSpec(law="exposure_controller", target=0.6, band_low=0.4, band_high=0.9)
+    mask = MaskSpec(law="exposure_controller", exposure_time_auto=True, target=0.6, band_low=0.4, band_high=0.9)
     for controller, floor in (("ideal", et.SENSOR_MIN_EXPOSURE_S), ("dlpc900_dlp6500", 255 * PLANE_S)):
         cam = _camera(controller)
         assert abs(et.shortest_exposure_s(cam.dmd_spec) / floor - 1) < 1e-12
@@ -188,7 +188,7 @@ def test_with_a_variable_nd_the_exposure_time_serves_only_what_the_nd_leaves_bey
     from poevp_optics.control.masks import MaskSpec, reach_electrons
 
     cam = _camera()
-    mask = MaskSpec(law="exposure_controller", target=0.6, band_low=0.4, band_high=0.9)
+    mask = MaskSpec(law="exposure_controller", exposure_time_auto=True, target=0.6, band_low=0.4, band_high=0.9)
     sat = cam.params.saturation_capacity_e
     table = cam.level_exposure_s(0)
     reach = reach_electrons(mask, 255, table, cam.params)
