@@ -226,6 +226,22 @@ def cached(path: str | os.PathLike, build: Callable[[], T], *, load: Callable[[P
     return value
 
 
+def cached_png(path: str | os.PathLike, image, what: str) -> Path:
+    """`path` holding the 8-bit PNG of `image` (a uint8 array), rewritten unless its pixels are
+    exactly `image`'s; `what` names the image in the reason for a rebuild."""
+    import numpy as np
+
+    from poevp_optics.core.io import read_png, write_png
+
+    def problem(p: Path) -> str | None:
+        img = read_png(p)
+        if img.shape != image.shape or img.dtype != image.dtype:
+            return f"{img.dtype} image of shape {img.shape}, not uint8 {image.shape}"
+        return None if np.array_equal(img, image) else f"pixels differ from {what}"
+
+    return cached_path(path, lambda tmp: write_png(tmp, image), problem)
+
+
 def cached_path(path: str | os.PathLike, write: Callable[[Path], None],
                 check: Callable[[Path], str | None] | None = None) -> Path:
     """`path` once it holds a file that passes its checksum and `check(path)`, written with

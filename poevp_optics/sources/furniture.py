@@ -492,21 +492,12 @@ def face_texture(legend: str, width_m: float, height_m: float) -> np.ndarray:
 
 def cached_face_path(legend: str, width_m: float, height_m: float) -> Path:
     """The face texture PNG in the cache (checksum and pixels checked before use)."""
-    from poevp_optics.core.cache import cache_file, cached_path, digest
-    from poevp_optics.core.io import read_png, write_png
+    from poevp_optics.core.cache import cache_file, cached_png, digest
     from poevp_optics.sources.plates import plate_font_sha256
 
     tex = face_texture(legend, width_m, height_m)
     key = f"{legend}|{width_m:.6g}|{height_m:.6g}|{FACE_PX_PER_M}|{plate_font_sha256()[:16]}|v1"
-    path = cache_file("signs", f"sign_{digest(key)}.png")
-
-    def problem(p: Path) -> str | None:
-        img = read_png(p)
-        if img.shape != tex.shape or img.dtype != tex.dtype:
-            return f"{img.dtype} image of shape {img.shape}, not uint8 {tex.shape}"
-        return None if np.array_equal(img, tex) else f"pixels differ from the sign face {legend!r}"
-
-    return cached_path(path, lambda tmp: write_png(tmp, tex), problem)
+    return cached_png(cache_file("signs", f"sign_{digest(key)}.png"), tex, f"the sign face {legend!r}")
 
 
 # ------------------------------------------------------------------------------- XML

@@ -42,7 +42,6 @@ from pathlib import Path
 import numpy as np
 
 from poevp_optics.core.cache import cache_file, digest
-from poevp_optics.core.io import write_png
 from poevp_optics.core.params import param as _param
 from poevp_optics.core.paths import ASSETS_DIR
 
@@ -209,18 +208,9 @@ def cached_plate_path(text: str, width_px: int = 0, height_px: int = 0, *, plate
     """Write (once) and return a plate texture PNG for `text` in the user cache folder, checked
     (checksum, and it decodes to this texture's size and pixels) before anything reads it; a file
     that fails is rebuilt (core/cache.py)."""
-    from poevp_optics.core.cache import cached_path
-    from poevp_optics.core.io import read_png
+    from poevp_optics.core.cache import cached_png
 
     width_px, height_px = texture_size(plate_format, width_px, height_px)
     key = f"{text}|{width_px}|{height_px}|{plate_format}|{int(band)}|{plate_font_sha256()[:16]}|v2"
-    path = cache_file("plates", f"plate_{digest(key)}.png")
     texture = plate_texture(text, width_px, height_px, plate_format=plate_format, band=band)
-
-    def problem(p: Path) -> str | None:
-        img = read_png(p)
-        if img.shape != texture.shape or img.dtype != texture.dtype:
-            return f"{img.dtype} image of shape {img.shape}, not uint8 {texture.shape}"
-        return None if np.array_equal(img, texture) else f"pixels differ from the plate {text!r}"
-
-    return cached_path(path, lambda tmp: write_png(tmp, texture), problem)
+    return cached_png(cache_file("plates", f"plate_{digest(key)}.png"), texture, f"the plate {text!r}")

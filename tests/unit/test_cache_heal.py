@@ -311,11 +311,12 @@ PLATE = ("NR 17 RA", 208, 44)
 def test_plate_texture_heals_before_mitsuba_reads_it(tmp_path, monkeypatch, capsys, damage):
     import cv2
 
+    from poevp_optics.core import io
     from poevp_optics.sources import plates
 
     monkeypatch.setenv("POEVP_CACHE_DIR", str(tmp_path))
-    writes, real = [], plates.write_png
-    monkeypatch.setattr(plates, "write_png", lambda *a: (writes.append(1), real(*a)))
+    writes, real = [], io.write_png          # the cache writes a texture through core.io (cached_png)
+    monkeypatch.setattr(io, "write_png", lambda *a: (writes.append(1), real(*a)))
     path = plates.cached_plate_path(*PLATE)
     clean = path.read_bytes()
     extra = {"png_of_another_size": _resigned(lambda p: write_png(p, plates.plate_texture(PLATE[0], 104, 22))),
