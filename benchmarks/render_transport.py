@@ -28,7 +28,7 @@ import time
 from pathlib import Path
 
 from benchmarks.common import add_results_flag, machine_line, markdown_table, output_folder, save_text
-from benchmarks.sweep_reuse import _untimed
+from benchmarks.sweep_reuse import fingerprint   # point folder -> file hashes, <root> for the checkout
 from poevp_optics.apps.sweep.reuse import CHUNK_BYTES
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -53,28 +53,6 @@ rc = main(sys.argv[1:])
 hwm = [l for l in open('/proc/self/status') if l.startswith('VmHWM')][0].split()[1]
 print(json.dumps({'rc': rc, 'vmhwm_kib': int(hwm)}))
 """
-
-
-def fingerprint(points: Path, root: Path) -> dict:
-    """Point folder -> {file: SHA-256 of its bytes}; report.json untimed, with the checkout's
-    folder (where each revision's scenes and assets are reached) written as <root>."""
-    import hashlib
-
-    out = {}
-    for p in sorted(points.iterdir()):
-        if not p.is_dir():
-            continue
-        files = {}
-        for f in sorted(p.rglob("*")):
-            if not f.is_file() or f.name.startswith(".") or f.name == "report.html":
-                continue
-            data = f.read_bytes()
-            if f.name == "report.json":
-                text = json.dumps(_untimed(json.loads(data)), sort_keys=True)
-                data = text.replace(str(root), "<root>").encode()
-            files[str(f.relative_to(p))] = hashlib.sha256(data).hexdigest()
-        out[p.name] = files
-    return out
 
 
 def checkout(rev: str, dest: Path) -> Path:

@@ -38,8 +38,9 @@ def _untimed(obj):
     return obj
 
 
-def fingerprint(points: Path) -> dict:
-    """Point folder -> {file: SHA-256 of its bytes} (report.json: of its untimed content)."""
+def fingerprint(points: Path, root: Path | None = None) -> dict:
+    """Point folder -> {file: SHA-256 of its bytes} (report.json: of its untimed content, with
+    the folder `root`, where given, written as <root>)."""
     out = {}
     for p in sorted(points.iterdir()):
         if not p.is_dir():
@@ -50,7 +51,8 @@ def fingerprint(points: Path) -> dict:
                 continue
             data = f.read_bytes()
             if f.name == "report.json":
-                data = json.dumps(_untimed(json.loads(data)), sort_keys=True).encode()
+                text = json.dumps(_untimed(json.loads(data)), sort_keys=True)
+                data = (text.replace(str(root), "<root>") if root is not None else text).encode()
             files[str(f.relative_to(p))] = hashlib.sha256(data).hexdigest()
         out[p.name] = files
     return out
