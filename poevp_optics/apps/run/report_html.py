@@ -3,7 +3,10 @@
 One self-contained file (no network: inline CSS and JavaScript, images as base64 PNG data
 URIs): a frame player (slider, play button) of scene / LDR twin / mask / encoded capture /
 reconstruction side by side, the plate box (the run's ROI) zoomed (nearest neighbour) with its
-known text and any OCR read the run recorded (a render run reads none: `poevp evaluate` runs the ALPR), per-frame
+known text and any OCR read the run recorded (a render run reads none: `poevp evaluate` runs the ALPR)
+or, where the run recorded every plate in view (`render.roi_shape = "plates"`, apps/run/plates.py),
+each plate's box zoomed from the encoded capture with its text, white (encoded, LDR twin), band
+and MC error in that frame, per-frame
 plots (saturated fraction, the plate's band) as inline SVG, the error budget, the timing
 budget, the notes and the run's figures (timeline, DR curves, night-road band plot).
 
@@ -99,6 +102,41 @@ def _plate_crop(img: np.ndarray, box) -> np.ndarray | None:
     return cv2.resize(c, (c.shape[1] * k, c.shape[0] * k), interpolation=cv2.INTER_NEAREST)
 
 
+def _plate_numbers(p: dict, band) -> str:
+    """One plate's line for a frame: text, distance, height, white (encoded capture, LDR twin;
+    fractions of full scale) against the band, MC error; or that it is out of view."""
+    head = f"{p.get('id', '?')} ({p.get('text') or 'no text'})"
+    if not p.get("in_view") or not p.get("box"):
+        return f"{head}: out of view"
+    parts = []
+    if isinstance(p.get("distance_m"), (int, float)):
+        parts.append(f"{p['distance_m']:.1f} m")
+    if isinstance(p.get("height_px"), (int, float)):
+        parts.append(f"{p['height_px']:.0f} px tall")
+    w = p.get("white") or {}
+    if isinstance(w.get("encoded"), (int, float)):
+        ldr = f", LDR twin {w['ldr']:.2f}" if isinstance(w.get("ldr"), (int, float)) else ""
+        where = {True: "in band", False: "out of band"}.get(p.get("in_band"), "band not judged")
+        rng = f" {band[0]:g}-{band[1]:g}" if band else ""
+        parts.append(f"white {w['encoded']:.2f} of full scale{ldr} ({where}{rng})")
+    rel = p.get("rel_error")
+    parts.append("MC error " + (f"{rel * 100:.2f} %" if isinstance(rel, (int, float)) else "-"))
+    return f"{head}: " + "; ".join(parts)
+
+
+def _plate_zooms(rec: dict, capture: np.ndarray | None, band) -> list[dict]:
+    """Every plate record of a frame (`plates`): {id, zoom (data URI of its box zoomed from the
+    encoded capture; "" out of view), numbers (its line, `_plate_numbers`)}."""
+    out = []
+    for p in rec.get("plates") or []:
+        zoom = ""
+        if p.get("in_view") and p.get("box") and capture is not None:
+            z = _plate_crop(capture, p["box"])
+            zoom = png_data_uri(z) if z is not None else ""
+        out.append({"id": str(p.get("id", "")), "zoom": zoom, "numbers": _plate_numbers(p, band)})
+    return out
+
+
 def _ocr_read(rec: dict) -> str | None:
     """The plate text an ALPR read for this frame, if the run recorded one."""
     for key in ("ocr", "alpr", "plate_read"):
@@ -120,6 +158,7 @@ def collect_frames(out_dir: Path, report: dict, plate_text: str = "") -> dict:
     if single:                                       # a chart run: one frame of top-level files
         folders = [c for c in COLUMNS if c[2] and (out_dir / c[2]).is_file()]
     idx = shown_frames(len(per_frame)) if not single else [0]
+    band = ((report.get("metrics") or {}).get("plates") or {}).get("band")
     frames = []
     for i in idx:
         rec = per_frame[i] if i < len(per_frame) else {}
@@ -140,6 +179,7 @@ def collect_frames(out_dir: Path, report: dict, plate_text: str = "") -> dict:
                 if z is not None:
                     plate.append(png_data_uri(z))
         frames.append({"index": rec.get("index", i), "panels": panels, "plate": plate,
+                       "plates": _plate_zooms(rec, raw.get("capture"), band),
                        "caption": _caption(rec), "text": text, "ocr": _ocr_read(rec)})
     return {"labels": [c[0] for c in folders], "frames": frames, "of": len(per_frame)}
 
@@ -301,6 +341,7 @@ h1{font-size:20px}h2{font-size:16px;margin-top:24px;border-bottom:1px solid #ccc
 table{border-collapse:collapse;margin:6px 0}td,th{border:1px solid #ddd;padding:3px 8px;text-align:left;vertical-align:top}
 .row{display:flex;flex-wrap:wrap;gap:8px}.panel{display:flex;flex-direction:column;align-items:center}
 .panel img{width:256px;image-rendering:pixelated;background:#000}.plate img{image-rendering:pixelated;max-width:320px}
+.plate figure{margin:0;max-width:320px;display:flex;flex-direction:column;align-items:center}.plate figcaption{font-size:12px}
 .fig{max-width:100%}#controls{margin:8px 0;display:flex;gap:10px;align-items:center}#slider{width:420px}
 .note{color:#555}figure{margin:8px 0}"""
 
@@ -310,12 +351,17 @@ var n=D.frames.length,i=0,timer=null;
 var imgs=document.querySelectorAll('#player .panel img'),pl=document.querySelectorAll('#plate img');
 var s=document.getElementById('slider'),lab=document.getElementById('frame-label'),
     cap=document.getElementById('caption'),txt=document.getElementById('plate-text'),
-    btn=document.getElementById('play');
+    btn=document.getElementById('play'),pz=document.getElementById('plate-zooms');
 function show(k){i=k;var f=D.frames[k];
  for(var c=0;c<imgs.length;c++){imgs[c].src=f.panels[c]||'';}
  for(var p=0;p<pl.length;p++){pl[p].src=f.plate[p]||'';pl[p].style.display=f.plate[p]?'':'none';}
  s.value=k;lab.textContent='frame '+f.index+' ('+(k+1)+' of '+n+' shown, '+D.of+' in the run)';
  cap.textContent=f.caption;
+ if(pz){while(pz.firstChild){pz.removeChild(pz.firstChild);}
+  for(var q=0;q<f.plates.length;q++){var P=f.plates[q],fig=document.createElement('figure'),
+   im=document.createElement('img'),fc=document.createElement('figcaption');
+   im.alt='plate '+P.id;if(P.zoom){im.src=P.zoom;}else{im.style.display='none';}
+   fc.textContent=P.numbers;fig.appendChild(im);fig.appendChild(fc);pz.appendChild(fig);}}
  if(txt){txt.textContent=f.plate.length?('plate text (ground truth): '+(f.text||'not given')+'; OCR read: '+(f.ocr||'none recorded in this run (poevp evaluate runs the ALPR)')):'no plate box in this frame';}}
 s.max=n-1;s.addEventListener('input',function(){show(parseInt(s.value,10));});
 btn.addEventListener('click',function(){if(timer){clearInterval(timer);timer=null;btn.textContent='play';}
@@ -336,9 +382,13 @@ def render_html(out_dir: Path, report: dict, plate_text: str = "") -> str:
     first = data["frames"][0] if data["frames"] else {"panels": [], "plate": []}
     panels = "".join(f'<div class="panel"><img alt="{html.escape(lab)}" src="{first["panels"][k]}">'
                      f"<span>{html.escape(lab)}</span></div>" for k, lab in enumerate(data["labels"]))
-    has_plate = any(f["plate"] for f in data["frames"])
+    has_plates = any(f["plates"] for f in data["frames"])
+    has_plate = any(f["plate"] for f in data["frames"]) and not has_plates
     plate = ""
-    if has_plate:
+    if has_plates:                     # every plate in view: its own zoom and numbers per frame
+        plate = ('<h2>Every plate in the frame (zoomed from the encoded capture)</h2>'
+                 '<div id="plate-zooms" class="row plate"></div>')
+    elif has_plate:
         plate = ('<h2>Plate (zoomed: encoded capture, reconstruction)</h2><div id="plate" class="row plate">'
                  + "".join(f'<img alt="plate {k}" src="">' for k in range(2))
                  + '</div><p id="plate-text"></p>')
