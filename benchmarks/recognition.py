@@ -103,38 +103,50 @@ QUICK = Config(predictors=("flow", "oracle"), paper_e=(9.0,), texts=TEXTS[:1], s
 # Caches: renders and OCR readings, by content (a rerun after a change to the loop redoes only
 # what the change touched)
 
-#: Bump to drop every kept road render (as eval_sequences.CACHE_VERSION does for evaluate's).
-RENDER_CACHE_VERSION = "recognition-render-v1"
+#: Bump on a change to what a kept road render stores.
+RENDER_CACHE_VERSION = "recognition-render-v2"
+
+
+def render_key(spec, guard_px: int) -> str:
+    """A road render's key: everything the render depends on (eval_sequences.render_fingerprint:
+    the resolved scene with its frame timing, the files it reads, the plate font, the render
+    code, the software versions and the backend), as `poevp evaluate` keys its sequences."""
+    from poevp_optics.apps.evaluate.eval_sequences import render_fingerprint
+    from poevp_optics.core.cache import json_digest
+
+    return json_digest([RENDER_CACHE_VERSION, render_fingerprint(spec, guard_px)], sort_keys=True, default=str)
 
 
 def cached_render(scene: str, overrides: list[str], cache: Path, fresh: bool = False):
-    """(spec, exposures, when rendered): benchmarks.plate_band.render_once, kept under `cache` by the
-    scene's files, the overrides and the package version (as `poevp evaluate` keeps its sequences:
-    eval_sequences.content_key); `--fresh` renders again."""
-    import hashlib
+    """(spec, exposures, when rendered): benchmarks.plate_band.render_once, kept under `cache` by
+    `render_key` and checked on load (core/cache.py: checksum; a damaged file is rendered again);
+    `--fresh` renders again."""
     import pickle
 
     from benchmarks.plate_band import render_once
-    from poevp_optics import __version__
+    from poevp_optics.camera.camera import Camera
+    from poevp_optics.core.cache import cached, discard
+    from poevp_optics.scene.load import load_scene
 
-    h = hashlib.sha1(f"{RENDER_CACHE_VERSION}\0{__version__}".encode())
-    for p in sorted(Path(scene).iterdir()):
-        if p.is_file():
-            h.update(p.name.encode() + p.read_bytes())
-    h.update("\n".join(overrides).encode())
-    path = cache / f"render-{Path(scene).name}-{h.hexdigest()[:16]}.pkl"
-    if path.is_file() and not fresh:
-        from poevp_optics.scene.load import load_scene
+    spec = load_scene(scene, overrides)
+    guard = Camera.from_params(spec.resolved.camera).guard_px
+    path = cache / f"render-{Path(scene).name}-{render_key(spec, guard)}.pkl"
+    if fresh:
+        discard(path)
 
-        with open(path, "rb") as f:
-            ex = pickle.load(f)
-        return load_scene(scene, overrides), ex, _stamp(path)
-    spec, _, ex = render_once(scene, overrides)
-    cache.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp")
-    with open(tmp, "wb") as f:
-        pickle.dump(ex, f, protocol=pickle.HIGHEST_PROTOCOL)
-    tmp.replace(path)
+    def load(p: Path):
+        with open(p, "rb") as f:
+            return pickle.load(f)
+
+    def save(tmp: Path, ex) -> None:
+        with open(tmp, "wb") as f:
+            pickle.dump(ex, f, protocol=pickle.HIGHEST_PROTOCOL)
+
+    def check(ex) -> str | None:
+        n = spec.timing.frames
+        return None if isinstance(ex, list) and len(ex) == n else f"not a list of {n} rendered exposures"
+
+    ex = cached(path, lambda: render_once(scene, overrides)[2], load=load, save=save, check=check)
     return spec, ex, _stamp(path)
 
 
@@ -163,9 +175,15 @@ def save_ocr_cache(readings: dict, cache: Path) -> None:
 
 
 def _ocr_version() -> str:
+    """The OCR engine's version and the reading code's digest: a kept reading is the engine's
+    output through analysis/recognition.py (detection, recognition, the text match) and
+    evaluate's Runner.read (the plate box's entropy and exposure)."""
     from importlib.metadata import version
 
-    return f"rapidocr-{version('rapidocr-onnxruntime')}"
+    from poevp_optics.apps.evaluate.eval_sequences import code_digest
+
+    code = code_digest(("analysis/recognition.py", "analysis/metrics.py", "apps/evaluate/evaluate.py"))
+    return f"rapidocr-{version('rapidocr-onnxruntime')}-{code}"
 
 
 # ----------------------------------------------------------------------------------------------

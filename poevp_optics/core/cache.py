@@ -8,7 +8,7 @@ verified load-or-build path for the package's caches:
 | meshes/car_rear_*.ply | SHA-1 of the mesh's bytes and MESH_VERSION | PLY header and counts, every vertex and face | sources/road.py |
 | plates/plate_*.png | SHA-1 of text, width, height, format, band, the font file's SHA-256 (16 hex) and "v2", bar-separated | decodes to the plate's size and pixels | sources/plates.py |
 | predictor_data/seq_*.npz | SHA-1 of JSON (sequences, frames, seed, size) | frames uint8 (sequences, frames, H, W) | apps/train/training_data.py |
-| eval/*.npz | SHA-1 of JSON (scene files' hashes, sequence, poses, settings) | mean, var (frames, nodes, H, W) finite, var >= 0; roi boxes | apps/evaluate/eval_sequences.py |
+| eval/*.npz | SHA-1 of JSON (sequence, node times, poses, shutter; the render's fingerprint: resolved scene, hashes of the files it reads, plate font, render code, versions, backend, guard band) | mean, var (frames, nodes, H, W) finite, var >= 0; roi boxes | apps/evaluate/eval_sequences.py |
 | train_data/<scene>-<hash>/ | SHA-256 of the scene's files and the settings | manifest's hash; each split's frames, boxes, draws | apps/train/train_data.py |
 
 The cache root is $POEVP_CACHE_DIR, else ~/.cache/poevp_optics (core.runtime.cache_dir). Each

@@ -25,18 +25,19 @@ mask's lag, not motion blur. K = 2 radiance nodes (both ends of the exposure) pe
 from __future__ import annotations
 
 import dataclasses
+import functools
+import hashlib
 import json
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from poevp_optics import __version__
 from poevp_optics.camera.dmd import node_time_weights_s, node_times_s
 from poevp_optics.core.exceptions import SceneError
 from poevp_optics.core.io import atomic_path
-from poevp_optics.core.cache import (CacheCheckError, UncheckedFile, build_lock, cache_file, digest, discard,
-                                     json_digest, load_verified, note_rebuilt, write_checksum)
+from poevp_optics.core.cache import (CacheCheckError, UncheckedFile, build_lock, cache_file, discard, json_digest,
+                                     load_verified, note_rebuilt, write_checksum)
 from poevp_optics.core.seeds import render_seeds
 from poevp_optics.render.exposures import RenderedExposure, rel_error, union_box
 from poevp_optics.sources.ldr_highlight import srgb_to_linear
@@ -50,7 +51,12 @@ NODES = 2
 #: copies on 6 px characters; 0.5 px keeps the node sum a smooth blur (Nyquist on the pixel grid).
 MAX_NODE_STEP_PX = 0.5
 RANGE_SPEED_M_PER_S = 12.0
-CACHE_VERSION = "eval-seq-v1"
+CACHE_VERSION = "eval-seq-v2"
+#: Packages whose code shapes a render beyond what its resolved RenderScene says: the renderer,
+#: its plugins and materials (render/), the generated plate and sign textures, meshes and maps
+#: (sources/), and the spectra, seeds and units they use (core/).
+RENDER_CODE = ("render", "sources", "core")
+PACKAGE_DIR = Path(__file__).resolve().parents[2]
 
 #: How E sets the plate's peak, in units of the LDR saturation level (module docstring).
 E_READINGS = ("display", "linear")
@@ -177,13 +183,61 @@ def node_times(spec, frames: int, nodes: int = NODES) -> np.ndarray:
     return np.stack([node_times_s(*spec.exposure_window_s(i), nodes) for i in range(frames)])
 
 
-def content_key(spec, seq: SequenceSpec, offsets: np.ndarray, spp: int, nodes: int) -> str:
-    """Cache key: the scene's files, the sequence, its poses and the render settings."""
-    files = [digest(Path(p).read_bytes(), length=40) for p in (spec.toml_path, spec.xml_path)]
-    blob = [files, dataclasses.asdict(seq), np.round(offsets, 6).tolist(), list(spec.render.resolution), spp,
-            spec.render.seed, spec.accuracy.mc_splits,
-            EXPOSURE_S, nodes, __version__, CACHE_VERSION]
-    return json_digest(blob, default=str)
+@functools.lru_cache(maxsize=16)
+def code_digest(parts: tuple[str, ...] = RENDER_CODE, root: Path = PACKAGE_DIR) -> str:
+    """SHA-256 (16 hex) of the package's source: for each of `parts` (a folder under `root`, or
+    one file), every *.py file's path relative to `root` and its bytes, in sorted order; any
+    edit to that code changes it."""
+    h = hashlib.sha256()
+    for part in parts:
+        where = Path(root) / part
+        for p in ([where] if where.is_file() else sorted(where.rglob("*.py"))):
+            h.update(p.relative_to(root).as_posix().encode() + b"\0")
+            h.update(p.read_bytes() + b"\0")
+    return h.hexdigest()[:16]
+
+
+def render_backend(requested: str) -> str:
+    """The Mitsuba variant family a render with `render.variant = requested` runs on: the name
+    itself when one is requested, else the backend `core.runtime.choose_variant` prefers here
+    (cuda > llvm > scalar; their random sequences and arithmetic differ)."""
+    from poevp_optics.core.runtime import backend_available
+
+    if requested != "auto":
+        return requested
+    return next((b for b in ("cuda", "llvm") if backend_available(b)), "scalar")
+
+
+def render_fingerprint(spec, guard_px: int, frames: bool = True) -> dict:
+    """Everything a render of `spec` (a SceneSpec, its poses in place) depends on, JSON-able:
+    the resolved RenderScene (render settings, seeds, accuracy, motion, spectra, sheeting,
+    plate, road, vehicles, weather, and with `frames` each frame's exposure window and node
+    times; render/render_cache.py's `render_inputs`, without the scene's paths) with the
+    SHA-256 of every file it reads and the software versions; the guard band (px); the plate
+    font's SHA-256 (the plate and sign textures are drawn with it); the code of RENDER_CODE
+    (`code_digest`); the renderer's backend."""
+    from poevp_optics.apps.sweep.bundle import scene_inputs, with_hashes
+    from poevp_optics.render.render_cache import render_inputs
+    from poevp_optics.sources import plates
+
+    files = {r.key: r.sha256 for r in with_hashes(scene_inputs(spec))}
+    inputs = render_inputs(spec.resolved.render, files)
+    if not frames:
+        inputs.pop("frames")
+    inputs["scene"] = {k: v for k, v in inputs["scene"].items() if k not in ("name", "toml_path", "xml_path")}
+    return {"render": inputs, "guard_px": int(guard_px), "plate_font_sha256": plates.plate_font_sha256(),
+            "code": code_digest(), "backend": render_backend(spec.render.variant)}
+
+
+def content_key(spec, seq: SequenceSpec, times: np.ndarray, offsets: np.ndarray, guard_px: int) -> str:
+    """Cache key of one test sequence's renders: the sequence, its node times (s) and poses (m),
+    the shutter, and `render_fingerprint` of the scene with those poses (its frame timing left
+    out: the node times stand for it, so the sequence keeps its key whatever the scene's frame
+    count); CACHE_VERSION: bump on a change to what is stored."""
+    posed = with_poses(spec, np.ravel(times), offsets)
+    blob = [CACHE_VERSION, dataclasses.asdict(seq), np.asarray(times, np.float64).round(12).tolist(),
+            np.round(offsets, 6).tolist(), EXPOSURE_S, render_fingerprint(posed, guard_px, frames=False)]
+    return json_digest(blob, sort_keys=True, default=str)
 
 
 def _exposures(spec, renders: dict, times: np.ndarray) -> list[RenderedExposure]:
@@ -245,7 +299,7 @@ def render_sequences(spec, seqs: list[SequenceSpec], cal: Calibration, guard_px:
     for j, seq in enumerate(seqs):
         times = node_times(spec, seq.frames, nodes_for_speed(seq.speed_px, spec.timing.fps))
         offs = poses(seq, cal, spec.timing.fps, times.ravel())
-        path = cache_file("eval", f"{content_key(spec, seq, offs, acc.spp, times.shape[1])}.npz")
+        path = cache_file("eval", f"{content_key(spec, seq, times, offs, guard_px)}.npz")
         plan.append((seq, times, offs, path))
         if path.is_file():
             with build_lock(path):
