@@ -72,7 +72,8 @@ def test_code_digest_follows_every_source_file(tmp_path):
     (root / "render" / "notes.txt").write_text("not code")
     first = es.code_digest(es.RENDER_CODE, root)
     (root / "render" / "notes.txt").write_text("still not code")
-    assert es.code_digest.__wrapped__(es.RENDER_CODE, root) == first
+    (root / "core" / "d.py").write_text('"""A docstring."""\n\nX = (  # a comment\n    "core/d.py")\n')
+    assert es.code_digest.__wrapped__(es.RENDER_CODE, root) == first          # same code, other layout
     (root / "render" / "sub" / "b.py").write_text("X = 2\n")
     edited = es.code_digest.__wrapped__(es.RENDER_CODE, root)
     assert edited != first

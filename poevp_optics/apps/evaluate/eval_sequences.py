@@ -183,17 +183,35 @@ def node_times(spec, frames: int, nodes: int = NODES) -> np.ndarray:
     return np.stack([node_times_s(*spec.exposure_window_s(i), nodes) for i in range(frames)])
 
 
+def _code_text(path: Path) -> bytes:
+    """A source file's code without its comments, docstrings and layout (its syntax tree), so
+    that an edit to the documentation alone keeps the caches; the raw bytes when it does not parse."""
+    import ast
+
+    raw = path.read_bytes()
+    try:
+        tree = ast.parse(raw)
+    except SyntaxError:
+        return raw
+    for node in ast.walk(tree):
+        body = getattr(node, "body", None)
+        if (isinstance(body, list) and body and isinstance(body[0], ast.Expr)
+                and isinstance(body[0].value, ast.Constant) and isinstance(body[0].value.value, str)):
+            node.body = body[1:] or [ast.Pass()]
+    return ast.dump(tree, include_attributes=False).encode()
+
+
 @functools.lru_cache(maxsize=16)
 def code_digest(parts: tuple[str, ...] = RENDER_CODE, root: Path = PACKAGE_DIR) -> str:
-    """SHA-256 (16 hex) of the package's source: for each of `parts` (a folder under `root`, or
-    one file), every *.py file's path relative to `root` and its bytes, in sorted order; any
-    edit to that code changes it."""
+    """SHA-256 (16 hex) of the package's code: for each of `parts` (a folder under `root`, or one
+    file), every *.py file's path relative to `root` and its code (`_code_text`), in sorted
+    order; any edit to that code changes it, an edit to comments or docstrings does not."""
     h = hashlib.sha256()
     for part in parts:
         where = Path(root) / part
         for p in ([where] if where.is_file() else sorted(where.rglob("*.py"))):
             h.update(p.relative_to(root).as_posix().encode() + b"\0")
-            h.update(p.read_bytes() + b"\0")
+            h.update(_code_text(p) + b"\0")
     return h.hexdigest()[:16]
 
 
