@@ -5,7 +5,10 @@ detection + recognition on the raw 8-bit frame, no crop: analysis/recognition.py
 the encoded plate white (p90 of the plate box / 255, band 40-90 %), the plate's MC error; then the
 scene's DR demand beside the DMD floor and the objective's glare floor, with which binds.
 
-    .venv/bin/python -m benchmarks.night_road_check [--set key=value ...] [--results]
+    .venv/bin/python -m benchmarks.night_road_check [--scale S] [--set key=value ...] [--results]
+
+`--scale S` runs the camera at S x the scene's mirrors over the same field, as `poevp render --scale S`
+(scene/scale.py); the default, 1, is the scene's own 1920x1080.
 
 Writes night_road.md and night_road.png (peak over saturation vs distance) into out/benchmarks/
 (benchmarks/results/ with --results).
@@ -40,6 +43,18 @@ def run(scene: str, sets: list[str]):
     return spec, report, kept, time.perf_counter() - t0, _cpu_s() - c0
 
 
+def scaled_sets(scene: str, scale: str, sets: list[str]) -> list[str]:
+    """`sets` preceded by the overrides of `--scale` (scene/scale.py; none at 1)."""
+    from poevp_optics.scene.load import load_scene
+    from poevp_optics.scene.scale import parse_scale, scaled_resolution, scaling_for
+
+    k = parse_scale(scale)
+    if abs(k - 1.0) < 1e-12:
+        return list(sets)
+    spec = load_scene(scene, sets)
+    return [*scaling_for(spec, scaled_resolution(spec.render.resolution, k), f"--scale {scale}").sets, *sets]
+
+
 def frame_rows(report: dict, kept: dict, label: str) -> list[list]:
     """One table row per frame (module docstring)."""
     from poevp_optics.analysis.metrics import plate_white_fraction
@@ -72,12 +87,13 @@ def main(argv=None):
 
     ap = argparse.ArgumentParser()
     ap.add_argument("--scene", default="scenes/night_road")
+    ap.add_argument("--scale", default="1", help="x the scene's mirrors over the same field (1/6, 0.5, 1)")
     ap.add_argument("--set", action="append", default=[])
     add_results_flag(ap)
     args = ap.parse_args(argv)
     dest = output_folder(args.results)
     runtime.set_threads(2)
-    spec, report, kept, wall, cpu = run(args.scene, args.set)
+    spec, report, kept, wall, cpu = run(args.scene, scaled_sets(args.scene, args.scale, args.set))
     label = spec.plate.text
     rows = frame_rows(report, kept, label)
     s = summary(rows, spec.mask.band_low, spec.mask.band_high)
@@ -91,7 +107,8 @@ def main(argv=None):
           ["objective glare floor (veil on the plate)", nr["glare_floor_db"]],
           ["ink below sheeting", nr["ink_over_sheeting_db"]]]
     text = (f"# night_road: what the default scene must show\n\n"
-            f"Scene `{args.scene}` {' '.join(args.set) or '(as `make demo` runs it)'}: "
+            f"Scene `{args.scene}` {' '.join(args.set) or '(as `make demo` runs it)'}"
+            f"{'' if args.scale == '1' else f' at --scale {args.scale}'}: "
             f"{spec.timing.frames} frames at {spec.timing.fps:g} fps, "
             f"{spec.render.resolution[0]}x{spec.render.resolution[1]}, {spec.render.spp} spp, "
             f"predictor `{spec.predictor.name}`, loop `{spec.loop.mode}`, mask `{spec.mask.law}`, "
