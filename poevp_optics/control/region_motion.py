@@ -39,6 +39,9 @@ IOU_TIE = 0.1
 RETRY_NEIGHBOURS = 3
 #: ... and takes one that moves it back onto an unclaimed region with at least this IoU.
 RETRY_IOU = 0.5
+#: Two matched regions exchange their earlier regions when that leaves this fraction or less of
+#: their summed shifts (`unswap`): a clear gain, not a tie of two like readings.
+SWAP_FRAC = 0.8
 #: Two regions' shifts agree (one vehicle's lights) within this (px) or this fraction of the
 #: shift, whichever is larger (a growing car's lamps part: their shifts differ by the growth times
 #: their spacing).
@@ -189,6 +192,85 @@ def match_regions(prev_labels: np.ndarray, prev_stats: np.ndarray, labels: np.nd
                 out[k] = replace(out[k], prev_label=j, shift=m.shift, growth=growth)
                 taken.add(j)
                 break
+    return out
+
+
+def unswap(matches: dict[int, RegionMatch], prev_labels: np.ndarray, prev_stats: np.ndarray, labels: np.ndarray,
+           stats: np.ndarray, remeasure=None) -> dict[int, RegionMatch]:
+    """Undo swapped identities: two matched regions k1 <- j1, k2 <- j2 are exchanged to
+    k1 <- j2, k2 <- j1 when that moves them less in all (the sum of the two shifts' lengths, box
+    centres; at most SWAP_FRAC of the matched pair's) and each exchanged pair is alike in area and
+    overlaps with IoU >= `RETRY_IOU` when moved back. Like lights (a car's two lamps, two cars'
+    lamps crossing) correlate as well with each other's old place as with their own, and two
+    regions can each take the other's, a mutual match that is wrong for both. Lights that move
+    together never gain by the exchange (|v - s| + |v + s| >= 2 |v| for a common motion v and
+    spacing s), so it changes nothing there; it is the nearest-neighbour assignment of the
+    pair. An exchanged region's shift is `remeasure(k, only=j)` (its correlation with earlier
+    region j alone: (dx, dy, response)) when given, else its old one plus the offset between the
+    two earlier regions' box centres. Pairs are looked for only among regions moving more than 1 px (a
+    frame of standing speckles costs nothing)."""
+    shape = labels.shape
+    centre = lambda st: np.array([st[0] + st[2] / 2.0, st[1] + st[3] / 2.0])
+    moving = [m for m in matches.values() if m.prev_label and np.hypot(*m.shift) > 1.0]
+    if len(moving) < 2:
+        return matches
+    out = dict(matches)
+    cur = np.array([centre(stats[m.label]) for m in moving])
+    prv = np.array([centre(prev_stats[m.prev_label]) for m in moving])
+    own = np.hypot(*(cur - prv).T)                                           # |c_k - p_k|
+    cross = np.hypot(*(cur[:, None, :] - prv[None, :, :]).transpose(2, 0, 1))  # |c_k - p_j|
+    done: set[int] = set()
+    for a, b in zip(*np.nonzero(cross < own[:, None])):
+        if a == b or a in done or b in done:
+            continue
+        swapped, kept = cross[a, b] + cross[b, a], own[a] + own[b]
+        if swapped > SWAP_FRAC * kept:
+            continue
+        ma, mb = out[moving[a].label], out[moving[b].label]
+        new = []
+        for m, j, dp in ((ma, mb.prev_label, prv[a] - prv[b]), (mb, ma.prev_label, prv[b] - prv[a])):
+            shift, resp = (m.shift[0] + float(dp[0]), m.shift[1] + float(dp[1])), m.response
+            if remeasure is not None:
+                dx, dy, resp = remeasure(m.label, only=j)
+                shift = (float(dx), float(dy))
+            got, iou = _claim(m.label, *shift, labels, stats, prev_labels, prev_stats)
+            growth = _pair(m.label, j, stats, prev_stats, shape) if got == j and iou >= RETRY_IOU else None
+            if growth is None:
+                break
+            new.append(replace(m, prev_label=j, shift=shift, response=float(resp), growth=growth))
+        if len(new) == 2:
+            out[ma.label], out[mb.label] = new
+            done.update((a, b))
+    return out
+
+
+def rematch_left(prev_labels: np.ndarray, prev_stats: np.ndarray, labels: np.ndarray, stats: np.ndarray,
+                 matches: dict[int, RegionMatch], remeasure, min_response: float = 0.0) -> dict[int, RegionMatch]:
+    """Second look for the regions `match_regions` left new: each is measured again against the
+    earlier frame without its taken regions (`remeasure(k, taken)` -> (dx, dy, response), the
+    earlier regions `taken` by a match hidden) and matched when that shift moves it back onto a
+    region no other match took, of alike area, with IoU >= `RETRY_IOU`. Two like lights crossing
+    (one vehicle's lamp passing above another's) both lie in one correlation window, and a
+    region's correlation can land on the other's old place, which that light's own match keeps;
+    hidden, only the region's own old place is left to find. A light that appeared beside a
+    standing one finds nothing (the standing one's old place is taken) and stays new. Returns
+    `matches` with the found ones replaced (the others as they were); `unswap` then undoes a
+    found match that took the old place of a light whose own match went astray."""
+    taken = {m.prev_label for m in matches.values() if m.prev_label}
+    left = [k for k, m in matches.items() if not m.prev_label]
+    if not left or len(taken) + 1 >= len(prev_stats):      # no earlier region left free
+        return matches
+    out = dict(matches)
+    shape = labels.shape
+    for k in left:
+        dx, dy, resp = remeasure(k, hidden=frozenset(taken))
+        if resp < min_response:
+            continue
+        j, iou = _claim(k, dx, dy, labels, stats, prev_labels, prev_stats)
+        growth = _pair(k, j, stats, prev_stats, shape) if j and j not in taken and iou >= RETRY_IOU else None
+        if growth is not None:
+            out[k] = replace(out[k], prev_label=j, shift=(float(dx), float(dy)), response=float(resp), growth=growth)
+            taken.add(j)
     return out
 
 

@@ -127,3 +127,46 @@ def test_a_lamp_whose_correlation_landed_on_its_twin_takes_its_neighbours_shift(
     m = match_regions(lp, sp, lc, sc, {a: (10.0, 0.0, 1.0), b: (40.0, 0.0, 1.0)})
     assert m[a].prev_label == lp[12, 12] and m[b].prev_label == lp[12, 42]
     assert m[b].shift == (10.0, 0.0)
+
+
+@pytest.mark.parametrize("name", ["flow", "track", "track_net"])
+def test_two_lamps_crossing_keep_their_identities(name):
+    """Two like lamps 40 px apart in height pass each other at 16 px/frame in opposite
+    directions (level in frame 2): each is predicted 16 px on its own way, within 2 px. Both
+    lie in each other's correlation window, where the outline correlation of one lands as well
+    on the other's old place; taken as they came (a mutual match of the two swapped) the lower
+    lamp was predicted 8 px off."""
+    v = 16.0
+    pos = lambda t: [(100.0 + v * t, 80.0), (100.0 + 4 * v - v * t, 120.0)]
+    hist = [lamps(pos(t)) for t in range(4)]
+    got, want = lamp_centroids(make_predictor(name)(hist), pos(4)), lamp_centroids(lamps(pos(4)), pos(4))
+    for g, w in zip(got, want):
+        assert np.hypot(*(g - w)) <= 2.0, (name, g, w)
+
+
+def test_unswap_exchanges_a_swapped_pair_only_where_it_moves_less():
+    """Boxes: A moves 10 px right, B 10 px left, 20 px lower. Matched swapped (A <- B's old
+    place, B <- A's), the exchange moves them 10 + 10 px against 2 x 22.4: undone, with shifts
+    (+-10, 0). Two boxes moving 10 px right together and read swapped (shifts -20 and +40)
+    are undone too; a right pair (shifts 10, 10) is left as it is (the exchange moves them
+    30 + 10 px)."""
+    from poevp_optics.control.region_motion import RegionMatch, unswap
+
+    prev = _boxes((2, 20, 8, 8), (22, 40, 8, 8))
+    cur = _boxes((2, 30, 8, 8), (22, 30, 8, 8))
+    lp, sp = components(prev)
+    lc, sc = components(cur)
+    a, b, pa, pb = lc[4, 32], lc[24, 32], lp[4, 22], lp[24, 42]
+    swapped = {a: RegionMatch(a, pb, (-10.0, -20.0), 1.0), b: RegionMatch(b, pa, (10.0, 20.0), 1.0)}
+    m = unswap(swapped, lp, sp, lc, sc)
+    assert (m[a].prev_label, m[b].prev_label) == (pa, pb)
+    assert m[a].shift == (10.0, 0.0) and m[b].shift == (-10.0, 0.0)
+    prev = _boxes((10, 20, 8, 8), (10, 50, 8, 8))
+    cur = _boxes((10, 30, 8, 8), (10, 60, 8, 8))
+    lp, sp = components(prev)
+    lc, sc = components(cur)
+    a, b, pa, pb = lc[12, 32], lc[12, 62], lp[12, 22], lp[12, 52]
+    m = unswap({a: RegionMatch(a, pb, (-20.0, 0.0), 1.0), b: RegionMatch(b, pa, (40.0, 0.0), 1.0)}, lp, sp, lc, sc)
+    assert (m[a].prev_label, m[b].prev_label, m[a].shift, m[b].shift) == (pa, pb, (10.0, 0.0), (10.0, 0.0))
+    right = {a: RegionMatch(a, pa, (10.0, 0.0), 1.0), b: RegionMatch(b, pb, (10.0, 0.0), 1.0)}
+    assert unswap(right, lp, sp, lc, sc) == right

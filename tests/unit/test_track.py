@@ -182,17 +182,19 @@ def test_closed_form_growth():
 
 
 @pytest.mark.parametrize("name", ["track", "track_net"])
-def test_a_growing_light_is_predicted_grown(name):
-    """A clipped lamp growing 10 % a frame about a fixed centre (an approaching car's lamp):
-    the prediction's saturated region is the next frame's, IoU >= 0.9, where `flow` and `hold`
-    (no growth) keep last frame's size (IoU 1/1.21 = 0.83 at best for an ellipse scaled 1.1)."""
+@pytest.mark.parametrize("rate", [1.1, 1.25])
+def test_a_growing_light_is_predicted_grown(name, rate):
+    """A clipped lamp growing 10 or 25 % a frame about a fixed centre (an approaching car's
+    lamp): the prediction's saturated region is the next frame's, IoU >= 0.9, where `flow` and
+    `hold` (no growth) keep last frame's size (IoU 1/rate^2 at best for an ellipse scaled by
+    rate: 0.83 and 0.64)."""
     from poevp_optics.analysis.prediction_metrics import saturated_iou
     from tests.unit.test_region_matching import lamps
 
-    frames = [lamps([(160.0, 92.0)], axes=(14.0 * 1.1 ** t, 8.0 * 1.1 ** t)) for t in range(5)]
+    frames = [lamps([(160.0, 92.0)], axes=(10.0 * rate ** t, 6.0 * rate ** t)) for t in range(5)]
     got = saturated_iou(make_predictor(name)(frames[:4]), frames[4])
     held = saturated_iou(make_predictor("flow")(frames[:4]), frames[4])
-    assert got >= 0.9 and held < 0.85, (got, held)
+    assert got >= 0.9 and held < 1.02 / rate ** 2, (got, held)
 
 
 def test_track_net_numpy_forward_equals_the_model():

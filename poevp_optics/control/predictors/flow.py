@@ -134,14 +134,16 @@ def region_matches(prev_sat: np.ndarray, cur_sat: np.ndarray, prev_cc: tuple | N
     """(labels, stats, matches) of frame t's saturated regions: each region of at least
     `MIN_REGION_PX` with its translation from frame t-1 (`region_shift`) and its match there
     (region_motion.py `match_regions`: mutual, areas alike, response >= `MIN_RESPONSE`; a
-    region without one is new). A matched region that grew or shrank by more than
+    region without one is new). A region left new is measured again with the earlier regions
+    already taken hidden (`rematch_left`: two like lights crossing), and two matches that took
+    each other's earlier region are exchanged where that moves them less (`unswap`). A matched region that grew or shrank by more than
     `GROWTH_SHIFT` takes the shift of its centroid instead: outlines of two sizes correlate at
     either edge (+-3 px on a lamp growing 10 %), the centroid of a light growing about its
     centre stays put. labels, stats: cv2.connectedComponentsWithStats of `cur_sat`. prev_cc,
     cur_cc: the frames' `saturated_components` when already computed."""
     from dataclasses import replace
 
-    from poevp_optics.control.region_motion import match_regions
+    from poevp_optics.control.region_motion import match_regions, rematch_left, unswap
 
     n, labels, stats, cents, _ = cur_cc or saturated_components(cur_sat)
     _, prev_labels, prev_stats, prev_cents, prev_outline = prev_cc or saturated_components(prev_sat)
@@ -151,6 +153,16 @@ def region_matches(prev_sat: np.ndarray, cur_sat: np.ndarray, prev_cc: tuple | N
         if area >= MIN_REGION_PX:
             shifts[k] = region_shift(prev_outline, labels, (y, x, y + bh, x + bw), SEARCH_PX + max(bw, bh), label=k)
     matches = match_regions(prev_labels, prev_stats, labels, stats, shifts, MIN_RESPONSE)
+
+    def remeasure(k, hidden=frozenset(), only=None):
+        """Region k's shift against frame t-1's outline without its `hidden` regions, or of
+        region `only` alone."""
+        x, y, bw, bh, _ = (int(v) for v in stats[k])
+        keep = prev_labels == only if only is not None else ~np.isin(prev_labels, list(hidden))
+        return region_shift(prev_outline * keep, labels, (y, x, y + bh, x + bw), SEARCH_PX + max(bw, bh), label=k)
+
+    matches = rematch_left(prev_labels, prev_stats, labels, stats, matches, remeasure, MIN_RESPONSE)
+    matches = unswap(matches, prev_labels, prev_stats, labels, stats, remeasure)
     for k, m in matches.items():
         if m.prev_label and abs(m.growth - 1.0) > GROWTH_SHIFT:
             matches[k] = replace(m, shift=tuple(float(v) for v in cents[k] - prev_cents[m.prev_label]))
