@@ -244,6 +244,59 @@ def unswap(matches: dict[int, RegionMatch], prev_labels: np.ndarray, prev_stats:
     return out
 
 
+def reclaim(prev_labels: np.ndarray, prev_stats: np.ndarray, labels: np.ndarray, stats: np.ndarray,
+            matches: dict[int, RegionMatch], remeasure=None) -> dict[int, RegionMatch]:
+    """A region left new whose nearest matched regions' shift (one of `RETRY_NEIGHBOURS`, as in
+    `match_regions`' retry) moves it back onto an earlier region that another region took, with
+    IoU >= `RETRY_IOU` and alike areas, takes it over when that shift is under SWAP_FRAC of the
+    holder's: the holder then tries its own neighbours' shifts onto a free earlier region (and is
+    new where none fits). A lamp of a pair whose correlation peaked on its twin's old place (a
+    growing car's lamps part, and the outlines of two sizes correlate off their peak) holds the
+    twin's match, and the twin, moving with the car, is left without one. The taken-over
+    region's shift is `remeasure(k, only=j)` when given (its correlation with j alone)."""
+    shape = labels.shape
+    centre = lambda st: np.array([st[0] + st[2] / 2.0, st[1] + st[3] / 2.0])
+    out = dict(matches)
+    holder = {m.prev_label: k for k, m in out.items() if m.prev_label}
+
+    def neighbour_claims(k):
+        """(shift, earlier region, IoU) of k moved back by each of its nearest matched regions' shifts."""
+        got = [m for m in out.values() if m.prev_label and m.label != k]
+        if not got:
+            return []
+        c = np.array([centre(stats[m.label]) for m in got])
+        d = np.hypot(*(c - centre(stats[k])).T)
+        res = []
+        for i in np.argsort(d, kind="stable")[:RETRY_NEIGHBOURS]:
+            j, iou = _claim(k, *got[i].shift, labels, stats, prev_labels, prev_stats)
+            res.append((got[i].shift, j, iou))
+        return res
+
+    def take(k, j, shift):
+        resp = out[k].response
+        if remeasure is not None:
+            dx, dy, resp = remeasure(k, only=j)
+            shift = (float(dx), float(dy))
+        out[k] = replace(out[k], prev_label=j, shift=shift, response=float(resp),
+                         growth=_pair(k, j, stats, prev_stats, shape))
+        holder[j] = k
+
+    for k in [k for k, m in matches.items() if not m.prev_label]:
+        for shift, j, iou in neighbour_claims(k):
+            h = holder.get(j)
+            if (h is None or h == k or iou < RETRY_IOU or _pair(k, j, stats, prev_stats, shape) is None
+                    or np.hypot(*shift) >= SWAP_FRAC * np.hypot(*out[h].shift)):
+                continue
+            out[h] = replace(out[h], prev_label=0, growth=1.0)
+            take(k, j, shift)
+            for s2, j2, iou2 in neighbour_claims(h):
+                if j2 and j2 not in holder and iou2 >= RETRY_IOU and _pair(h, j2, stats, prev_stats, shape) is not None:
+                    take(h, j2, s2)
+                    break
+            break
+    return out
+
+
 def rematch_left(prev_labels: np.ndarray, prev_stats: np.ndarray, labels: np.ndarray, stats: np.ndarray,
                  matches: dict[int, RegionMatch], remeasure, min_response: float = 0.0) -> dict[int, RegionMatch]:
     """Second look for the regions `match_regions` left new: each is measured again against the

@@ -170,3 +170,23 @@ def test_unswap_exchanges_a_swapped_pair_only_where_it_moves_less():
     assert (m[a].prev_label, m[b].prev_label, m[a].shift, m[b].shift) == (pa, pb, (10.0, 0.0), (10.0, 0.0))
     right = {a: RegionMatch(a, pa, (10.0, 0.0), 1.0), b: RegionMatch(b, pb, (10.0, 0.0), 1.0)}
     assert unswap(right, lp, sp, lc, sc) == right
+
+
+def test_reclaim_gives_a_lamp_back_the_old_place_its_twin_took():
+    """Boxes A, B (a lamp pair) and C (the plate) all move 10 px right. A's correlation read
+    -20 px (onto B's old place) and B's -50 px (onto nothing): `match_regions` gives A B's old
+    place and leaves B new. B, moved back by its neighbour C's shift (10 px, under 0.8 of A's
+    20), lands on its own old place and takes it over; A then finds its own by B's shift."""
+    from poevp_optics.control.region_motion import reclaim
+
+    prev = _boxes((6, 10, 8, 8), (6, 40, 8, 8), (26, 70, 6, 10))
+    cur = _boxes((6, 20, 8, 8), (6, 50, 8, 8), (26, 80, 6, 10))
+    lp, sp = components(prev)
+    lc, sc = components(cur)
+    a, b, c = lc[8, 22], lc[8, 52], lc[28, 82]
+    pa, pb, pc = lp[8, 12], lp[8, 42], lp[28, 72]
+    m = match_regions(lp, sp, lc, sc, {a: (-20.0, 0.0, 1.0), b: (-50.0, 0.0, 1.0), c: (10.0, 0.0, 1.0)})
+    assert (m[a].prev_label, m[b].prev_label, m[c].prev_label) == (pb, 0, pc)
+    r = reclaim(lp, sp, lc, sc, m)
+    assert (r[a].prev_label, r[b].prev_label, r[c].prev_label) == (pa, pb, pc)
+    assert r[a].shift == r[b].shift == (10.0, 0.0)

@@ -134,16 +134,18 @@ def region_matches(prev_sat: np.ndarray, cur_sat: np.ndarray, prev_cc: tuple | N
     """(labels, stats, matches) of frame t's saturated regions: each region of at least
     `MIN_REGION_PX` with its translation from frame t-1 (`region_shift`) and its match there
     (region_motion.py `match_regions`: mutual, areas alike, response >= `MIN_RESPONSE`; a
-    region without one is new). A region left new is measured again with the earlier regions
-    already taken hidden (`rematch_left`: two like lights crossing), and two matches that took
-    each other's earlier region are exchanged where that moves them less (`unswap`). A matched region that grew or shrank by more than
-    `GROWTH_SHIFT` takes the shift of its centroid instead: outlines of two sizes correlate at
+    region without one is new). A region left new takes over the earlier region its
+    neighbours' shift puts it on from a holder that moved much further (`reclaim`: a lamp whose
+    twin took its old place), is measured again with the earlier regions already taken hidden
+    (`rematch_left`: two like lights crossing), and two matches that took each other's earlier
+    region are exchanged where that moves them less (`unswap`). A matched region that grew or
+    shrank by more than `GROWTH_SHIFT` takes the shift of its centroid instead: outlines of two sizes correlate at
     either edge (+-3 px on a lamp growing 10 %), the centroid of a light growing about its
     centre stays put. labels, stats: cv2.connectedComponentsWithStats of `cur_sat`. prev_cc,
     cur_cc: the frames' `saturated_components` when already computed."""
     from dataclasses import replace
 
-    from poevp_optics.control.region_motion import match_regions, rematch_left, unswap
+    from poevp_optics.control.region_motion import match_regions, reclaim, rematch_left, unswap
 
     n, labels, stats, cents, _ = cur_cc or saturated_components(cur_sat)
     _, prev_labels, prev_stats, prev_cents, prev_outline = prev_cc or saturated_components(prev_sat)
@@ -161,6 +163,7 @@ def region_matches(prev_sat: np.ndarray, cur_sat: np.ndarray, prev_cc: tuple | N
         keep = prev_labels == only if only is not None else ~np.isin(prev_labels, list(hidden))
         return region_shift(prev_outline * keep, labels, (y, x, y + bh, x + bw), SEARCH_PX + max(bw, bh), label=k)
 
+    matches = reclaim(prev_labels, prev_stats, labels, stats, matches, remeasure)
     matches = rematch_left(prev_labels, prev_stats, labels, stats, matches, remeasure, MIN_RESPONSE)
     matches = unswap(matches, prev_labels, prev_stats, labels, stats, remeasure)
     for k, m in matches.items():
