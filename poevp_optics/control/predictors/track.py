@@ -15,8 +15,9 @@ Per frame t (history oldest first, up to four frames):
    `region_shift`: Kuglin & Hines 1975), and it is the same light as the frame t-1 region it
    lands on only when that match is mutual and the areas are alike (region_motion.py
    `match_regions`; a region left new takes back its old place from a twin lamp that took it,
-   `reclaim`, or is measured again without the regions already taken, `rematch_left`, and two lights that took each other's old place, like lamps crossing, are
-   exchanged where that moves them less, `unswap`); that region is followed on to frame t-2 the same way, and so on:
+   `reclaim`, or is measured again without the regions already taken, `rematch_left`, and two
+   lights that took each other's old place, like lamps crossing, are exchanged where that moves
+   them less, `unswap`); that region is followed on to frame t-2 the same way, and so on:
    displacements d_t, d_{t-1}, d_{t-2} (px, x and y), each with its correlation response. A
    weak response or a lost match ends the chain; a region with no match at all is new.
    **Global motion.** Our camera pitches over road bumps and yaws as we steer, and that moves
