@@ -21,8 +21,9 @@ controller's first guess with the beams (night_road); the others keep theirs.
 Per scene and gain:
 - timings (wall seconds of the run, no image written: `run_frames(write_images=False)`): render
   (Mitsuba, with the scene's setup), camera (objective, DMD, relay, sensor, mask, reconstruction
-  stages summed over frames), predictor (predictor + mask law, summed over frames), total wall and
-  CPU seconds (this process);
+  stages summed over frames), predictor (predictor + mask law, summed over frames), the rest (the
+  loop's own work, the temporal-error estimate and the report), total wall and CPU seconds (this
+  process: with other jobs on the machine, wall seconds grow and CPU seconds do not);
 - per plate: frames in view, distance and height range, MC error (RMS MC standard error / mean
   radiance over its box; mean and worst frame), and the fraction of the frames after the white
   initialisation frames, with the plate in view, whose encoded white (90th percentile of the box
@@ -126,16 +127,29 @@ def run_scene(scene: str, sets: list[str], alpr: bool, min_height: int) -> dict:
     predict_s = (stages.get("predict") or {}).get("total_seconds") or 0.0
     camera_s = sum(v["seconds"] for k, v in stages.items()
                    if k not in ("render", "predict") and isinstance(v, dict) and isinstance(v.get("seconds"), float))
+    texts = plate_texts(spec, report)
     reads = {}
     if alpr:
-        reads = plate_reads(report, kept, min_height)
+        reads = plate_reads(report, kept, min_height, texts)
     return {"spec": spec, "resolution": tuple(spec.render.resolution), "render_s": render_s, "camera_s": camera_s,
             "predict_s": predict_s, "wall_s": wall, "cpu_s": cpu, "plates": report["metrics"]["plates"],
-            "init_frames": spec.loop.init_frames, "reads": reads,
+            "init_frames": spec.loop.init_frames, "reads": reads, "texts": texts,
             "spp": (spec.render.spp, spec.render.roi_spp)}
 
 
-def plate_reads(report: dict, kept: dict, min_height: int) -> dict:
+def plate_texts(spec, report: dict) -> dict[str, str]:
+    """{plate id: its text}: the vehicle's plate_text, or on a road scene the [plate] text for
+    `[road] vehicle`'s plate (the plate the scene's [plate] section draws)."""
+    out = {}
+    for ident, s in report["metrics"]["plates"]["per_plate"].items():
+        text = s["text"] or ""
+        if not text and spec.has_road and ident == spec.road.vehicle:
+            text = spec.plate.text
+        out[ident] = text
+    return out
+
+
+def plate_reads(report: dict, kept: dict, min_height: int, labels: dict[str, str]) -> dict:
     """{plate id: (frames read, frames tried, texts read)} over the loop frames where the plate is
     in view and >= min_height px tall: whole-frame ALPR on the 8-bit encoded capture."""
     from poevp_optics.analysis.recognition import alpr_read, correct
@@ -148,7 +162,7 @@ def plate_reads(report: dict, kept: dict, min_height: int) -> dict:
             k, n, texts = out.get(p["id"], (0, 0, []))
             if p["in_view"] and p["box"] and (p["height_px"] or 0) >= min_height:
                 r = alpr_read(kept[f["index"]]["capture"], tuple(p["box"]))
-                ok = correct(r.text, p["text"])
+                ok = correct(r.text, labels[p["id"]])
                 k, n = k + ok, n + 1
                 if not ok:
                     texts = [*texts, r.text or "-"]
@@ -173,6 +187,7 @@ def scene_section(scene: str, runs: list[tuple[float, dict]], alpr: bool, min_he
     spec = runs[0][1]["spec"]
     h, w = runs[0][1]["resolution"]
     timing = [[f"{g:g}x", f"{r['render_s']:.1f}", f"{r['camera_s']:.1f}", f"{r['predict_s']:.1f}",
+               f"{r['wall_s'] - r['render_s'] - r['camera_s'] - r['predict_s']:.1f}",
                f"{r['wall_s']:.1f}", f"{r['cpu_s']:.0f}"] for g, r in runs]
     header = ["beams", "plate", "text", "frames in view", "distance (m)", "height (px)", "MC error mean",
               "MC error worst frame", "white after init (mean)", "in band after init"]
@@ -184,7 +199,7 @@ def scene_section(scene: str, runs: list[tuple[float, dict]], alpr: bool, min_he
             band = ("-" if s["in_band_fraction_after_init"] is None else
                     f"{s['frames_in_band_after_init']}/{s['frames_after_init_in_view']} "
                     f"({s['in_band_fraction_after_init'] * 100:.0f} %)")
-            row = [f"{g:g}x", ident, f"`{s['text']}`", f"{s['frames_in_view']}/{s['frames']}",
+            row = [f"{g:g}x", ident, f"`{r['texts'][ident]}`", f"{s['frames_in_view']}/{s['frames']}",
                    _rng(s["distance_m"], "{:.1f}"), _rng(s["height_px"]), _pct(s["rel_error_mean"]),
                    _pct(s["rel_error_max"]),
                    "-" if s["white_encoded_mean"] is None else f"{s['white_encoded_mean']:.2f}", band]
@@ -202,7 +217,7 @@ def scene_section(scene: str, runs: list[tuple[float, dict]], alpr: bool, min_he
             f"= {spec.spectra[beam].intensity_cd:g} cd x the gain"
             + (f" (the same spectrum also drives {', '.join(f'`{e}`' for e in shared)}, scaled with it)" if shared else "")
             + ".\n\nSeconds (wall, no images written):\n\n"
-            + markdown_table(["beams", "render", "camera", "predictor", "total wall", "CPU s"], timing)
+            + markdown_table(["beams", "render", "camera", "predictor", "rest", "total wall", "CPU s"], timing)
             + "\n\n" + markdown_table(header, rows) + "\n")
     misses = [f"- {g:g}x {ident}: misread as " + ", ".join(f"`{t}`" for t in r["reads"][ident][2])
               for g, r in runs for ident in r["reads"] if r["reads"][ident][2]] if alpr else []
