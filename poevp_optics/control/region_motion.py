@@ -39,6 +39,10 @@ IOU_TIE = 0.1
 RETRY_NEIGHBOURS = 3
 #: ... and takes one that moves it back onto an unclaimed region with at least this IoU.
 RETRY_IOU = 0.5
+#: A second look (`rematch_left`) matches only regions whose linear size changed by at most this
+#: factor: a light's own growth (25 % a frame at most, track.py MAX_GROWTH), not a piece split off
+#: a merged pair or two lights merged (their area nearly doubles or halves).
+REMATCH_GROWTH = 1.25
 #: Two matched regions exchange their earlier regions when that leaves this fraction or less of
 #: their summed shifts (`unswap`): a clear gain, not a tie of two like readings.
 SWAP_FRAC = 0.8
@@ -113,6 +117,13 @@ def _pair(k: int, j: int, stats, prev_stats, shape) -> float | None:
         return 1.0
     a, b = float(stats[k, 4]), float(prev_stats[j, 4])
     return float(np.sqrt(a / b)) if max(a, b) <= MAX_AREA_RATIO * min(a, b) else None
+
+
+def _light_pair(k: int, j: int, stats, prev_stats, shape) -> float | None:
+    """`_pair`'s growth where it is a light's own (within `REMATCH_GROWTH`), else None: the
+    second looks (`reclaim`, `rematch_left`, `unswap`) never take a split-off piece or a merge."""
+    g = _pair(k, j, stats, prev_stats, shape)
+    return g if g is not None and 1.0 / REMATCH_GROWTH <= g <= REMATCH_GROWTH else None
 
 
 def match_regions(prev_labels: np.ndarray, prev_stats: np.ndarray, labels: np.ndarray, stats: np.ndarray,
@@ -196,29 +207,36 @@ def match_regions(prev_labels: np.ndarray, prev_stats: np.ndarray, labels: np.nd
 
 
 def unswap(matches: dict[int, RegionMatch], prev_labels: np.ndarray, prev_stats: np.ndarray, labels: np.ndarray,
-           stats: np.ndarray, remeasure=None) -> dict[int, RegionMatch]:
+           stats: np.ndarray, remeasure=None, prior: dict | None = None) -> dict[int, RegionMatch]:
     """Undo swapped identities: two matched regions k1 <- j1, k2 <- j2 are exchanged to
-    k1 <- j2, k2 <- j1 when that moves them less in all (the sum of the two shifts' lengths, box
-    centres; at most SWAP_FRAC of the matched pair's) and each exchanged pair is alike in area and
-    overlaps with IoU >= `RETRY_IOU` when moved back. Like lights (a car's two lamps, two cars'
-    lamps crossing) correlate as well with each other's old place as with their own, and two
-    regions can each take the other's, a mutual match that is wrong for both. Lights that move
-    together never gain by the exchange (|v - s| + |v + s| >= 2 |v| for a common motion v and
-    spacing s), so it changes nothing there; it is the nearest-neighbour assignment of the
-    pair. An exchanged region's shift is `remeasure(k, only=j)` (its correlation with earlier
-    region j alone: (dx, dy, response)) when given, else its old one plus the offset between the
-    two earlier regions' box centres. Pairs are looked for only among regions moving more than 1 px (a
-    frame of standing speckles costs nothing)."""
+    k1 <- j2, k2 <- j1 when that departs less in all from the motion each earlier region had
+    (`prior`: {earlier label: its shift (dx, dy) px from the frame before}; none known: standing),
+    the sum of the two departures' lengths (box centres) falling to at most SWAP_FRAC of the
+    matched pair's, and each exchanged pair is a light's own (`_light_pair`) and overlaps with
+    IoU >= `RETRY_IOU` when moved back. Like lights (a car's two lamps, two cars' lamps
+    crossing) correlate as well with each other's old place as with their own, and two regions
+    can each take the other's, a mutual match that is wrong for both. Lights that move together
+    never gain by the exchange (|v - s| + |v + s| >= 2 |v| for a common departure v and spacing
+    s), so it changes nothing there; it is the nearest-neighbour assignment of the pair under a
+    constant-velocity prediction (the association step of a tracker: predict, then match). An
+    exchanged region's shift is `remeasure(k, only=j)` (its correlation with earlier region j
+    alone: (dx, dy, response)) when given, else its old one plus the offset between the two
+    earlier regions' box centres. Pairs are looked for only among regions departing more than
+    1 px from their prior motion (a frame of standing speckles costs nothing)."""
     shape = labels.shape
     centre = lambda st: np.array([st[0] + st[2] / 2.0, st[1] + st[3] / 2.0])
-    moving = [m for m in matches.values() if m.prev_label and np.hypot(*m.shift) > 1.0]
+    prior = prior or {}
+    before = lambda j: np.asarray(prior.get(j, (0.0, 0.0)), np.float64)
+    departs = lambda m: float(np.hypot(*(np.asarray(m.shift) - before(m.prev_label))))
+    moving = [m for m in matches.values() if m.prev_label and departs(m) > 1.0]
     if len(moving) < 2:
         return matches
     out = dict(matches)
     cur = np.array([centre(stats[m.label]) for m in moving])
     prv = np.array([centre(prev_stats[m.prev_label]) for m in moving])
-    own = np.hypot(*(cur - prv).T)                                           # |c_k - p_k|
-    cross = np.hypot(*(cur[:, None, :] - prv[None, :, :]).transpose(2, 0, 1))  # |c_k - p_j|
+    ahead = prv + np.array([before(m.prev_label) for m in moving])          # where each earlier region was headed
+    own = np.hypot(*(cur - ahead).T)                                         # |c_k - p_k - v_k|
+    cross = np.hypot(*(cur[:, None, :] - ahead[None, :, :]).transpose(2, 0, 1))  # |c_k - p_j - v_j|
     done: set[int] = set()
     for a, b in zip(*np.nonzero(cross < own[:, None])):
         if a == b or a in done or b in done:
@@ -234,7 +252,7 @@ def unswap(matches: dict[int, RegionMatch], prev_labels: np.ndarray, prev_stats:
                 dx, dy, resp = remeasure(m.label, only=j)
                 shift = (float(dx), float(dy))
             got, iou = _claim(m.label, *shift, labels, stats, prev_labels, prev_stats)
-            growth = _pair(m.label, j, stats, prev_stats, shape) if got == j and iou >= RETRY_IOU else None
+            growth = _light_pair(m.label, j, stats, prev_stats, shape) if got == j and iou >= RETRY_IOU else None
             if growth is None:
                 break
             new.append(replace(m, prev_label=j, shift=shift, response=float(resp), growth=growth))
@@ -278,19 +296,20 @@ def reclaim(prev_labels: np.ndarray, prev_stats: np.ndarray, labels: np.ndarray,
             dx, dy, resp = remeasure(k, only=j)
             shift = (float(dx), float(dy))
         out[k] = replace(out[k], prev_label=j, shift=shift, response=float(resp),
-                         growth=_pair(k, j, stats, prev_stats, shape))
+                         growth=_light_pair(k, j, stats, prev_stats, shape))
         holder[j] = k
 
     for k in [k for k, m in matches.items() if not m.prev_label]:
         for shift, j, iou in neighbour_claims(k):
             h = holder.get(j)
-            if (h is None or h == k or iou < RETRY_IOU or _pair(k, j, stats, prev_stats, shape) is None
+            if (h is None or h == k or iou < RETRY_IOU or _light_pair(k, j, stats, prev_stats, shape) is None
                     or np.hypot(*shift) >= SWAP_FRAC * np.hypot(*out[h].shift)):
                 continue
             out[h] = replace(out[h], prev_label=0, growth=1.0)
             take(k, j, shift)
             for s2, j2, iou2 in neighbour_claims(h):
-                if j2 and j2 not in holder and iou2 >= RETRY_IOU and _pair(h, j2, stats, prev_stats, shape) is not None:
+                if (j2 and j2 not in holder and iou2 >= RETRY_IOU
+                        and _light_pair(h, j2, stats, prev_stats, shape) is not None):
                     take(h, j2, s2)
                     break
             break
@@ -320,7 +339,7 @@ def rematch_left(prev_labels: np.ndarray, prev_stats: np.ndarray, labels: np.nda
         if resp < min_response:
             continue
         j, iou = _claim(k, dx, dy, labels, stats, prev_labels, prev_stats)
-        growth = _pair(k, j, stats, prev_stats, shape) if j and j not in taken and iou >= RETRY_IOU else None
+        growth = _light_pair(k, j, stats, prev_stats, shape) if j and j not in taken and iou >= RETRY_IOU else None
         if growth is not None:
             out[k] = replace(out[k], prev_label=j, shift=(float(dx), float(dy)), response=float(resp), growth=growth)
             taken.add(j)

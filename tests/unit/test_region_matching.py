@@ -190,3 +190,19 @@ def test_reclaim_gives_a_lamp_back_the_old_place_its_twin_took():
     r = reclaim(lp, sp, lc, sc, m)
     assert (r[a].prev_label, r[b].prev_label, r[c].prev_label) == (pa, pb, pc)
     assert r[a].shift == r[b].shift == (10.0, 0.0)
+
+
+def test_unswap_keeps_a_match_that_continues_its_motion():
+    """Boxes A and B, 12 px apart in height, pass each other at 30 px/frame. Their true matches
+    (+-30 px) move them more than the exchanged ones (0, -+12 px): with no earlier motion known
+    the exchange is taken; given each earlier box's shift from the frame before (+-30 px), the
+    true matches continue it exactly and stand."""
+    from poevp_optics.control.region_motion import RegionMatch, unswap
+
+    lp, sp = components(_boxes((2, 20, 8, 8), (14, 50, 8, 8)))
+    lc, sc = components(_boxes((2, 50, 8, 8), (14, 20, 8, 8)))
+    a, b, pa, pb = lc[4, 52], lc[16, 22], lp[4, 22], lp[16, 52]
+    true = {a: RegionMatch(a, pa, (30.0, 0.0), 1.0), b: RegionMatch(b, pb, (-30.0, 0.0), 1.0)}
+    assert unswap(true, lp, sp, lc, sc, prior={pa: (30.0, 0.0), pb: (-30.0, 0.0)}) == true
+    m = unswap(true, lp, sp, lc, sc)
+    assert (m[a].prev_label, m[b].prev_label, m[a].shift, m[b].shift) == (pb, pa, (0.0, -12.0), (0.0, 12.0))

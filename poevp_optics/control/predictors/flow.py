@@ -42,6 +42,10 @@ SEARCH_PX = 32
 MIN_RESPONSE = 0.05
 #: Size change (linear ratio - 1) of a matched region beyond which its shift is its centroid's.
 GROWTH_SHIFT = 0.02
+#: ... and at most this (or its inverse): a larger change in one frame is a split or a merge (two
+#: lamps of a crossing car parting), whose centroid moves by half the pieces' spacing, not with the
+#: light; its outline correlation is kept. A light grows at most 25 % a frame (track.py MAX_GROWTH).
+CENTROID_GROWTH_MAX = 1.3
 
 
 class FlowExtrapolation(Predictor):
@@ -130,7 +134,7 @@ def saturated_components(sat: np.ndarray) -> tuple:
 
 
 def region_matches(prev_sat: np.ndarray, cur_sat: np.ndarray, prev_cc: tuple | None = None,
-                   cur_cc: tuple | None = None):
+                   cur_cc: tuple | None = None, prior: dict | None = None):
     """(labels, stats, matches) of frame t's saturated regions: each region of at least
     `MIN_REGION_PX` with its translation from frame t-1 (`region_shift`) and its match there
     (region_motion.py `match_regions`: mutual, areas alike, response >= `MIN_RESPONSE`; a
@@ -139,10 +143,11 @@ def region_matches(prev_sat: np.ndarray, cur_sat: np.ndarray, prev_cc: tuple | N
     twin took its old place), is measured again with the earlier regions already taken hidden
     (`rematch_left`: two like lights crossing), and two matches that took each other's earlier
     region are exchanged where that moves them less (`unswap`). A matched region that grew or
-    shrank by more than `GROWTH_SHIFT` takes the shift of its centroid instead: outlines of two sizes correlate at
-    either edge (+-3 px on a lamp growing 10 %), the centroid of a light growing about its
-    centre stays put. labels, stats: cv2.connectedComponentsWithStats of `cur_sat`. prev_cc,
-    cur_cc: the frames' `saturated_components` when already computed."""
+    shrank by more than `GROWTH_SHIFT` (and at most `CENTROID_GROWTH_MAX`) takes the shift of
+    its centroid instead: outlines of two sizes correlate at either edge (+-3 px on a lamp
+    growing 10 %), the centroid of a light growing about its centre stays put. labels, stats: cv2.connectedComponentsWithStats of `cur_sat`. prev_cc,
+    cur_cc: the frames' `saturated_components` when already computed. prior: {frame t-1 label:
+    its shift from frame t-2} where known (`unswap`'s constant-velocity prediction)."""
     from dataclasses import replace
 
     from poevp_optics.control.region_motion import match_regions, reclaim, rematch_left, unswap
@@ -165,9 +170,10 @@ def region_matches(prev_sat: np.ndarray, cur_sat: np.ndarray, prev_cc: tuple | N
 
     matches = reclaim(prev_labels, prev_stats, labels, stats, matches, remeasure)
     matches = rematch_left(prev_labels, prev_stats, labels, stats, matches, remeasure, MIN_RESPONSE)
-    matches = unswap(matches, prev_labels, prev_stats, labels, stats, remeasure)
+    matches = unswap(matches, prev_labels, prev_stats, labels, stats, remeasure, prior)
     for k, m in matches.items():
-        if m.prev_label and abs(m.growth - 1.0) > GROWTH_SHIFT:
+        if m.prev_label and abs(m.growth - 1.0) > GROWTH_SHIFT and \
+                1.0 / CENTROID_GROWTH_MAX <= m.growth <= CENTROID_GROWTH_MAX:
             matches[k] = replace(m, shift=tuple(float(v) for v in cents[k] - prev_cents[m.prev_label]))
     return labels, stats, matches
 

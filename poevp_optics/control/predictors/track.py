@@ -16,8 +16,8 @@ Per frame t (history oldest first, up to four frames):
    lands on only when that match is mutual and the areas are alike (region_motion.py
    `match_regions`; a region left new takes back its old place from a twin lamp that took it,
    `reclaim`, or is measured again without the regions already taken, `rematch_left`, and two
-   lights that took each other's old place, like lamps crossing, are exchanged where that moves
-   them less, `unswap`); that region is followed on to frame t-2 the same way, and so on:
+   lights that took each other's old place, like lamps crossing, are exchanged where that departs
+   less from the motion each had the frame before, `unswap`); that region is followed on to frame t-2 the same way, and so on:
    displacements d_t, d_{t-1}, d_{t-2} (px, x and y), each with its correlation response. A
    weak response or a lost match ends the chain; a region with no match at all is new.
    **Global motion.** Our camera pitches over road bumps and yaws as we steer, and that moves
@@ -136,9 +136,13 @@ def region_tracks(history: list[np.ndarray], max_chain: int = MAX_CHAIN) -> tupl
     frame's region labels (0 = none)."""
     sats = [np.asarray(f) >= SATURATED for f in history[-(max_chain + 1):]]
     cc = [saturated_components(s) for s in sats]
-    # pairs[j]: frame t-j's regions, each with its shift from frame t-j-1 and its match there
-    pairs = [region_matches(sats[-2 - j], sats[-1 - j], cc[-2 - j], cc[-1 - j])
-             for j in range(min(max_chain, len(sats) - 1))]
+    # pairs[j]: frame t-j's regions, each with its shift from frame t-j-1 and its match there;
+    # measured oldest first, each pair given the older pair's shifts (region_motion.py `unswap`)
+    pairs, prior = [], None
+    for j in reversed(range(min(max_chain, len(sats) - 1))):
+        pair = region_matches(sats[-2 - j], sats[-1 - j], cc[-2 - j], cc[-1 - j], prior)
+        prior = {k: m.shift for k, m in pair[2].items() if m.prev_label}
+        pairs.insert(0, pair)
     gshift, gresp = global_chain(pairs)
     labels, stats = cc[-1][1], cc[-1][2]
     tracks = []
