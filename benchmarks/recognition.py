@@ -713,8 +713,8 @@ def page(result: dict) -> str:
             "recognition on the whole 8-bit frame, every character (paper Eq. 4); recognition only = the "
             "recogniser on the known plate box.", ""]
     if result.get("renders"):
-        head += ["Road-scene renders (kept by scene files and settings, so a rerun repeats only the camera, the "
-                 "loop and the OCR): " + "; ".join(f"{k} rendered {v}" for k, v in result["renders"].items()) + ".", ""]
+        head += ["Road-scene renders (kept under a key of everything the render depends on, so a rerun repeats "
+                 "only the camera, the loop and the OCR): " + "; ".join(f"{k} rendered {v}" for k, v in result["renders"].items()) + ".", ""]
     if result["label"] != "full":
         head += [f"**These are the {result['label']} settings (a development run): fewer conditions, methods "
                  "and frames than the full page.**", ""]
