@@ -473,7 +473,7 @@ def _other_npz(path: Path) -> None:
         np.savez(fh, a=np.zeros(3), image_shape=np.array([0, 0]))
 
 
-E2E = {          # the cache files a night_road render reads (3 PSF grids: image, guard bands), damaged in turn
+E2E = {          # the cache files a night_road render reads (3 PSF grids: image, guard bands), each kind damaged
     "psf_grids_truncated_empty_other_arrays": ("objective/psf-*.npz", [_truncate, _empty, _resigned(_other_npz)]),
     "ri_table_random_bytes": ("objective/ri-*.npz", [_random_bytes]),
     "mesh_of_another_car": ("meshes/vehicle_*.ply", [_resigned(_other_mesh)]),   # the scene's vehicles' parts
@@ -482,24 +482,26 @@ E2E = {          # the cache files a night_road render reads (3 PSF grids: image
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("case", E2E)
-def test_a_render_on_a_damaged_cache_heals_it_and_writes_the_same_bytes(clean_run, tmp_path, case):
-    """`poevp render` on a copy of the clean cache with one kind's files damaged: exit 0, one note
-    per damaged file, each rebuilt to the clean bytes, and every output image and report value
-    (wall-clock times aside) byte for byte the clean run's."""
+def test_a_render_on_a_damaged_cache_heals_it_and_writes_the_same_bytes(clean_run, tmp_path):
+    """`poevp render` on a copy of the clean cache with every kind's files damaged at once (each
+    kind its own way, E2E): exit 0, one note per damaged file, each rebuilt to the clean bytes,
+    and every output image and report value (wall-clock times aside) byte for byte the clean
+    run's. One run heals them all: each kind's check and rebuild is independent of the others'."""
     cache0, outputs0, report0 = clean_run
     cache = tmp_path / "cache"
     shutil.copytree(cache0, cache)
-    pattern, damages = E2E[case]
-    damaged = sorted(cache.glob(pattern))
-    assert len(damaged) >= len(damages), pattern
-    for k, p in enumerate(damaged):
-        damages[k % len(damages)](p)
+    damaged = []
+    for case, (pattern, damages) in E2E.items():
+        files = sorted(cache.glob(pattern))
+        assert len(files) >= len(damages), (case, pattern)
+        for k, p in enumerate(files):
+            damages[k % len(damages)](p)
+        damaged += files
     r = _render(cache, tmp_path / "out")
     assert r.returncode == 0, r.stderr
     for p in damaged:
-        assert len(_note_lines(r.stderr, p)) == 1, r.stderr
-        assert p.read_bytes() == (cache0 / p.relative_to(cache)).read_bytes() and cc.checksum_problem(p) is None
+        assert len(_note_lines(r.stderr, p)) == 1, (p, r.stderr)
+        assert p.read_bytes() == (cache0 / p.relative_to(cache)).read_bytes() and cc.checksum_problem(p) is None, p
     assert r.stderr.count("failed its check") == len(damaged), r.stderr
     out = _outputs(tmp_path / "out")
     assert out.keys() == outputs0.keys()
