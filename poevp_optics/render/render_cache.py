@@ -9,9 +9,11 @@ made it and without the camera-only numerical settings (`CAMERA_ONLY_ACCURACY`),
 exposure window, radiance-node times and weights of every frame in place of the timing
 parameters that produce them (so a DMD or timing key that moves no node keeps the render), the
 SHA-256 of every file the render reads (the XML and what it names, spectrum tables, lamp and
-sheeting files, QE table: a sweep's input list without the camera's files) and the software
-versions; `guard_px` is the camera's guard band (camera.Camera.guard_px: the relay PSF and the
-objective set it), known only once the camera is built, so the run adds it.
+sheeting files, QE table: a sweep's input list without the camera's files), the software
+versions, the plate font's SHA-256 and the code of render/, sources/ and core/ (`code_digest`:
+its syntax, so an edit to comments alone keeps the renders); `guard_px` is the camera's guard
+band (camera.Camera.guard_px: the relay PSF and the objective set it), known only once the
+camera is built, so the run adds it.
 
 Store. One folder per key: `frame_NNNN.npz` per frame (every array of the `RenderedExposure`
 with its dtype, and its scalars with their Python or NumPy type), `temporal.npz` (the renders
@@ -35,6 +37,7 @@ from __future__ import annotations
 
 import dataclasses
 import enum
+import functools
 import hashlib
 import json
 import os
@@ -61,6 +64,12 @@ CAMERA_ONLY_ACCURACY = ("psf_support_energy", "psf_support_px", "guard_max_px", 
                         "dmd_full_table_max")
 #: Input-list keys (apps/sweep/bundle.py scene_inputs) of files only the camera or loop reads.
 CAMERA_ONLY_INPUTS = ("predictor.weights", "relay.measured_file")
+#: Packages whose code shapes a render beyond what its resolved RenderScene says: the renderer,
+#: its plugins and materials (render/), the generated plate and sign textures, meshes and maps
+#: (sources/), and the spectra, seeds and units they use (core/).
+RENDER_CODE = ("render", "sources", "core")
+#: The package folder (poevp_optics/), the root `code_digest`'s parts are named from.
+PACKAGE_DIR = Path(__file__).resolve().parents[1]
 MANIFEST = "manifest.json"
 TEMPORAL = "temporal.npz"
 
@@ -120,9 +129,47 @@ def _render_versions() -> dict:
 
 
 def render_group(scene, input_hashes: Mapping[str, str] = MappingProxyType({})) -> str:
-    """The first part of a render's key (module docstring): 20 hex characters."""
-    text = json.dumps(render_inputs(scene, input_hashes), sort_keys=True, separators=(",", ":"))
+    """The first part of a render's key (module docstring): 20 hex characters, over
+    `render_inputs`, the plate font's SHA-256 (the plate and sign textures are drawn with it)
+    and the code of RENDER_CODE (`code_digest`), so that a stored render does not outlive an
+    edit to the renderer, the textures or the font."""
+    from poevp_optics.sources.plates import plate_font_sha256
+
+    key = {**render_inputs(scene, input_hashes), "plate_font_sha256": plate_font_sha256(), "code": code_digest()}
+    text = json.dumps(key, sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(text.encode()).hexdigest()[:20]
+
+
+def _code_text(path: Path) -> bytes:
+    """A source file's code without its comments, docstrings and layout (its syntax tree), so
+    that an edit to the documentation alone keeps the caches; the raw bytes when it does not parse."""
+    import ast
+
+    raw = path.read_bytes()
+    try:
+        tree = ast.parse(raw)
+    except SyntaxError:
+        return raw
+    for node in ast.walk(tree):
+        body = getattr(node, "body", None)
+        if (isinstance(body, list) and body and isinstance(body[0], ast.Expr)
+                and isinstance(body[0].value, ast.Constant) and isinstance(body[0].value.value, str)):
+            node.body = body[1:] or [ast.Pass()]
+    return ast.dump(tree, include_attributes=False).encode()
+
+
+@functools.lru_cache(maxsize=16)
+def code_digest(parts: tuple[str, ...] = RENDER_CODE, root: Path = PACKAGE_DIR) -> str:
+    """SHA-256 (16 hex) of the package's code: for each of `parts` (a folder under `root`, or one
+    file), every *.py file's path relative to `root` and its code (`_code_text`), in sorted
+    order; any edit to that code changes it, an edit to comments or docstrings does not."""
+    h = hashlib.sha256()
+    for part in parts:
+        where = Path(root) / part
+        for p in ([where] if where.is_file() else sorted(where.rglob("*.py"))):
+            h.update(p.relative_to(root).as_posix().encode() + b"\0")
+            h.update(_code_text(p) + b"\0")
+    return h.hexdigest()[:16]
 
 
 def render_key(group: str, guard_px: int) -> str:

@@ -25,8 +25,6 @@ mask's lag, not motion blur. K = 2 radiance nodes (both ends of the exposure) pe
 from __future__ import annotations
 
 import dataclasses
-import functools
-import hashlib
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -40,6 +38,7 @@ from poevp_optics.core.cache import (CacheCheckError, UncheckedFile, build_lock,
                                      load_verified, note_rebuilt, write_checksum)
 from poevp_optics.core.seeds import render_seeds
 from poevp_optics.render.exposures import RenderedExposure, rel_error, union_box
+from poevp_optics.render.render_cache import PACKAGE_DIR, RENDER_CODE, code_digest  # noqa: F401 (the key's code part)
 from poevp_optics.sources.ldr_highlight import srgb_to_linear
 from poevp_optics.sources.motion import MotionSpec
 
@@ -52,11 +51,6 @@ NODES = 2
 MAX_NODE_STEP_PX = 0.5
 RANGE_SPEED_M_PER_S = 12.0
 CACHE_VERSION = "eval-seq-v2"
-#: Packages whose code shapes a render beyond what its resolved RenderScene says: the renderer,
-#: its plugins and materials (render/), the generated plate and sign textures, meshes and maps
-#: (sources/), and the spectra, seeds and units they use (core/).
-RENDER_CODE = ("render", "sources", "core")
-PACKAGE_DIR = Path(__file__).resolve().parents[2]
 
 #: How E sets the plate's peak, in units of the LDR saturation level (module docstring).
 E_READINGS = ("display", "linear")
@@ -181,38 +175,6 @@ def nodes_for_speed(speed_px_per_frame: float, fps: float) -> int:
 def node_times(spec, frames: int, nodes: int = NODES) -> np.ndarray:
     """(frames, K) absolute radiance-node times: K = `nodes` uniform nodes over each exposure."""
     return np.stack([node_times_s(*spec.exposure_window_s(i), nodes) for i in range(frames)])
-
-
-def _code_text(path: Path) -> bytes:
-    """A source file's code without its comments, docstrings and layout (its syntax tree), so
-    that an edit to the documentation alone keeps the caches; the raw bytes when it does not parse."""
-    import ast
-
-    raw = path.read_bytes()
-    try:
-        tree = ast.parse(raw)
-    except SyntaxError:
-        return raw
-    for node in ast.walk(tree):
-        body = getattr(node, "body", None)
-        if (isinstance(body, list) and body and isinstance(body[0], ast.Expr)
-                and isinstance(body[0].value, ast.Constant) and isinstance(body[0].value.value, str)):
-            node.body = body[1:] or [ast.Pass()]
-    return ast.dump(tree, include_attributes=False).encode()
-
-
-@functools.lru_cache(maxsize=16)
-def code_digest(parts: tuple[str, ...] = RENDER_CODE, root: Path = PACKAGE_DIR) -> str:
-    """SHA-256 (16 hex) of the package's code: for each of `parts` (a folder under `root`, or one
-    file), every *.py file's path relative to `root` and its code (`_code_text`), in sorted
-    order; any edit to that code changes it, an edit to comments or docstrings does not."""
-    h = hashlib.sha256()
-    for part in parts:
-        where = Path(root) / part
-        for p in ([where] if where.is_file() else sorted(where.rglob("*.py"))):
-            h.update(p.relative_to(root).as_posix().encode() + b"\0")
-            h.update(_code_text(p) + b"\0")
-    return h.hexdigest()[:16]
 
 
 def render_backend(requested: str) -> str:
