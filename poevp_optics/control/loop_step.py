@@ -23,6 +23,7 @@ mirror grid. Each crossing carries the grid (`OnGrid`) and refuses an array on a
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass
 
@@ -32,7 +33,8 @@ from poevp_optics.camera.attenuator import AttenuatorSpec, AttenuatorState, choo
 from poevp_optics.camera.dmd import displayed_levels
 from poevp_optics.control import exposure_time
 from poevp_optics.control.exposure_control import ExposureController
-from poevp_optics.control.masks import ATTENUATED_LAWS, MaskSpec, mask_levels, predicted_electrons, reach_electrons
+from poevp_optics.control.masks import (ATTENUATED_LAWS, MaskSpec, envelope_sigma, highlight_miss_px, mask_levels,
+                                        predicted_electrons, reach_electrons)
 from poevp_optics.control.timing_budget import BudgetSpec, MaskClock
 from poevp_optics.control.predictors import PREDICTORS, PredictorSpec, checked_prediction, make_predictor
 from poevp_optics.core.grids import Grid, GridError, OnGrid
@@ -345,6 +347,8 @@ class LoopStep:
                                              int(np.ceil(3 * mask.smooth_px)),
                                              p.saturation_capacity_e, mask.carry == "extrapolate",
                                              white_step=mask.clip_step) if camera.dmd else None
+        self.miss_px: float | None = None            # the last measured miss (masks.highlight_miss_px)
+        self._aimed: np.ndarray | None = None         # the bright mirrors the last mask was computed for
 
     @property
     def lift(self) -> float:
@@ -365,17 +369,50 @@ class LoopStep:
         another grid is refused) for the oracle."""
         truth = self.camera.mirror_grid.take(truth, "the oracle's truth")
         needs = 0 if self.model is None else self.model.needs_frames
+        self._aimed = None
         if index < self.loop.init_frames or len(self.history) < needs:
             return MaskDecision(self.camera.white_mask(), True, None)
+        mask = self.frame_mask()
         if self.needs_truth:
-            levels, g, fx = oracle_choice(self.camera, self.mask, truth, index, self.attenuator)
+            levels, g, fx = oracle_choice(self.camera, mask, truth, index, self.attenuator)
+            if mask.envelope != "fixed":
+                white_e = truth.astype(np.float64) * self.camera.electrons_per_radiance() * self.camera.white_exposure_s(index)
+                self._aimed = white_e >= self.camera.params.saturation_capacity_e
             return MaskDecision(levels, False, None, transmission=g, exposure=fx)
         t0 = time.perf_counter()
         pred, n_bad = checked_prediction(self.model, [h.on(self.predictor_grid).array for h in self.history])
         pred_s = resize_onto(OnGrid(pred, self.predictor_grid), self.camera.sensor_grid)
-        levels, g, fx = predicted_choice(self.camera, self.mask, pred_s, index,
+        levels, g, fx = predicted_choice(self.camera, mask, pred_s, index,
                                          self.controller, self.loop.mode in MASKED_MODES, self.attenuator)
+        if mask.envelope != "fixed":
+            self._aimed = self._predicted_bright(pred_s)
         return MaskDecision(levels, False, time.perf_counter() - t0, n_bad, transmission=g, exposure=fx)
+
+    def _predicted_bright(self, pred_s: OnGrid) -> np.ndarray:
+        """The mirrors the prediction puts at or above saturation with the all-white mask (a
+        prediction of masked captures demodulated by the last mask, as the controller does)."""
+        pred = self.camera.mirror_grid.take(self.camera.to_mirror(pred_s), "the placed prediction")
+        x8 = np.nan_to_num(np.asarray(pred, dtype=np.float64), nan=255.0)
+        e = predicted_electrons(x8, self.camera.params, self.mask.clipped_gain)
+        rel = None if self.controller is None else self.controller.rel
+        if self.loop.mode in MASKED_MODES and rel is not None:
+            e = np.where(x8 >= 254.5, e, e / np.maximum(rel.astype(np.float64), 1e-9))
+        return e >= self.camera.params.saturation_capacity_e
+
+    def envelope_px(self) -> int:
+        """The mask envelope's radius for the next frame, mirrors: ceil(3 sigma), sigma from
+        `mask.envelope` and the last measured miss (masks.envelope_sigma)."""
+        return int(np.ceil(3 * envelope_sigma(self.mask, self.miss_px)))
+
+    def frame_mask(self) -> MaskSpec:
+        """The mask settings of the next decision: under `mask.envelope = "predictor_error"` the
+        envelope's sigma from the last miss, and the exposure controller's carry radius with it."""
+        if self.mask.envelope == "fixed":
+            return self.mask
+        sigma = envelope_sigma(self.mask, self.miss_px)
+        if self.controller is not None:
+            self.controller.radius_px = int(np.ceil(3 * sigma))
+        return dataclasses.replace(self.mask, smooth_px=sigma)
 
     def command(self, index: int, truth: np.ndarray | None = None) -> DMDCommand:
         """The DMD command of frame `index`: the mask decision (`next_mask`), what the DMD shows
@@ -396,6 +433,8 @@ class LoopStep:
         g = self._attenuator_setting(decision, index, rec)
         if fx is not None:
             rec["exposure_time"] = {**fx.record(), "nd_transmission": g}
+        if self.mask.envelope != "fixed" and not decision.init:
+            rec["envelope_px"] = self.envelope_px()
         late = shown.late is not None
         mirror = self.camera.mirror_grid
         return DMDCommand(OnGrid(shown.levels, mirror), OnGrid(shown.late, mirror) if late else None,
@@ -420,6 +459,9 @@ class LoopStep:
         exposure controller's state."""
         if self.controller is not None:
             self.controller.observe(*controller_view(self.camera, enc, est, flags, index))
+            if self._aimed is not None:              # where the highlight was against where the mask aimed
+                miss = highlight_miss_px(self._aimed, self.controller.demand_e >= self.controller.saturation_e)
+                self.miss_px = self.miss_px if miss is None else miss
         if self.model is None:
             return
         x = predictor_input(self.loop.mode, self.camera, ldr, enc, est, flags, index, self.lift)

@@ -37,6 +37,25 @@ any law, the predicted frame is replaced by its smooth upper envelope: a grey di
 R = ceil(3 smooth_px) (square window) followed by a Gaussian blur of sigma smooth_px truncated at the same R.
 Every tap of the blur kernel around a pixel then lies inside that pixel's dilated neighbourhood,
 so the envelope is >= the frame everywhere: the mask is smooth and never under-attenuates.
+
+The envelope's radius (`mask.envelope`). With "fixed" it is R = ceil(3 smooth_px) in every
+frame: wide enough for a predictor that lags the highlight by up to R mirrors, but it also gives
+a plate's ends the dimming meant for the mirrors R nearer the highlight's peak (a Gaussian
+plate highlight at 29x saturation: about 7.9x where the ends are 1.4x, so the ends come out at
+a tenth of the band and the detector loses the leading characters). With "predictor_error" the
+loop sizes it from its own history (`envelope_sigma`): the distance by which the highlight the
+camera captured in the last frame reached beyond the bright region the mask had been computed
+from (`highlight_miss_px`, the one-sided Hausdorff distance: the envelope must reach every
+mirror the highlight reached), sigma = miss, floored at `ENVELOPE_FLOOR_SIGMA` (1 mirror: the
+ink stays dark under a mask that fills the strokes with the plate's white; with no envelope the
+mask flattens the characters) and capped at smooth_px. Sigma = miss rather than miss / 3: the
+blur of the dilated frame falls off over the last 2 sigma of the radius R = 3 sigma, so a
+mirror `miss` beyond the aimed region still gets Phi(2) = 98 % of the highlight's envelope. A
+predictor that misses by v < smooth_px mirrors (hold at v px/frame) gets R = 3 v; one that
+misses by more (hold, flow at speed) the fixed envelope; the oracle, which misses by about the
+relay's blur, the floor (R = 3).
+Causal: the miss is measured on the frame already captured (the demodulated capture is where
+the highlight really was), and the exposure controller's carry radius follows the same R.
 """
 
 from __future__ import annotations
@@ -64,6 +83,39 @@ def smooth_envelope(frame: np.ndarray, smooth_px: float) -> np.ndarray:
     env = cv2.GaussianBlur(dil, (size, size), sigmaX=smooth_px, borderType=cv2.BORDER_REPLICATE)
     # float32 kernel weights sum to 1 within a few ulp: lift by 1e-6 to keep env >= frame
     return env * np.float32(1 + 1e-6)
+
+
+#: How the envelope's radius is chosen (module docstring).
+ENVELOPE_MODES = ("fixed", "predictor_error")
+#: The envelope's smallest sigma under "predictor_error", mirrors (module docstring): R = 3.
+ENVELOPE_FLOOR_SIGMA = 1.0
+
+
+def highlight_miss_px(predicted: np.ndarray, captured: np.ndarray) -> float | None:
+    """How far (mirrors, Euclidean) the captured bright region reached beyond the predicted one:
+    the largest distance from a captured bright mirror to the nearest predicted bright mirror
+    (0 inside it). Both boolean maps on one grid. None when nothing was captured bright (no
+    highlight: nothing to measure); the map's diagonal when nothing was predicted bright."""
+    import cv2
+
+    captured = np.asarray(captured, dtype=bool)
+    predicted = np.asarray(predicted, dtype=bool)
+    if not captured.any():
+        return None
+    if not predicted.any():
+        return float(np.hypot(*captured.shape))
+    dist = cv2.distanceTransform(np.where(predicted, 0, 255).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    return float(dist[captured].max())
+
+
+def envelope_sigma(spec, miss_px: float | None) -> float:
+    """The envelope's sigma (mirrors) for one frame (module docstring): smooth_px under "fixed"
+    or before any miss was measured; else the miss within [min(ENVELOPE_FLOOR_SIGMA,
+    smooth_px), smooth_px] (the radius ceil(3 sigma) covers the miss with 2 sigma to spare)."""
+    if spec.envelope == "fixed" or miss_px is None:
+        return float(spec.smooth_px)
+    floor = min(ENVELOPE_FLOOR_SIGMA, spec.smooth_px)
+    return float(min(max(miss_px, floor), spec.smooth_px))
 
 
 def _as_8bit(x) -> np.ndarray:
@@ -286,6 +338,7 @@ class MaskSpec:
     b: float = param(0.0, min=0, max=1)
     target: float = param(0.5, gt=0, max=1)
     smooth_px: float = param(4.0, min=0, max=1000)
+    envelope: str = param("fixed", choices=ENVELOPE_MODES)
     clipped_gain: float = param(32.0, min=1, max=1e9)   # assumed x saturation (x lower bound) where clipped
     first_guess: float = param(40.0, min=1, max=1e9)    # exposure_controller: never-measured clipped region, x saturation
     prior_beam_cd: float = param(0.0, min=0, max=1e12)  # exposure_controller on a road scene: our beams' intensity_cd
