@@ -39,17 +39,50 @@ CONTEXT = 4
 TARGET_FPS = 30.0
 
 
+#: Name of the bound's rows (not a causal predictor: it reads the scene's true motion).
+BOUND = "true_chains"
+
+
+def true_chain_predictor():
+    """`track_net` with the true next displacement (the nearest light's, analysis/traffic_paths.py
+    `light_tracks`) for every region it followed back the full three frames, its own prediction
+    for the rest (new regions, short chains): what a perfect extrapolation of the chains the
+    tracker measures would score. Set `.lights` (per scene) and `.t` (the frame predicted)."""
+    from poevp_optics.control.predictors import make_predictor
+    from poevp_optics.control.predictors.track import MAX_CHAIN
+    from poevp_optics.control.predictors.track_net import TrackNetPredictor
+
+    base = make_predictor("track_net")
+
+    class TrueChains(TrackNetPredictor):
+        def next_displacement(self, tracks):
+            own = super().next_displacement(tracks)
+            out = []
+            for tr, d in zip(tracks, own):
+                y0, x0, y1, x1 = tr.box
+                c = np.array([(x0 + x1) / 2.0, (y0 + y1) / 2.0])
+                near = min(self.lights, key=lambda p: float(np.hypot(*(p[self.t - 1] - c))))
+                out.append(near[self.t] - near[self.t - 1] if len(tr.displacements) == MAX_CHAIN else d)
+            return out
+
+    return TrueChains(base.model, base.weights_path, base.meta)
+
+
 def run(cases, predictors, log=print):
     """Per-frame rows {family, speed, seed, t, predictor, iou, undimmed} and prediction times
-    {predictor: [(wall s, CPU s of this process), ...]}."""
+    {predictor: [(wall s, CPU s of this process), ...]}; with track_net, rows of `BOUND` too
+    (`true_chain_predictor`)."""
     from poevp_optics.analysis.prediction_metrics import saturated_iou, undimmed_fraction
-    from poevp_optics.analysis.traffic_paths import draw_scene
+    from poevp_optics.analysis.traffic_paths import draw_scene, light_tracks
     from poevp_optics.control.predictors import make_predictor
 
     models = {n: make_predictor(n) for n in predictors}
+    bound = true_chain_predictor() if "track_net" in predictors else None
     rows, seconds = [], {n: [] for n in predictors}
     for i, (family, v, seed) in enumerate(cases):
         scene = draw_scene(family, v, seed)
+        if bound is not None:
+            bound.lights = light_tracks(scene)
         for t in range(CONTEXT, len(scene.frames)):
             hist = list(scene.frames[t - CONTEXT:t])
             truth = scene.frames[t]
@@ -58,6 +91,11 @@ def run(cases, predictors, log=print):
                 pred = m(hist)
                 seconds[n].append((time.perf_counter() - t0, time.process_time() - c0))
                 rows.append({"family": family, "speed": v, "seed": seed, "t": t, "predictor": n,
+                             "iou": saturated_iou(pred, truth), "undimmed": undimmed_fraction(pred, truth)})
+            if bound is not None:
+                bound.t = t
+                pred = bound(hist)
+                rows.append({"family": family, "speed": v, "seed": seed, "t": t, "predictor": BOUND,
                              "iou": saturated_iou(pred, truth), "undimmed": undimmed_fraction(pred, truth)})
         if (i + 1) % 10 == 0 or i + 1 == len(cases):
             log(f"{i + 1}/{len(cases)} scenes")
@@ -97,8 +135,15 @@ def bars(summ, families, predictors) -> str:
     low = min(und, key=und.get)
     lines.append(["lowest undimmed fraction", f"{und['track_net']:.4f}", f"{low} {und[low]:.4f}",
                   "yes" if low == "track_net" else "NO"])
-    return ("### Bars for the learned predictor (track_net)\n\n"
+    text = ("### Bars for the learned predictor (track_net)\n\n"
             + markdown_table(["bar", "track_net", "against", "met"], lines) + "\n")
+    if BOUND in summ:
+        b = summ[BOUND]
+        text += ("\nWhat a perfect extrapolation of the measured chains would score (not a predictor: it reads "
+                 "the true motion): track_net with each light's true next displacement wherever it was followed "
+                 f"back the full three frames, {b['all']['iou']['mean']:.3f} mean IoU ("
+                 + ", ".join(f"{f} {b[f]['iou']['mean']:.3f}" for f in families) + ").\n")
+    return text
 
 
 def tables(rows, summ, families, predictors, speeds, seconds) -> str:
@@ -160,7 +205,7 @@ def main(argv=None):
     cases = bench_cases(SPEEDS_PX, a.per_cell, families)
     t0 = time.perf_counter()
     rows, seconds = run(cases, preds)
-    summ = summary(rows, families, preds)
+    summ = summary(rows, families, preds + ([BOUND] if "track_net" in preds else []))
     doc = __doc__.split("    .venv/bin/python")[0].split("\n", 2)[2].strip()
     text = (f"# Predictors on held-out traffic (analysis/traffic_paths.py, 368x640)\n\n{doc}\n\n"
             f"Disjoint from training: generator analysis/traffic_paths.py (training: analysis/motion_paths.py), "
