@@ -370,14 +370,20 @@ class LoopStep:
         truth = self.camera.mirror_grid.take(truth, "the oracle's truth")
         needs = 0 if self.model is None else self.model.needs_frames
         self._aimed = None
+        measure = self.mask.envelope != "fixed"
         if index < self.loop.init_frames or len(self.history) < needs:
+            if measure and self.needs_truth:        # where a mask would have aimed: the miss is
+                self._aimed = self._true_bright(truth, index)   # known on the first loop frame
+            elif measure and self.model is not None and len(self.history) >= needs:
+                pred, _ = checked_prediction(self.model, [h.on(self.predictor_grid).array for h in self.history])
+                self._aimed = self._predicted_bright(resize_onto(OnGrid(pred, self.predictor_grid),
+                                                                 self.camera.sensor_grid))
             return MaskDecision(self.camera.white_mask(), True, None)
         mask = self.frame_mask()
         if self.needs_truth:
             levels, g, fx = oracle_choice(self.camera, mask, truth, index, self.attenuator)
-            if mask.envelope != "fixed":
-                white_e = truth.astype(np.float64) * self.camera.electrons_per_radiance() * self.camera.white_exposure_s(index)
-                self._aimed = white_e >= self.camera.params.saturation_capacity_e
+            if measure:
+                self._aimed = self._true_bright(truth, index)
             return MaskDecision(levels, False, None, transmission=g, exposure=fx)
         t0 = time.perf_counter()
         pred, n_bad = checked_prediction(self.model, [h.on(self.predictor_grid).array for h in self.history])
@@ -387,6 +393,11 @@ class LoopStep:
         if mask.envelope != "fixed":
             self._aimed = self._predicted_bright(pred_s)
         return MaskDecision(levels, False, time.perf_counter() - t0, n_bad, transmission=g, exposure=fx)
+
+    def _true_bright(self, truth: np.ndarray, index: int) -> np.ndarray:
+        """The mirrors the true frame (the oracle's input) puts at or above saturation, all white."""
+        white_e = truth.astype(np.float64) * self.camera.electrons_per_radiance() * self.camera.white_exposure_s(index)
+        return white_e >= self.camera.params.saturation_capacity_e
 
     def _predicted_bright(self, pred_s: OnGrid) -> np.ndarray:
         """The mirrors the prediction puts at or above saturation with the all-white mask (a

@@ -1,9 +1,10 @@
 """`mask.envelope = "predictor_error"`: the mask envelope's radius follows the loop's own miss.
 
 Closed form: a disc moving v mirrors per frame. `hold` predicts the last capture, so the disc
-the camera captures reaches v mirrors beyond the one the mask was computed from (its leading
-point; one-sided Hausdorff distance v), and every frame after the first loop frame gets an
-envelope of sigma v, radius 3 v >= v (below the cap 3 smooth_px). The oracle's mask is computed from the frame itself: it misses by
+the camera captures reaches v mirrors beyond the one the mask was computed from (its centroid
+moved v, its area did not change), and every loop frame gets an envelope of sigma v, radius
+3 v >= v (below the cap 3 smooth_px): from the first one on, as the miss of a prediction made
+during the white start is already measured. The oracle's mask is computed from the frame itself: it misses by
 nothing, and its envelope sits at the floor, 3 mirrors (sigma 1)."""
 
 from __future__ import annotations
@@ -35,7 +36,7 @@ def _run(name: str, v: int, envelope: str, frames: int = 5) -> list[int]:
     cam = Camera(SensorSpec(), DMDSpec(enabled=True, bits=8), RelaySpec(psf="delta"), ObjectiveSpec(), TimingSpec(),
                  SHAPE)
     spec = MaskSpec(law="target", target=0.5, smooth_px=4.0, envelope=envelope)
-    step = LoopStep(cam, spec, LoopSpec(init_frames=1), PredictorSpec(name=name, resolution=SHAPE))
+    step = LoopStep(cam, spec, LoopSpec(init_frames=2), PredictorSpec(name=name, resolution=SHAPE))
     radii = []
     for i in range(frames):
         unit = cam.params.saturation_capacity_e / (cam.electrons_per_radiance() * cam.white_exposure_s(i))
@@ -52,9 +53,12 @@ def _run(name: str, v: int, envelope: str, frames: int = 5) -> list[int]:
 def test_miss_is_the_one_sided_hausdorff_distance():
     shape = (40, 60)
     a, b = _disc(20.0, 20.0, shape), _disc(27.0, 20.0, shape)
-    assert highlight_miss_px(a, b) == pytest.approx(7.0, abs=1e-3)            # the leading point
-    assert highlight_miss_px(b, a) == pytest.approx(7.0, abs=1e-3)
-    assert highlight_miss_px(a | b, a) == 0.0                                  # covered: no miss
+    assert highlight_miss_px(a, b) == pytest.approx(7.0, abs=1e-9)            # moved 7
+    assert highlight_miss_px(b, a) == pytest.approx(7.0, abs=1e-9)
+    big = _disc(20.0, 20.0, shape) | (np.hypot(*np.mgrid[0:40, 0:60] - np.array([20, 20])[:, None, None]) <= 9)
+    grow = np.sqrt(big.sum() / np.pi) - np.sqrt(a.sum() / np.pi)               # same centre, grew
+    assert highlight_miss_px(a, big) == pytest.approx(grow) and grow > 3.5
+    assert highlight_miss_px(big, a) == 0.0                                    # shrank in place: no miss
     assert highlight_miss_px(a, np.zeros(shape, bool)) is None                 # no highlight
     assert highlight_miss_px(np.zeros(shape, bool), a) == pytest.approx(np.hypot(*shape))
     s = MaskSpec(smooth_px=4.0, envelope="predictor_error")
@@ -66,7 +70,8 @@ def test_miss_is_the_one_sided_hausdorff_distance():
 @pytest.mark.parametrize("v", [2, 3])
 def test_hold_gets_at_least_its_lag_and_the_oracle_the_floor(v):
     hold = _run("hold", v, "predictor_error")
-    # frame 0: white init; frame 1: no miss measured yet (the fixed radius 12); then 3 v >= v
-    assert hold[1] == 12 and hold[2:] == [3 * v] * 3, hold
-    assert all(r == 3 for r in _run("oracle", v, "predictor_error")[2:])
+    # frames 0, 1: the white start (hold predicts frame 1 from frame 0: its miss is measured),
+    # so the first loop frame, 2, and every later one get 3 v >= v
+    assert hold[2:] == [3 * v] * 3, hold
+    assert _run("oracle", v, "predictor_error")[2:] == [3] * 3
     assert set(_run("hold", v, "fixed", frames=3)) == {12}
