@@ -75,3 +75,19 @@ def test_hold_gets_at_least_its_lag_and_the_oracle_the_floor(v):
     assert hold[2:] == [3 * v] * 3, hold
     assert _run("oracle", v, "predictor_error")[2:] == [3] * 3
     assert set(_run("hold", v, "fixed", frames=3)) == {12}
+
+
+def test_evaluate_sets_scene_keys_after_the_protocols_own():
+    from poevp_optics.apps.evaluate.eval_paper import paper_overrides
+    from poevp_optics.apps.evaluate.evaluate_cli import _eval_config
+    from poevp_optics.cli import build_parser
+    from poevp_optics.scene.load import load_scene
+    from tests.conftest import SCENES
+
+    args = build_parser().parse_args(["evaluate", "scenes/ldr_highlight_demo", "--set", 'mask.envelope="predictor_error"',
+                                      "--set", "mask.exposure_time_auto=true"])
+    cfg = _eval_config(args)
+    assert cfg.overrides == ('mask.envelope="predictor_error"', "mask.exposure_time_auto=true")
+    spec = load_scene(SCENES / "ldr_highlight_demo", [*paper_overrides(9.0, "exposure_controller"), *cfg.overrides])
+    assert spec.mask.envelope == "predictor_error" and spec.mask.exposure_time_auto
+    assert _eval_config(build_parser().parse_args(["evaluate"])).overrides == ()

@@ -127,7 +127,7 @@ def run_paper(cfg, runner_cls, score, shift_px, log=print) -> list[dict]:
     the mask law: protocol_law(cfg)."""
     rows, runner, t0 = [], None, time.perf_counter()
     for e in PAPER_E:
-        spec = load_scene(cfg.scene, paper_overrides(e, protocol_law(cfg)))
+        spec = load_scene(cfg.scene, [*paper_overrides(e, protocol_law(cfg)), *getattr(cfg, "overrides", ())])
         cam = Camera.from_params(spec.resolved.camera)
         if runner is None:
             runner = runner_cls(dataclasses.replace(cfg, loop_mode="open"), spec, cam)

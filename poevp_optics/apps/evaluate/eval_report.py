@@ -262,7 +262,7 @@ def _scene_law(cfg) -> str:
     """The scene's mask law and relay PSF, for the header."""
     from poevp_optics.scene.load import load_scene
 
-    spec = load_scene(cfg.scene)
+    spec = load_scene(cfg.scene, list(getattr(cfg, "overrides", ())))
     return f"{spec.mask.law}`, relay `{spec.relay.psf}"
 
 
@@ -286,7 +286,9 @@ def _intro(cfg, rows, seconds, law: str = "") -> str:
             f"not scored. Each cell: **full ALPR % [Wilson 95 %] / recognition-only %** (PP-OCRv4 detection + "
             f"recognition on the {'whole frame' if cfg.search == 'frame' else 'vehicle window'}; recognition "
             f"alone on the plate box); a frame counts when every character matches (paper Eq. 4). "
-            f"{len(rows)} reads, {seconds:.0f} s.")
+            f"{len(rows)} reads, {seconds:.0f} s."
+            + (f" Scene keys set for every run: {', '.join(f'`{o}`' for o in cfg.overrides)}."
+               if getattr(cfg, "overrides", ()) else ""))
 
 
 def _findings_text(find: dict, cfg) -> str:
@@ -397,7 +399,9 @@ def camera_text(cfg) -> str:
         extra = f", plus {', '.join(cfg.paper_effects)}" if cfg.paper_effects else ""
         return ("the paper's own simulation (apps/evaluate/paper_camera.py: code values, noiseless per-pixel Hadamard "
                 f"product, cut off at 255, no smoothing, no DMD floor{extra})")
-    return "this project's DMD and sensor (noise, ADC) in place of the paper's noiseless cut-off at 255"
+    keys = getattr(cfg, "overrides", ())
+    extra = f", scene keys set: {', '.join(f'`{o}`' for o in keys)}" if keys else ""
+    return f"this project's DMD and sensor (noise, ADC) in place of the paper's noiseless cut-off at 255{extra}"
 
 
 def write_paper_tables(out: Path, rows: list[dict], cfg, seconds: float) -> dict:

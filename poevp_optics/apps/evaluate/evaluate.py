@@ -88,6 +88,7 @@ class EvalConfig:
     paper_law: str = ""                # ldr_highlight scenes (the paper's protocol): the mask law; "": the camera's (DEFAULT_LAWS)
     camera: str = "physical"           # ldr_highlight scenes: physical, or the paper's code-value simulation
     paper_effects: tuple[str, ...] = ()  # --camera paper: physical effects added (apps/evaluate/paper_camera.py)
+    overrides: tuple[str, ...] = ()    # --set KEY=VALUE: scene keys set after the protocol's own (e.g. mask.envelope)
     quick: bool = False
 
     @property
@@ -320,7 +321,7 @@ def evaluate_sequence(runner: Runner, seq: SequenceSpec, e_levels, exps, keep) -
 
 def load_eval_scene(cfg: EvalConfig, text: str, frames: int):
     """The scene under the evaluation's overrides for one text."""
-    return load_scene(cfg.scene, eval_overrides(cfg.resolution, cfg.spp, frames, text))
+    return load_scene(cfg.scene, [*eval_overrides(cfg.resolution, cfg.spp, frames, text), *cfg.overrides])
 
 
 def run_evaluation(cfg: EvalConfig, log=print, keep=lambda *a: None) -> list[dict]:

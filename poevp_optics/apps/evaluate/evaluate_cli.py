@@ -40,7 +40,8 @@ def _eval_config(args):
            "baselines": tuple(b for b in args.baselines.split(",") if b) if args.baselines is not None else None,
            "search": args.search, "loop_mode": args.loop_mode, "e_reading": args.e_reading,
            "paper_law": args.paper_law, "camera": args.camera,
-           "paper_effects": tuple(x for x in args.paper_effects.split(",") if x) if args.paper_effects else None}
+           "paper_effects": tuple(x for x in args.paper_effects.split(",") if x) if args.paper_effects else None,
+           "overrides": tuple(args.overrides) if args.overrides else None}
     return dataclasses.replace(cfg, **{k: v for k, v in new.items() if v is not None})
 
 
@@ -91,5 +92,8 @@ def add_evaluate_parser(sub, add_job_options) -> None:
                    help="E -> plate peak: display (paper Sec. 4.A, 8-bit values x (E+1), default) or linear")
     p.add_argument("--loop-mode", dest="loop_mode", choices=("open", "raw", "demodulated"),
                    help="what the predictor sees (default demodulated; open: paper Fig. 3)")
+    p.add_argument("--set", dest="overrides", action="append", metavar="KEY=VALUE",
+                   help="set a scene key for every run, after the protocol's own, TOML value syntax (repeatable): "
+                        "mask.envelope=\"predictor_error\"")
     add_job_options(p, "default out/evaluate")
     p.set_defaults(func=cmd_evaluate)
