@@ -2,7 +2,12 @@
 only, the paper's Table 2 beside, the fusions' gap to the paper attributed, and the cause of every
 large ALPR vs recognition-only gap with an example frame.
 
-    .venv/bin/python -m benchmarks.recognition [--quick] [--sections ...] [--results]
+    .venv/bin/python -m benchmarks.recognition [--quick] [--sections ...] [--set KEY=VALUE ...] [--results]
+
+`--set` changes a scene key in every section after the section's own settings (e.g. the mask
+envelope, `mask.envelope="predictor_error"`, with the per-frame exposure time,
+`mask.exposure_time_auto=true`; docs/physics/closed-loop.md); the page's header names them in its
+command line.
 
 Scenes and conditions:
 
@@ -89,6 +94,7 @@ class Config:
     label: str = "full"
     fresh: bool = False               # ignore the render and OCR caches
     cache: Path = CACHE
+    overrides: tuple[str, ...] = ()   # --set KEY=VALUE: scene keys for every section's loop (after its own)
 
 
 FULL = Config(predictors=("hold", "flow", "track_net", "dmvfn_lite", "oracle"), paper_e=(9.0, 29.0, 49.0),
@@ -267,7 +273,7 @@ def paper_protocol(reader: Reader, cfg: Config, camera: str, log=print) -> dict:
     seqs, runner = {}, None
     for e in cfg.paper_e:
         t0 = time.perf_counter()
-        spec = load_scene(DEMO, paper_overrides(e, law))
+        spec = load_scene(DEMO, [*paper_overrides(e, law), *cfg.overrides])
         if runner is None:
             runner = make_runner(reader, DEMO, spec, cfg.predictors)
         runner.spec, runner.cam = spec, Camera.from_params(spec.resolved.camera)
@@ -400,7 +406,8 @@ def highbeam(reader: Reader, cfg: Config, log=print) -> None:
 
     ecfg = EvalConfig(texts=cfg.texts, speeds_px=cfg.speeds_px, e_levels=cfg.highbeam_e, e_sweep=cfg.highbeam_e,
                       e_speed_px=cfg.speeds_px[0], kinds=("lateral",), motion_speed_px=cfg.speeds_px[0],
-                      motion_e=cfg.highbeam_e[0], predictors=cfg.predictors, frames=cfg.highbeam_frames)
+                      motion_e=cfg.highbeam_e[0], predictors=cfg.predictors, frames=cfg.highbeam_frames,
+                      overrides=cfg.overrides)
     kept = {}          # (text, condition, method, frame) -> (image, box)
 
     def cond(e, v):
@@ -449,7 +456,7 @@ def road_scene(reader: Reader, cfg: Config, scene: str, log=print) -> None:
     for gain in gains:
         t0 = time.perf_counter()
         ov = [*sc.sets, f"timing.frames={cfg.road_frames}", f'{ROAD_TEXT_KEYS[scene]}="{text}"',
-              *beam_overrides(str(SCENES_DIR / scene), gain)]
+              *beam_overrides(str(SCENES_DIR / scene), gain), *cfg.overrides]
         spec, ex, made = cached_render(str(SCENES_DIR / scene), ov, cfg.cache, cfg.fresh)
         reader.renders[f"{scene}, beams x{gain:g}"] = made
         runner = make_runner(reader, SCENES_DIR / scene, spec, cfg.predictors, loop_mode=spec.loop.mode)
@@ -895,9 +902,12 @@ def main(argv=None):
                     "and OCR readings are reused by content from the cache folder)")
     ap.add_argument("--jobs", type=int, default=1, help="processes to spread the sections over (default 1)")
     ap.add_argument("--cache", type=Path, default=CACHE, help=f"the cache folder (default {CACHE.relative_to(ROOT)})")
+    ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                    help="set a scene key in every section, after the section's own, TOML value syntax "
+                         "(repeatable): mask.envelope=\"predictor_error\"")
     add_results_flag(ap)
     a = ap.parse_args(argv)
-    cfg = dataclasses.replace(QUICK if a.quick else FULL, fresh=a.fresh, cache=a.cache)
+    cfg = dataclasses.replace(QUICK if a.quick else FULL, fresh=a.fresh, cache=a.cache, overrides=tuple(a.overrides))
     if a.sections:
         secs = tuple(s.strip() for s in a.sections.split(",") if s.strip())
         bad = [s for s in secs if s not in SECTIONS]
