@@ -15,7 +15,9 @@ Scenes and conditions:
   sequence with Eq. 3's highlight H = O (E G + 1) at E = 9, 29, 49, R = 50 px, loop open, frames
   2-7 scored, in the paper's idealised camera (apps/evaluate/paper_camera.py: 8-bit code values,
   noiseless Hadamard product, cut-off at 255, Eq. 2's linear reading) and in the physical camera
-  (DMD PWM, sensor noise, sRGB-decoded light, the exposure controller). The demo's plate text is
+  (DMD PWM, sensor noise, sRGB-decoded light, the exposure controller with the mask envelope sized
+  by the loop's measured miss and the exposure time chosen per frame: `poevp evaluate`'s physical
+  camera, apps/evaluate/eval_paper.py PHYSICAL_CONTROLS). The demo's plate text is
   the one its frames show.
 * `highbeam_plate`: the plate carried laterally at a set image speed (px/frame) and scaled to
   over-exposure E (display reading, apps/evaluate/eval_sequences.py), `poevp evaluate`'s sequences.
@@ -263,7 +265,8 @@ def paper_protocol(reader: Reader, cfg: Config, camera: str, log=print) -> dict:
     """Rows of the paper's protocol on the demo in `camera` ('paper' or 'physical'); returns
     {E: PaperSequence} of the paper camera (for the fusion attribution)."""
     from poevp_optics.apps.evaluate import paper_camera as pc
-    from poevp_optics.apps.evaluate.eval_paper import DEFAULT_LAWS, paper_exposures, paper_overrides, predictor_models
+    from poevp_optics.apps.evaluate.eval_paper import (DEFAULT_LAWS, camera_controls, paper_exposures, paper_overrides,
+                                                       predictor_models)
     from poevp_optics.camera.camera import Camera
     from poevp_optics.camera.sensor import resolve_sensor
     from poevp_optics.scene.load import load_scene
@@ -273,7 +276,7 @@ def paper_protocol(reader: Reader, cfg: Config, camera: str, log=print) -> dict:
     seqs, runner = {}, None
     for e in cfg.paper_e:
         t0 = time.perf_counter()
-        spec = load_scene(DEMO, [*paper_overrides(e, law), *cfg.overrides])
+        spec = load_scene(DEMO, [*paper_overrides(e, law), *camera_controls(camera), *cfg.overrides])
         if runner is None:
             runner = make_runner(reader, DEMO, spec, cfg.predictors)
         runner.spec, runner.cam = spec, Camera.from_params(spec.resolved.camera)

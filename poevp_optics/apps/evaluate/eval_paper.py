@@ -19,7 +19,7 @@ any O above 36, 12, 7 at E = 9, 29, 49 (black plate ink is ~45 in the demo), and
 reading sends a clipped prediction to level 0 (only the DMD's leakage and the smoothed mask's edge
 pass): both read 0 % with every predictor, the oracle included. Without `paper_law`, the paper's
 camera runs `PAPER_LAW` and the physical camera this project's exposure controller
-(`DEFAULT_LAWS`): in linear light Eq. 3's display-encoded highlight puts the plate 3.1e3x and
+(`DEFAULT_LAWS`) with its envelope and per-frame exposure time (`PHYSICAL_CONTROLS`): in linear light Eq. 3's display-encoded highlight puts the plate 3.1e3x and
 1.05e4x over saturation at E = 29 and 49, beyond the linear reading's tenfold dimming.
 EvalConfig's `paper_law` picks any of `PROTOCOL_LAWS` (this project's reported as ours).
 The scene's mask.smooth_px (the band-limited mask, DESIGN.md) is kept. Loop mode `open` (the
@@ -63,12 +63,29 @@ PROTOCOL_LAWS = (*PAPER_LAWS, "exposure_controller", "target")
 #: (code values) runs the reading that reproduces the paper, the physical camera the project's
 #: best law, the exposure controller (control/exposure_control.py).
 DEFAULT_LAWS = {"paper": PAPER_LAW, "physical": "exposure_controller"}
+#: Scene keys the physical camera's default law runs with, before any `--set`: the mask envelope
+#: sized by the loop's measured miss (about a mirror for the oracle) and the exposure time chosen
+#: per frame, which puts the coarse part of 1e3-1e4x over saturation into the shutter and keeps
+#: the plate's mirrors in the DMD's fine levels. Measured over E = 9/29/49 (18 frames, full ALPR):
+#: the oracle 8 -> 17 reads (docs/physics/closed-loop.md, "Mask envelope").
+PHYSICAL_CONTROLS = ('mask.envelope="predictor_error"', "mask.exposure_time_auto=true")
 KIND = "paper"
 
 
 def protocol_law(cfg) -> str:
     """The protocol's mask law of `cfg`: its `paper_law`, else the camera's default (DEFAULT_LAWS)."""
     return getattr(cfg, "paper_law", "") or DEFAULT_LAWS[getattr(cfg, "camera", "physical")]
+
+
+def camera_controls(camera: str) -> tuple[str, ...]:
+    """Scene keys that go with the default law of `camera` ('paper' or 'physical')."""
+    return PHYSICAL_CONTROLS if camera == "physical" else ()
+
+
+def protocol_controls(cfg) -> tuple[str, ...]:
+    """Scene keys of the protocol's camera with its default law (camera_controls); none where
+    `paper_law` names a law."""
+    return () if getattr(cfg, "paper_law", "") else camera_controls(getattr(cfg, "camera", "physical"))
 
 
 def is_paper_scene(scene: Path) -> bool:

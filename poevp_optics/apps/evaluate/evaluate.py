@@ -46,7 +46,8 @@ import numpy as np
 from poevp_optics.analysis.metrics import crop, entropy_8bit, to_8bit
 from poevp_optics.analysis.recognition import alpr_read, correct, read_plate, search_window
 from poevp_optics.apps.evaluate.eval_report import BASELINES
-from poevp_optics.apps.evaluate.eval_paper import PROTOCOL_LAWS, is_paper_scene, protocol_law, run_paper
+from poevp_optics.apps.evaluate.eval_paper import (PROTOCOL_LAWS, is_paper_scene, protocol_controls, protocol_law,
+                                                   run_paper)
 from poevp_optics.apps.evaluate.eval_sequences import (E_READINGS, KINDS, SequenceSpec, calibrate, eval_overrides,
                                               peak_gain, render_sequences)
 from poevp_optics.camera.camera import Camera
@@ -388,7 +389,8 @@ def evaluate_paper(out: Path, cfg: EvalConfig, log=print) -> dict:
     from poevp_optics.apps.evaluate.eval_report import write_paper_tables
 
     check_config(cfg)
-    cfg = dataclasses.replace(cfg, paper_law=protocol_law(cfg))      # the report names the law that ran
+    # the report names the law that ran, and the camera's own keys among the scene keys set
+    cfg = dataclasses.replace(cfg, paper_law=protocol_law(cfg), overrides=(*protocol_controls(cfg), *cfg.overrides))
     t0 = time.perf_counter()
     rows = run_paper(cfg, Runner, score_rows, _shift_px, log=log)
     if not rows:
