@@ -53,6 +53,9 @@ def test_dark_plate_detector_miss_and_other_text():
     other = [_row("oracle", alpr_text="F9H28", rec_text="NF9H28"), _row("hold", clipped=0.9)]
     why = zero_read_reason(other)
     assert "'F9H28' (ALPR) / 'NF9H28' (plate box) for 'JN F9H28'" in why
+    # each method's state named: the clipped one apart from the one that reads other text
+    assert "clipped in hold (90 % of its box at 255)" in why and "in oracle it is neither clipped nor dark" in why
+    assert "clipped in oracle" not in why
 
 
 def test_baselines_reading_while_every_poevp_method_reads_nothing():

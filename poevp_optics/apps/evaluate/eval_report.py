@@ -242,10 +242,21 @@ def zero_read_reason(rows: list[dict], law: str = "") -> str | None:
     if rec:
         return (head + f"recognition on the plate box reads {rec} of {len(rows)} frames, so the plate is "
                 "legible, but the detector finds no text over it (full ALPR searches the whole frame).")
-    r = next((r for r in rows if r.get("alpr_text") or r.get("rec_text")), rows[0])
-    return (head + f"the plate is neither clipped nor dark in every method (clipped share {shown}), and the "
-            f"OCR reads other text: e.g. {r['method']} frame {r['frame']} '{r.get('alpr_text', '')}' (ALPR) / "
-            f"'{r.get('rec_text', '')}' (plate box) for '{r['text']}'.")
+    clip_m = [m for m in by if clipped[m] >= CLIPPED_SHARE]
+    dark_m = [m for m in by if m not in clip_m and p90[m] < DARK_P90]
+    rest = [m for m in by if m not in clip_m and m not in dark_m]
+    parts = []
+    if clip_m:
+        parts.append("the plate stays clipped in " + ", ".join(f"{m} ({100 * clipped[m]:.0f} % of its box at 255)"
+                                                               for m in clip_m))
+    if dark_m:
+        parts.append("dark in " + ", ".join(f"{m} (90th percentile {p90[m]:.0f} of 255)" for m in dark_m))
+    r = next((r for r in rows if r["method"] in rest and (r.get("alpr_text") or r.get("rec_text"))),
+             next(r for r in rows if r["method"] in rest))
+    parts.append(f"{'in ' + ', '.join(rest) if clip_m or dark_m else 'in every method'} it is neither clipped "
+                 f"nor dark, and the OCR reads other text: e.g. {r['method']} frame {r['frame']} "
+                 f"'{r.get('alpr_text', '')}' (ALPR) / '{r.get('rec_text', '')}' (plate box) for '{r['text']}'")
+    return head + "; ".join(parts) + "."
 
 
 def _write_csv(path: Path, rows: list[dict]) -> None:
