@@ -274,7 +274,7 @@ def write_page(args, results: dict, scale_label: str, started: float) -> str:
                f"view and at least {args.min_height} px tall. " if args.alpr else "ALPR not run (`--alpr`). ")
             + f"Machine: {machine_line()}; other jobs shared it. This page took "
               f"{(time.perf_counter() - started) / 60:.1f} min.\n\n"
-            f"Command: `python -m benchmarks.scene_library {' '.join(args.argv) or ''}`\n\n"
+            f"Command: `.venv/bin/python -m benchmarks.scene_library {' '.join(args.argv) or ''}`\n\n"
             f"## Over the library\n\n{markdown_table(header, pooled(results, args.alpr))}\n\n{sections}")
     save_text(output_folder(args.results) / args.out, text)
     return text
@@ -301,7 +301,8 @@ def main(argv=None):
     scale = parse_scale(args.scale)
     runtime.set_threads(2)
     started = time.perf_counter()
-    label = f"{scale_text(scale)} of the scenes' mirrors (the DLP6500's 1920x1080)"
+    label = ("the scenes' own mirrors, the DLP6500's 1920x1080" if scale_text(scale) == "full"
+             else f"{scale_text(scale)} of the scenes' mirrors (the DLP6500's 1920x1080)")
     results: dict = {}
     for name in args.scenes.split(","):
         scene = str(ROOT / "scenes" / name)
