@@ -190,7 +190,7 @@ def _ocr_version() -> str:
     evaluate's Runner.read (the plate box's entropy and exposure)."""
     from importlib.metadata import version
 
-    from poevp_optics.apps.evaluate.eval_sequences import code_digest
+    from poevp_optics.render.render_cache import code_digest
 
     code = code_digest(("analysis/recognition.py", "analysis/metrics.py", "apps/evaluate/evaluate.py"))
     return f"rapidocr-{version('rapidocr-onnxruntime')}-{code}"

@@ -133,11 +133,18 @@ def render_group(scene, input_hashes: Mapping[str, str] = MappingProxyType({})) 
     `render_inputs`, the plate font's SHA-256 (the plate and sign textures are drawn with it)
     and the code of RENDER_CODE (`code_digest`), so that a stored render does not outlive an
     edit to the renderer, the textures or the font."""
-    from poevp_optics.sources.plates import plate_font_sha256
-
-    key = {**render_inputs(scene, input_hashes), "plate_font_sha256": plate_font_sha256(), "code": code_digest()}
+    key = {**render_inputs(scene, input_hashes), **render_code_inputs()}
     text = json.dumps(key, sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(text.encode()).hexdigest()[:20]
+
+
+def render_code_inputs() -> dict:
+    """What shapes a render beyond its resolved scene and files, for every render-cache key (the
+    sweep's stored renders here, evaluate's sequences): the plate font's SHA-256 (the plate and
+    sign textures are drawn with it) and the code of RENDER_CODE (`code_digest`)."""
+    from poevp_optics.sources.plates import plate_font_sha256
+
+    return {"plate_font_sha256": plate_font_sha256(), "code": code_digest()}
 
 
 def _code_text(path: Path) -> bytes:

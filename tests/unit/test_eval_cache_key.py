@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from poevp_optics.apps.evaluate import eval_sequences as es
+from poevp_optics.render import render_cache as rc
 from poevp_optics.core.paths import SCENES_DIR
 from poevp_optics.scene.load import load_scene
 
@@ -57,7 +58,7 @@ def test_sequence_guard_font_code_and_backend_move_the_key(base, monkeypatch):
     monkeypatch.setattr(plates, "plate_font_sha256", lambda: "0" * 64)          # another font file
     assert _key(spec) != key
     monkeypatch.undo()
-    monkeypatch.setattr(es, "code_digest", lambda *a, **k: "edited")            # edited render code
+    monkeypatch.setattr(rc, "code_digest", lambda *a, **k: "edited")            # edited render code
     assert _key(spec) != key
     monkeypatch.undo()
     monkeypatch.setattr(es, "render_backend", lambda requested: "cuda-elsewhere")
@@ -70,18 +71,18 @@ def test_code_digest_follows_every_source_file(tmp_path):
         (root / rel).parent.mkdir(parents=True, exist_ok=True)
         (root / rel).write_text(f"X = {rel!r}\n")
     (root / "render" / "notes.txt").write_text("not code")
-    first = es.code_digest(es.RENDER_CODE, root)
+    first = rc.code_digest(rc.RENDER_CODE, root)
     (root / "render" / "notes.txt").write_text("still not code")
     (root / "core" / "d.py").write_text('"""A docstring."""\n\nX = (  # a comment\n    "core/d.py")\n')
-    assert es.code_digest.__wrapped__(es.RENDER_CODE, root) == first          # same code, other layout
+    assert rc.code_digest.__wrapped__(rc.RENDER_CODE, root) == first          # same code, other layout
     (root / "render" / "sub" / "b.py").write_text("X = 2\n")
-    edited = es.code_digest.__wrapped__(es.RENDER_CODE, root)
+    edited = rc.code_digest.__wrapped__(rc.RENDER_CODE, root)
     assert edited != first
     (root / "sources" / "new.py").write_text("")
-    assert es.code_digest.__wrapped__(es.RENDER_CODE, root) not in (first, edited)
+    assert rc.code_digest.__wrapped__(rc.RENDER_CODE, root) not in (first, edited)
     shutil.rmtree(root / "core")
-    assert es.code_digest.__wrapped__(("render", "sources"), root) == es.code_digest.__wrapped__(es.RENDER_CODE, root)
-    assert es.code_digest.__wrapped__(("render/a.py",), root) != es.code_digest.__wrapped__(("render",), root)
+    assert rc.code_digest.__wrapped__(("render", "sources"), root) == rc.code_digest.__wrapped__(rc.RENDER_CODE, root)
+    assert rc.code_digest.__wrapped__(("render/a.py",), root) != rc.code_digest.__wrapped__(("render",), root)
 
 
 def test_road_render_key_covers_frames_and_font(monkeypatch):

@@ -27,8 +27,11 @@ def test_font_and_code_move_the_sweep_render_key(monkeypatch):
     assert _group() != base
 
 
-def test_the_code_digest_is_the_one_evaluate_keys_its_sequences_with():
+def test_evaluate_keys_its_sequences_with_the_same_font_and_code():
     from poevp_optics.apps.evaluate import eval_sequences as es
 
-    assert es.code_digest is render_cache.code_digest
-    assert render_cache.code_digest() == es.code_digest(es.RENDER_CODE, es.PACKAGE_DIR)
+    spec = load_scene(SCENES / "smoke", TINY, cross_checks=False)
+    got = es.render_fingerprint(spec, 5)
+    want = render_cache.render_code_inputs()
+    assert {k: got[k] for k in want} == want
+    assert want["code"] == render_cache.code_digest(render_cache.RENDER_CODE, render_cache.PACKAGE_DIR)

@@ -38,7 +38,6 @@ from poevp_optics.core.cache import (CacheCheckError, UncheckedFile, build_lock,
                                      load_verified, note_rebuilt, write_checksum)
 from poevp_optics.core.seeds import render_seeds
 from poevp_optics.render.exposures import RenderedExposure, rel_error, union_box
-from poevp_optics.render.render_cache import PACKAGE_DIR, RENDER_CODE, code_digest  # noqa: F401 (the key's code part)
 from poevp_optics.sources.ldr_highlight import srgb_to_linear
 from poevp_optics.sources.motion import MotionSpec
 
@@ -194,19 +193,18 @@ def render_fingerprint(spec, guard_px: int, frames: bool = True) -> dict:
     plate, road, vehicles, weather, and with `frames` each frame's exposure window and node
     times; render/render_cache.py's `render_inputs`, without the scene's paths) with the
     SHA-256 of every file it reads and the software versions; the guard band (px); the plate
-    font's SHA-256 (the plate and sign textures are drawn with it); the code of RENDER_CODE
-    (`code_digest`); the renderer's backend."""
+    font and the render code (render_cache.render_code_inputs, as the sweep's stored renders);
+    the renderer's backend."""
     from poevp_optics.apps.sweep.bundle import scene_inputs, with_hashes
-    from poevp_optics.render.render_cache import render_inputs
-    from poevp_optics.sources import plates
+    from poevp_optics.render.render_cache import render_code_inputs, render_inputs
 
     files = {r.key: r.sha256 for r in with_hashes(scene_inputs(spec))}
     inputs = render_inputs(spec.resolved.render, files)
     if not frames:
         inputs.pop("frames")
     inputs["scene"] = {k: v for k, v in inputs["scene"].items() if k not in ("name", "toml_path", "xml_path")}
-    return {"render": inputs, "guard_px": int(guard_px), "plate_font_sha256": plates.plate_font_sha256(),
-            "code": code_digest(), "backend": render_backend(spec.render.variant)}
+    return {"render": inputs, "guard_px": int(guard_px), **render_code_inputs(),
+            "backend": render_backend(spec.render.variant)}
 
 
 def content_key(spec, seq: SequenceSpec, times: np.ndarray, offsets: np.ndarray, guard_px: int) -> str:
