@@ -420,10 +420,9 @@ class LoopStep:
         envelope's sigma from the last miss, and the exposure controller's carry radius with it."""
         if self.mask.envelope == "fixed":
             return self.mask
-        sigma = envelope_sigma(self.mask, self.miss_px)
         if self.controller is not None:
-            self.controller.radius_px = int(np.ceil(3 * sigma))
-        return dataclasses.replace(self.mask, smooth_px=sigma)
+            self.controller.radius_px = self.envelope_px()
+        return dataclasses.replace(self.mask, smooth_px=envelope_sigma(self.mask, self.miss_px))
 
     def command(self, index: int, truth: np.ndarray | None = None) -> DMDCommand:
         """The DMD command of frame `index`: the mask decision (`next_mask`), what the DMD shows
