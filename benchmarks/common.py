@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 import platform
+import resource
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -84,3 +85,9 @@ def timed(fn, repeats: int = 5):
         out = fn()
         ts.append(time.perf_counter() - t0)
     return float(np.median(ts)), out
+
+
+def cpu_seconds(children: bool = False) -> float:
+    """User + system CPU seconds of this process (with `children`, plus its finished children)."""
+    who = [resource.RUSAGE_SELF, *([resource.RUSAGE_CHILDREN] if children else [])]
+    return sum(r.ru_utime + r.ru_stime for r in map(resource.getrusage, who))

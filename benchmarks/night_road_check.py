@@ -17,17 +17,10 @@ Writes night_road.md and night_road.png (peak over saturation vs distance) into 
 from __future__ import annotations
 
 import argparse
-import resource
 import tempfile
 import time
 
-from benchmarks.common import add_results_flag, machine_line, markdown_table, output_folder, save_text
-
-
-def _cpu_s() -> float:
-    """User + system CPU seconds of this process and its finished children."""
-    own, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
-    return own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime
+from benchmarks.common import add_results_flag, cpu_seconds, machine_line, markdown_table, output_folder, save_text
 
 
 def run(scene: str, sets: list[str]):
@@ -36,11 +29,11 @@ def run(scene: str, sets: list[str]):
     from poevp_optics.scene.load import load_scene
 
     spec = load_scene(scene, sets)
-    t0, c0 = time.perf_counter(), _cpu_s()
+    t0, c0 = time.perf_counter(), cpu_seconds(children=True)
     with tempfile.TemporaryDirectory() as tmp:
         report, kept = run_frames(spec, tmp, False, write_images=False,
                                   keep_frames=tuple(range(spec.timing.frames)))
-    return spec, report, kept, time.perf_counter() - t0, _cpu_s() - c0
+    return spec, report, kept, time.perf_counter() - t0, cpu_seconds(children=True) - c0
 
 
 def scaled_sets(scene: str, scale: str, sets: list[str]) -> list[str]:

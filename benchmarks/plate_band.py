@@ -28,12 +28,11 @@ masks and plate boxes as one .npz per (gain, text), to read them again without r
 from __future__ import annotations
 
 import argparse
-import resource
 import time
 
 import numpy as np
 
-from benchmarks.common import add_results_flag, machine_line, markdown_table, output_folder, save_text
+from benchmarks.common import add_results_flag, cpu_seconds, machine_line, markdown_table, output_folder, save_text
 
 TEXTS = ["JN F9H28", "KA 7731", "B4 713X", "MU 55RT", "HZ 2048", "TX 96QW"]
 
@@ -117,12 +116,6 @@ def summarise(rows: list[dict], lo=0.4, hi=0.9) -> dict:
             "saturated": float(np.mean([r["saturated"] for r in loop]))}
 
 
-def _cpu_s() -> float:
-    """User + system CPU seconds of this process."""
-    r = resource.getrusage(resource.RUSAGE_SELF)
-    return r.ru_utime + r.ru_stime
-
-
 def beam_overrides(scene: str, gain: float, fixed_prior: bool = False) -> list[str]:
     """On a road scene, the high beams' own intensity x gain (rendered again: only our beams
     change, the oncoming car's lamps and the tail lamps do not); elsewhere [] (the radiance is
@@ -203,7 +196,7 @@ def main(argv=None):
     sets = [*scale_overrides(args.scene, args.scale), *args.set]
     for gain in (float(g) for g in args.gains.split(",")):
         for text in args.texts.split(","):
-            t0, c0 = time.perf_counter(), _cpu_s()
+            t0, c0 = time.perf_counter(), cpu_seconds()
             ov = [f'plate.text="{text}"', f"timing.frames={args.frames}", *sets,
                   *beam_overrides(args.scene, gain, args.fixed_prior)]
             spec, renderer, ex = render_once(args.scene, ov)
@@ -218,7 +211,7 @@ def main(argv=None):
             mc = [r["mc_error"] for r in fr if r.get("mc_error") is not None]
             rows.append([gain, text, s["frames"], s["read"], s["in_band"], s["white_p10"], s["white_median"],
                          s["white_p90"], s["saturated"], float(np.median(mc)) if mc else float("nan"),
-                         time.perf_counter() - t0, _cpu_s() - c0])
+                         time.perf_counter() - t0, cpu_seconds() - c0])
             per_frame.append((gain, text, fr))
             print(rows[-1], flush=True)
             write_results(args, sets, rows, per_frame)

@@ -40,26 +40,18 @@ every run, so a cut-off run keeps what it finished.
 from __future__ import annotations
 
 import argparse
-import resource
 import tempfile
 import time
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
-import numpy as np
 
-from benchmarks.common import ROOT, add_results_flag, machine_line, markdown_table, output_folder, save_text
+from benchmarks.common import ROOT, add_results_flag, cpu_seconds, machine_line, markdown_table, output_folder, save_text
 
 LIBRARY = ["night_road", "wet_night_road", "city_night", "toll_or_junction", "fog_highway"]
 #: Our own beams' emitters in a scene's XML (the others are other cars' lamps).
 OWN_BEAM_EMITTERS = (("highbeam_left", "highbeam_right"), ("lowbeam_left", "lowbeam_right"))
 MIN_HEIGHT_PX = 20
-
-
-def _cpu_s() -> float:
-    """User + system CPU seconds of this process."""
-    r = resource.getrusage(resource.RUSAGE_SELF)
-    return r.ru_utime + r.ru_stime
 
 
 def _intensity_refs(xml_path: Path) -> dict[str, str]:
@@ -117,11 +109,11 @@ def run_scene(scene: str, sets: list[str], alpr: bool, min_height: int) -> dict:
     from poevp_optics.scene.load import load_scene
 
     spec = load_scene(scene, sets)
-    t0, c0 = time.perf_counter(), _cpu_s()
+    t0, c0 = time.perf_counter(), cpu_seconds()
     with tempfile.TemporaryDirectory() as tmp:
         report, kept = run_frames(spec, tmp, False, write_images=False,
                                   keep_frames=tuple(range(spec.timing.frames)) if alpr else ())
-    wall, cpu = time.perf_counter() - t0, _cpu_s() - c0
+    wall, cpu = time.perf_counter() - t0, cpu_seconds() - c0
     stages = report["stages"]
     render_s = stages["render"]["seconds"]
     predict_s = (stages.get("predict") or {}).get("total_seconds") or 0.0
