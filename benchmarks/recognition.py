@@ -334,6 +334,19 @@ VARIANTS = (
 )
 
 
+def exposed(seq, frames, after_clip: bool = False) -> list[np.ndarray]:
+    """The fusion's three 8-bit exposures: frames `frames` of `seq` multiplied by the coefficients
+    1/8, 1/5, 1 (paper_camera.FUSION_COEFFICIENTS) on the HDR map H, or (`after_clip`) on the
+    frame cut off at 255, then rounded and cut off."""
+    from poevp_optics.apps.evaluate.paper_camera import FUSION_COEFFICIENTS
+
+    out = []
+    for j, c in zip(frames, FUSION_COEFFICIENTS):
+        h = np.asarray(seq.hdr[j], np.float64)
+        out.append(np.clip(np.rint((np.clip(h, 0, 255) if after_clip else h) * c), 0, 255).astype(np.uint8))
+    return out
+
+
 def fused(seq, t: int, deghost: bool, v: FusionVariant) -> np.ndarray:
     """The 8-bit fusion of frame t under variant `v` (paper_camera.fusion_captures for v = VARIANTS[0])."""
     import cv2
@@ -342,12 +355,7 @@ def fused(seq, t: int, deghost: bool, v: FusionVariant) -> np.ndarray:
 
     s = as_light(seq) if v.linear_light else seq
     frames = (t, t, t) if v.static else (t - 2, t - 1, t)
-    imgs = []
-    for j, c in zip(frames, FUSION_COEFFICIENTS):
-        h = np.asarray(s.hdr[j], np.float64)
-        x = np.clip(np.rint(np.clip(h, 0, 255) * c), 0, 255) if v.after_clip else np.clip(np.rint(h * c), 0, 255)
-        x = x.astype(np.uint8)
-        imgs.append(cv2.cvtColor(x, cv2.COLOR_GRAY2BGR))
+    imgs = [cv2.cvtColor(x, cv2.COLOR_GRAY2BGR) for x in exposed(s, frames, v.after_clip)]
     if deghost and v.align_normalised:
         mtb = cv2.createAlignMTB()
         norm = [np.clip(np.rint(i[..., 0] / c), 0, 255).astype(np.uint8) for i, c in zip(imgs, FUSION_COEFFICIENTS)]
@@ -368,14 +376,13 @@ def mertens_deviation(seq) -> tuple[float, float]:
     """(largest, median) |Mertens fusion of the grey frame in 3 channels - the plain mean of the
     three exposures| and the same against the one-channel fusion, code values, over the scored
     frames of `seq`: what the saturation weight (0 on a grey pixel up to float rounding) does."""
-    from poevp_optics.apps.evaluate.paper_camera import FUSION_COEFFICIENTS, INIT_FRAMES
+    from poevp_optics.apps.evaluate.paper_camera import INIT_FRAMES
 
     d_mean, d_grey = [], []
     for t in range(INIT_FRAMES, len(seq.hdr)):
         f = fused(seq, t, False, VARIANTS[0]).astype(np.float64)
         g = fused(seq, t, False, VARIANTS[1]).astype(np.float64)
-        mean = np.mean([np.clip(np.rint(seq.hdr[j] * c), 0, 255) for j, c in
-                        zip((t - 2, t - 1, t), FUSION_COEFFICIENTS)], axis=0)
+        mean = np.mean(np.asarray(exposed(seq, (t - 2, t - 1, t)), np.float64), axis=0)
         d_mean.append(np.abs(f - mean).ravel())
         d_grey.append(np.abs(f - g).ravel())
     dm, dg = np.concatenate(d_mean), np.concatenate(d_grey)
@@ -388,13 +395,12 @@ def mtb_shifts_px(seq) -> tuple[float, float]:
     the scored frames of `seq`: (frame t three times, where the true shift is 0; consecutive frames)."""
     import cv2
 
-    from poevp_optics.apps.evaluate.paper_camera import FUSION_COEFFICIENTS, INIT_FRAMES
+    from poevp_optics.apps.evaluate.paper_camera import INIT_FRAMES
 
     mtb, worst = cv2.createAlignMTB(), [0.0, 0.0]
     for t in range(INIT_FRAMES, len(seq.hdr)):
         for k, frames in enumerate(((t, t, t), (t - 2, t - 1, t))):
-            x = [np.clip(np.rint(np.asarray(seq.hdr[j], np.float64) * c), 0, 255).astype(np.uint8)
-                 for j, c in zip(frames, FUSION_COEFFICIENTS)]
+            x = exposed(seq, frames)
             for i in x[:-1]:
                 worst[k] = max(worst[k], float(np.abs(mtb.calculateShift(x[-1], i)).max()))
     return worst[0], worst[1]
