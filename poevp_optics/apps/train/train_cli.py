@@ -113,7 +113,8 @@ def cmd_train(args) -> int:
     rec = train(args.name, minutes=args.minutes, sequences=int(str(args.sequences or 48).split(",")[0]),
                 frames=args.frames or 6, val_sequences=args.val_sequences, batch=args.batch or 4,
                 lr=args.lr or 2e-3, seed=args.seed, out=Path(args.out), weights_out=weights,
-                max_steps=args.max_steps, frames_data=frames_data, device=args.device, source=source, **procedural)
+                max_steps=args.max_steps, frames_data=frames_data, device=args.device, source=source,
+                command=command_line("train-predictor", args), **procedural)
     v = rec["validation"]
     print(f"poevp: trained {args.name} for {rec['steps']} steps ({rec['train_seconds']:.0f} s); "
           f"validation highlight IoU {v['model']['highlight_iou']:.3f} (hold {v['hold']['highlight_iou']:.3f}, "

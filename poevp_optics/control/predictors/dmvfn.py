@@ -145,7 +145,10 @@ class DMVFN(nn.Module):
         if self.routing is not None:
             prob = self.routing(torch.cat((p_s, c_s), 1))
             if train_routing and self.training:
-                hard = torch.bernoulli(prob, generator=generator)
+                # drawn on the CPU stream and moved: the same draws on any device (a CUDA
+                # tensor cannot take the CPU generator that seeds the run)
+                u = torch.rand(prob.shape, generator=generator, dtype=prob.dtype).to(prob.device)
+                hard = (u < prob.detach()).to(prob.dtype)
                 use = hard + prob - prob.detach()          # straight-through estimator
             else:
                 use = (prob > 0.5).to(cur.dtype)           # deterministic inference
