@@ -30,7 +30,7 @@ def main(argv=None):
     from poevp_optics.control.loop_step import predicted_mask
     from poevp_optics.camera.camera import Camera
     from poevp_optics.control.predictors import make_predictor
-    from poevp_optics.control.predictors.dmvfn import DMVFN, FULL, LITE, count_macs, count_parameters
+    from poevp_optics.control.predictors.dmvfn import DMVFN, FULL, LITE, count_macs, count_parameters, default_weights
     from poevp_optics.scene.load import load_scene
     runtime.set_threads(2)
     rng = np.random.default_rng(0)
@@ -44,8 +44,8 @@ def main(argv=None):
     cam = Camera.from_params(spec.resolved.camera)
     rows = []
     for name in ("hold", "flow", "track", "track_net", "dmvfn_lite", "dmvfn"):
-        if name == "dmvfn":
-            # full DMVFN: no trained weights ship unless trained on a GPU; time random init
+        if name == "dmvfn" and not default_weights("dmvfn").exists():
+            # a checkout without the full DMVFN's weights: time a random initialisation
             from poevp_optics.control.predictors.dmvfn import DMVFNPredictor
             pred = DMVFNPredictor(DMVFN(FULL).eval(), "dmvfn (random init)", None)
         else:

@@ -96,11 +96,37 @@ def test_shipped_track_net_weights_load_with_their_record():
     assert d["weights"] == "assets/predictor/track_net.safetensors" and len(d["weights_sha256"]) == 16
 
 
-def test_dmvfn_without_shipped_weights_refuses_in_one_line():
+def test_dmvfn_without_weights_refuses_in_one_line(monkeypatch, tmp_path):
+    import poevp_optics.control.predictors.dmvfn as dm
+
+    monkeypatch.setattr(dm, "ASSETS", tmp_path)          # a checkout without the full weights
     with pytest.raises(WeightsError) as e:
         make_predictor("dmvfn")
     msg = str(e.value)
     assert "not shipped" in msg and "predictor.weights" in msg and len(msg.splitlines()) == 1
+
+
+def test_shipped_full_dmvfn_weights_carry_their_record_and_load_as_float32():
+    """The full DMVFN's shipped weights (trained on a GPU, stored as float16) load into the
+    float32 network value for value, and their metadata holds the command, data and budget."""
+    import json
+
+    from safetensors import safe_open
+
+    import poevp_optics.control.predictors.dmvfn as dm
+
+    path = dm.default_weights("dmvfn")
+    model, meta = dm.load_weights(path, expect=dm.FULL)
+    training = meta["training"]
+    assert training["command"].startswith("poevp train-predictor --name dmvfn")
+    assert len(training["dataset"]["sha256"]) == 64 and training["steps"] > 0 and training["train_seconds"] > 0
+    with safe_open(str(path), framework="pt") as f:
+        stored = {k: f.get_tensor(k) for k in f.keys()}
+    state = model.state_dict()
+    assert {t.dtype for t in stored.values() if t.is_floating_point()} == {torch.float16}
+    for k, t in stored.items():
+        assert state[k].dtype == torch.float32 and torch.equal(state[k], t.float())
+    assert json.loads(json.dumps(meta["validation"]))["model"]["highlight_frames"] > 0
 
 
 # ----------------------------------------------------------------------------- the clip marker
