@@ -5,13 +5,14 @@ the oracle (ceiling) and hold (floor), every predictor on the same render of the
         [--predictors oracle,hold,flow,track,track_net] [--gains 1,10] [--texts 2] [--frames 21] [--results]
 
 Per scene (`name@scale:texts`: the camera at scale x the scene's own mirrors, as `poevp render
---scale`, no @: --scale; `texts` text sets, none given: --texts), beam gain g (our own beams' spectrum x g, as benchmarks/scene_library.py scales
-them) and plate text set (set 0: the scene's own texts; set j > 0: each plate's own text with its
-letters and digits substituted, `alt_text`), the scene is rendered once (render/radiance.py
-`open_source`) and each predictor runs the causal loop over those exposures (`run_frames`, as
-`poevp compare` does), in the loop mode --mode (demodulated: the predictor sees the camera's
-reconstructions). Scenes with vehicles record every plate (`render.roi_shape = "plates"`); a scene
-with one [plate] keeps its own region of interest, that plate.
+--scale`, no @: --scale; `texts` text sets, none given: --texts), beam gain g (our own beams'
+spectrum x g, as benchmarks/scene_library.py scales them) and plate text set (set 0: the scene's
+own texts; set j > 0: each plate's own text with its letters and digits substituted, no I, O or Q:
+`alt_text`), the scene is rendered once (render/radiance.py `open_source`) and each predictor runs
+the causal loop over those exposures (`run_frames`, as `poevp compare` does), in the loop mode
+--mode (demodulated: the predictor sees the camera's reconstructions). Scenes with vehicles record
+every plate (`render.roi_shape = "plates"`); a scene with one [plate] keeps its own region of
+interest, that plate.
 
 Read: whole-frame ALPR (analysis/recognition.py `alpr_read`: PP-OCRv4 detection + recognition on
 the whole 8-bit capture, the detections over the plate joined, every character must match) on each
@@ -90,13 +91,22 @@ def verdict(learned: tuple[int, int], classical: tuple[int, int]) -> tuple[bool,
     return k1 / n1 >= lo, k1 * n2 > k2 * n1
 
 
+#: Letters of the substituted texts: A-Z without I, O and Q, which the plate font draws like 1, 0
+#: and O (German plates leave them out of the serial for that reason), so that a substituted text
+#: tests the loop's exposure, not the recogniser's confusion of look-alike glyphs.
+ALT_LETTERS = "ABCDEFGHJKLMNPRSTUVWXYZ"
+
+
 def alt_text(text: str, j: int) -> str:
-    """Text set j's plate text: letters shifted by 7 j and digits by 3 j (mod 26 and 10), spaces
-    and the layout kept, so every set has the scene's plate format and length; j = 0: `text`."""
+    """Text set j's plate text: each letter (index a in A-Z) -> ALT_LETTERS[(a + 7 j) mod 23],
+    each digit d -> (d + 3 j) mod 10, spaces and the layout kept, so every set has the scene's
+    plate format and length; j = 0: `text` itself."""
+    if j == 0:
+        return text
     out = []
     for c in text:
         if "A" <= c <= "Z":
-            out.append(chr(ord("A") + (ord(c) - ord("A") + 7 * j) % 26))
+            out.append(ALT_LETTERS[(ord(c) - ord("A") + 7 * j) % len(ALT_LETTERS)])
         elif "0" <= c <= "9":
             out.append(chr(ord("0") + (ord(c) - ord("0") + 3 * j) % 10))
         else:
@@ -232,10 +242,11 @@ def cells(results: list[dict], predictors: list[str]) -> tuple[list[list], list[
     for (scene, ident, gain), g in groups.items():
         counts = {p: tally(g["reads"][p]).get(ident, (0, 0)) for p in predictors}
         hs = g["heights"]
-        hrange = f"{min(h[0] for h in hs)}-{max(h[1] for h in hs)}" if hs else "out of view"
+        lo, hi = (min(h[0] for h in hs), max(h[1] for h in hs)) if hs else (None, None)
+        hrange = "-" if lo is None else str(lo) if lo == hi else f"{lo}-{hi}"
         if all(n == 0 for _, n in counts.values()):
-            small.append(f"{scene} / {ident} at {gain:g}x: under the minimum height in every loop frame "
-                         f"(heights {hrange} px)")
+            small.append(f"{scene} / {ident} at {gain:g}x: " + ("out of view in every loop frame" if lo is None else
+                         f"under the minimum height in every loop frame ({hrange} px)"))
             continue
         row = [scene, ident, f"{gain:g}x", ", ".join(f"`{t}`" for t in g["texts"]), hrange]
         row += [_cell(*counts[p]) for p in predictors]
@@ -273,7 +284,7 @@ def write_page(args, results: list[dict], started: float, dest: Path) -> str:
         f"counted on the loop frames after the white initialisation frames where the plate is in view and at "
         f"least {args.min_height} px tall, per plate; the frames counted are the same for every predictor. "
         "Cells pool the text sets (the scene's own plate texts and each with its letters and digits substituted, "
-        "same layout). Beams: our own beams' intensity x the gain, re-rendered. Interval: Wilson 95 %. "
+        "same layout, no I, O or Q: the font draws them like 1, 0 and O). Beams: our own beams' intensity x the gain, re-rendered. Interval: Wilson 95 %. "
         f"`oracle` reads the frame it masks (the ceiling), `hold` repeats the last frame (the floor). "
         f"Verdict: `{LEARNED}`'s read rate at or above the lower end of `{CLASSICAL}`'s interval; "
         f"higher: its rate above `{CLASSICAL}`'s.\n\n"
@@ -323,6 +334,7 @@ def save_examples(results: list[dict], dest: Path, name: str, limit: int = 6) ->
             if a[2] != b[2]:
                 cases.append((r, i, ident, box, a, b))
     if not cases:
+        (dest / name).unlink(missing_ok=True)          # no disagreement: no figure from an older run
         return None
     cases = cases[:limit]
     plt = pyplot()

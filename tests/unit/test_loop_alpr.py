@@ -61,8 +61,33 @@ def test_verdict_boundary_is_the_lower_end_of_flows_interval():
 
 def test_alt_text_keeps_layout_and_changes_every_character():
     assert alt_text("JN F9H28", 0) == "JN F9H28"
-    assert alt_text("JN F9H28", 1) == "QU M2O51"    # letters +7, digits +3
+    assert alt_text("JN F9H28", 1) == "TX N2R51"    # letters +7 in A-Z less I, O, Q; digits +3
     for text in ("B CN 204", "OB 180 I", "NR 17 RA"):
         alt = alt_text(text, 1)
-        assert len(alt) == len(text)
+        assert len(alt) == len(text) and not set(alt) & set("IOQ")
         assert all((a == " ") == (t == " ") and (a != t or t == " ") for a, t in zip(alt, text))
+
+
+def test_cells_pool_text_sets_per_plate_and_gain_and_name_small_plates():
+    from benchmarks.loop_alpr import cells
+
+    def run(text_set, gain, reads):
+        return {"scene": "s", "gain": gain, "text_set": text_set,
+                "labels": {"a": f"A{text_set}", "b": f"B{text_set}", "c": f"C{text_set}"},
+                "heights": {"a": (20, 30), "b": (12, 14)},          # c: never in view
+                "reads": reads}
+
+    r0 = run(0, 1.0, {"flow": [(2, "a", True, "A0"), (3, "a", False, "-")],
+                      "track_net": [(2, "a", True, "A0"), (3, "a", True, "A0")]})
+    r1 = run(1, 1.0, {"flow": [(2, "a", False, "-")], "track_net": [(2, "a", True, "A1")]})
+    r2 = run(0, 10.0, {"flow": [(4, "a", True, "A0")], "track_net": [(4, "a", False, "-")]})
+    rows, small = cells([r0, r1, r2], ["flow", "track_net"])
+    assert [r[:5] for r in rows] == [["s", "a", "1x", "`A0`, `A1`", "20-30"], ["s", "a", "10x", "`A0`", "20-30"]]
+    assert rows[0][5].startswith("1/3 ") and rows[0][6].startswith("3/3 ")
+    assert rows[0][7] == "yes, higher"
+    assert rows[1][5].startswith("1/1 ") and rows[1][6].startswith("0/1 ")
+    assert rows[1][7] == "**no**"          # 0/1 below flow's 1/1 interval's lower end (0.21)
+    assert small == ["s / b at 1x: under the minimum height in every loop frame (12-14 px)",
+                     "s / c at 1x: out of view in every loop frame",
+                     "s / b at 10x: under the minimum height in every loop frame (12-14 px)",
+                     "s / c at 10x: out of view in every loop frame"]
