@@ -506,10 +506,10 @@ class Renderer:
 
     def opaque_seed(self, seed: int):
         """The sampler's seed (31 bits of `seed`) as an opaque JIT variable on the cuda/llvm
-        variants: a Python int is baked into the compiled kernel as a literal, so every seed
-        compiled a kernel of its own (159 kernels for the 174 calls of night_road's 21 frames,
-        0.34 s each on an H100 with a cold cache); opaque, one kernel serves every seed with the
-        same samples (Mitsuba 3.6+ takes a UInt32 seed: mitsuba-renderer/mitsuba3 PR 1350)."""
+        variants. Seeded with a Python int, `render_box`'s sampler baked the seed into its
+        compiled kernel, one kernel per call; opaque, one kernel serves every seed and draws the
+        same samples (Mitsuba 3.6+ takes a UInt32 seed: mitsuba-renderer/mitsuba3 PR 1350;
+        `mi.render` gets it the same way). tests/unit/test_kernel_reuse.py."""
         s = int(seed) & 0x7FFFFFFF
         if self.mi.variant().startswith(("cuda_", "llvm_")):
             import drjit as dr
