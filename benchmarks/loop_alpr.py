@@ -54,6 +54,18 @@ def eligible(per_frame: list[dict], min_height: int, single_id: str = "plate") -
     render.roi_shape = "plates") give each plate; otherwise the frame's region of interest
     (`roi`) is the one plate, named `single_id`."""
     out = []
+    for f, plates in loop_plates(per_frame, single_id):
+        for p in plates:
+            if p.get("in_view") and p.get("box") and (p.get("height_px") or 0) >= min_height:
+                out.append((int(f["index"]), p["id"], tuple(int(v) for v in p["box"])))
+    return out
+
+
+def loop_plates(per_frame: list[dict], single_id: str = "plate") -> list[tuple[dict, list[dict]]]:
+    """(frame, its plate records) for each loop frame (after the white initialisation frames):
+    the per-plate records where the run made them, else the region of interest as one plate
+    named `single_id`."""
+    out = []
     for f in per_frame:
         if f.get("init"):
             continue
@@ -62,9 +74,7 @@ def eligible(per_frame: list[dict], min_height: int, single_id: str = "plate") -
             roi = f.get("roi")
             plates = [{"id": single_id, "in_view": roi is not None, "box": roi,
                        "height_px": (roi[2] - roi[0]) if roi else None}]
-        for p in plates:
-            if p.get("in_view") and p.get("box") and (p.get("height_px") or 0) >= min_height:
-                out.append((int(f["index"]), p["id"], tuple(int(v) for v in p["box"])))
+        out.append((f, plates))
     return out
 
 
@@ -202,13 +212,7 @@ def run_render(scene_dir: str, sets: list[str], labels: dict, predictors: list[s
 def _heights(per_frame: list[dict]) -> dict[str, tuple[int, int]]:
     """{plate id: (min, max) height in px over the loop frames it is in view}."""
     hs: dict[str, list[int]] = {}
-    for f in per_frame:
-        if f.get("init"):
-            continue
-        plates = f.get("plates")
-        if plates is None:
-            roi = f.get("roi")
-            plates = [{"id": "plate", "in_view": roi is not None, "height_px": (roi[2] - roi[0]) if roi else None}]
+    for _, plates in loop_plates(per_frame):
         for p in plates:
             if p.get("in_view") and p.get("height_px") is not None:
                 hs.setdefault(p["id"], []).append(int(p["height_px"]))
