@@ -30,6 +30,7 @@ import numpy as np
 
 from poevp_optics.core import runtime
 from poevp_optics.core.exceptions import SceneError
+from poevp_optics.render.opaque import opaque_pose
 from poevp_optics.core.params import param
 from poevp_optics.render.lights import LIGHT_SELECTIONS
 from poevp_optics.render.roi import ALL_PLATES, roi_targets
@@ -398,20 +399,13 @@ class Renderer:
         """Displace every moving object to its pose at time `t_s` (s)."""
         if not (self._base or self._base_vertices) or self._time == t_s:
             return
-        import drjit as dr
-
         mi = self.mi
         for ident, motion in self.scene.motion.items():
             off = motion.offset_m(t_s)
             tr = mi.Transform4f().translate(mi.Vector3f(*map(float, off)))
             for target in (ident, *motion.attached):
-                if target in self._base:
-                    # opaque: a pose computed from Python floats is a literal that a plugin
-                    # keeping it as given (the photometric lamp) bakes into the kernel, one
-                    # compiled kernel per pose; opaque, every pose reuses one
-                    pose = tr @ self._base[target]
-                    dr.make_opaque(pose)
-                    self.params[f"{target}.to_world"] = pose
+                if target in self._base:      # opaque: one kernel for every pose (render/opaque.py)
+                    self.params[f"{target}.to_world"] = opaque_pose(tr @ self._base[target])
                 else:
                     verts = self._base_vertices[target].reshape(-1, 3) + off[None, :]
                     self.params[f"{target}.vertex_positions"] = mi.Float(verts.astype(np.float32).ravel())
@@ -504,26 +498,13 @@ class Renderer:
         """The spp Mitsuba renders for a request of `spp` with this run's sampler."""
         return sample_count(self.scene.render.sampler, spp)
 
-    def opaque_seed(self, seed: int):
-        """The sampler's seed (31 bits of `seed`) as an opaque JIT variable on the cuda/llvm
-        variants. Seeded with a Python int, `render_box`'s sampler baked the seed into its
-        compiled kernel, one kernel per call; opaque, one kernel serves every seed and draws the
-        same samples (Mitsuba 3.6+ takes a UInt32 seed: mitsuba-renderer/mitsuba3 PR 1350;
-        `mi.render` gets it the same way). tests/unit/test_kernel_reuse.py."""
-        s = int(seed) & 0x7FFFFFFF
-        if self.mi.variant().startswith(("cuda_", "llvm_")):
-            import drjit as dr
-
-            return dr.opaque(self.mi.UInt32, s)
-        return s
-
     def render_once(self, seed: int, spp: int) -> np.ndarray:
         """One mi.render call: (H, W) float32 photon radiance. `self.last_spp` is the spp the
         sampler used (some round the count: render/samplers.py)."""
         if self.light_weights is None:
             self.select_lights()
         t0 = time.perf_counter()
-        img = self.mi.render(self.mi_scene, sensor=self.sensor, seed=self.opaque_seed(seed), spp=int(spp))
+        img = self.mi.render(self.mi_scene, sensor=self.sensor, seed=int(seed) & 0x7FFFFFFF, spp=int(spp))
         arr = np.array(img, dtype=np.float32)
         self.stats.seconds += time.perf_counter() - t0
         self.stats.calls += 1
@@ -558,7 +539,7 @@ class Renderer:
         hh, ww = (k + 2 * self.guard_px for k in self.scene.render.resolution)
         lanes = h * w * n
         sampler.set_samples_per_wavefront(n)                 # lane % n: the sample index in its pixel
-        sampler.seed(self.opaque_seed(seed), lanes)
+        sampler.seed(int(seed) & 0x7FFFFFFF, lanes)
         pix = np.arange(h * w, dtype=np.int64)
         py = (y0 + pix // w).astype(np.float32)
         px = (x0 + pix % w).astype(np.float32)
