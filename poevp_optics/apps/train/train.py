@@ -163,13 +163,11 @@ def train(name: str = "dmvfn_lite", *, minutes: float = 10.0, sequences: int = 4
           val_sequences: int = 8, batch: int = 4, lr: float = 2e-3, seed: int = 0,
           out: Path = Path("out/train"), weights_out: Path | None = None, max_steps: int | None = None,
           checkpoint_every: int = 50, resolution=(368, 640), progress: bool = True,
-          frames_data: tuple | None = None, device: str = "auto", source: str | None = None, log=None,
-          command: str | None = None) -> dict:
+          frames_data: tuple | None = None, device: str = "auto", source: str | None = None, log=None, command=None) -> dict:
     """Train and save weights; returns the training record (also written as JSON). frames_data:
     (train, val) uint8 (N, T, H, W) frames of `source` (apps/train/train_data.py) instead of the
-    procedural set; device: cpu, cuda or auto (cuda when torch.cuda.is_available()); log: where
-    the one-line note on a checkpoint of another run goes (default stderr); command: the command line
-    that made the weights, kept in their metadata."""
+    procedural set; device: cpu, cuda or auto (cuda when torch.cuda.is_available()); log: where the
+    one-line note on a checkpoint of another run goes (default stderr); command: the command line kept."""
     cfg = LITE if name == "dmvfn_lite" else FULL
     rng = np.random.default_rng(seed)
     routing_rng = torch.Generator().manual_seed(seed)
