@@ -56,6 +56,10 @@ def test_dark_plate_detector_miss_and_other_text():
     # each method's state named: the clipped one apart from the one that reads other text
     assert "clipped in hold (90 % of its box at 255)" in why and "in oracle it is neither clipped nor dark" in why
     assert "clipped in oracle" not in why
+    # one method clipped, the other dark, none neither: both named, no OCR example to give
+    mixed = zero_read_reason([_row("oracle", clipped=0.9), _row("hold", p90=DARK_P90 - 1)])
+    assert "clipped in oracle (90 % of its box at 255)" in mixed and "dark in hold (90th percentile 63" in mixed
+    assert "OCR reads" not in mixed
 
 
 def test_baselines_reading_while_every_poevp_method_reads_nothing():

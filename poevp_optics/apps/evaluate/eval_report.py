@@ -251,6 +251,8 @@ def zero_read_reason(rows: list[dict], law: str = "") -> str | None:
                                                                for m in clip_m))
     if dark_m:
         parts.append("dark in " + ", ".join(f"{m} (90th percentile {p90[m]:.0f} of 255)" for m in dark_m))
+    if not rest:                       # each method either clipped or dark
+        return head + "; ".join(parts) + "."
     r = next((r for r in rows if r["method"] in rest and (r.get("alpr_text") or r.get("rec_text"))),
              next(r for r in rows if r["method"] in rest))
     parts.append(f"{'in ' + ', '.join(rest) if clip_m or dark_m else 'in every method'} it is neither clipped "
