@@ -130,9 +130,8 @@ def alt_text(text: str, j: int) -> str:
 def scene_sets(scene_dir: str, scale: float, frames: int, gain: float, text_set: int, mode: str):
     """(overrides, {plate id: label}, our beams' spectrum, multi) of one render: frames, loop mode,
     scale, beam gain and plate texts."""
-    from benchmarks.scene_library import own_beams
+    from benchmarks.scene_library import own_beams, scale_gain_overrides
     from poevp_optics.scene.load import load_scene
-    from poevp_optics.scene.scale import scaled_resolution, scaling_for
 
     base = [f"timing.frames={frames}", f'loop.mode="{mode}"']
     spec = load_scene(scene_dir, base)
@@ -154,11 +153,7 @@ def scene_sets(scene_dir: str, scale: float, frames: int, gain: float, text_set:
         labels["plate"] = alt_text(spec.plate.text, text_set)
         texts.append(f'plate.text="{labels["plate"]}"')
     beam, _ = own_beams(spec)
-    sets = base + (texts if text_set else [])
-    if abs(scale - 1.0) > 1e-12:
-        sets += list(scaling_for(spec, scaled_resolution(spec.render.resolution, scale), f"--scale {scale:g}").sets)
-    if gain != 1.0:
-        sets.append(f"spectra.{beam}.intensity_cd={spec.spectra[beam].intensity_cd * gain:.9g}")
+    sets = base + (texts if text_set else []) + scale_gain_overrides(spec, scale, gain, beam)
     return sets, labels, beam, multi
 
 
@@ -311,16 +306,19 @@ def write_page(args, results: list[dict], started: float, dest: Path) -> str:
     return text
 
 
-def _disagreements(results: list[dict]) -> list[str]:
-    out = []
+def disagreements(results: list[dict]):
+    """(run, frame, plate id, box, track_net's read, flow's read) of every plate-frame where one
+    predictor's capture reads and the other's does not."""
     for r in results:
-        if LEARNED not in r["reads"] or CLASSICAL not in r["reads"]:
-            continue
-        for a, b in zip(r["reads"][LEARNED], r["reads"][CLASSICAL]):
-            if a[2] != b[2]:
-                out.append(f"- {r['scene']} {r['gain']:g}x `{r['labels'][a[1]]}` frame {a[0]} {a[1]}: "
-                           f"track_net `{a[3] or '-'}`, flow `{b[3] or '-'}`")
-    return out
+        if LEARNED in r["reads"] and CLASSICAL in r["reads"]:
+            for a, b, (i, ident, box) in zip(r["reads"][LEARNED], r["reads"][CLASSICAL], r["targets"]):
+                if a[2] != b[2]:
+                    yield r, i, ident, box, a, b
+
+
+def _disagreements(results: list[dict]) -> list[str]:
+    return [f"- {r['scene']} {r['gain']:g}x `{r['labels'][ident]}` frame {i} {ident}: "
+            f"track_net `{a[3] or '-'}`, flow `{b[3] or '-'}`" for r, i, ident, _, a, b in disagreements(results)]
 
 
 def save_examples(results: list[dict], dest: Path, name: str, limit: int = 6) -> Path | None:
@@ -330,13 +328,7 @@ def save_examples(results: list[dict], dest: Path, name: str, limit: int = 6) ->
     from poevp_optics.analysis.recognition import search_window
     from poevp_optics.core.runtime import pyplot
 
-    cases = []
-    for r in results:
-        if LEARNED not in r["reads"] or CLASSICAL not in r["reads"]:
-            continue
-        for a, b, (i, ident, box) in zip(r["reads"][LEARNED], r["reads"][CLASSICAL], r["targets"]):
-            if a[2] != b[2]:
-                cases.append((r, i, ident, box, a, b))
+    cases = list(disagreements(results))
     if not cases:
         (dest / name).unlink(missing_ok=True)          # no disagreement: no figure from an older run
         return None

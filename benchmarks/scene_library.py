@@ -90,17 +90,24 @@ def own_beams(spec) -> tuple[str, list[str]]:
 def scene_overrides(scene: str, scale: float, frames: int, gain: float, extra: list[str]):
     """(overrides, our beams' spectrum, emitters sharing it) for one run."""
     from poevp_optics.scene.load import load_scene
-    from poevp_optics.scene.scale import scaled_resolution, scaling_for
 
     base = ['render.roi_shape="plates"', f"timing.frames={frames}", *extra]
     spec = load_scene(scene, base)
     beam, shared = own_beams(spec)
-    sets = list(base)
+    return [*base, *scale_gain_overrides(spec, scale, gain, beam)], beam, shared
+
+
+def scale_gain_overrides(spec, scale: float, gain: float, beam: str) -> list[str]:
+    """The overrides that run `spec` at `scale` x its own mirrors (as `poevp render --scale`) with
+    our beams' spectrum `beam` x `gain`."""
+    from poevp_optics.scene.scale import scaled_resolution, scaling_for
+
+    sets = []
     if abs(scale - 1.0) > 1e-12:
         sets += list(scaling_for(spec, scaled_resolution(spec.render.resolution, scale), f"--scale {scale:g}").sets)
     if gain != 1.0:
         sets.append(f"spectra.{beam}.intensity_cd={spec.spectra[beam].intensity_cd * gain:.9g}")
-    return sets, beam, shared
+    return sets
 
 
 def run_scene(scene: str, sets: list[str], alpr: bool, min_height: int) -> dict:
