@@ -30,9 +30,9 @@ import numpy as np
 
 from poevp_optics.core import runtime
 from poevp_optics.core.exceptions import SceneError
-from poevp_optics.render.opaque import opaque_pose
 from poevp_optics.core.params import param
 from poevp_optics.render.lights import LIGHT_SELECTIONS
+from poevp_optics.render.opaque import opaque_pose
 from poevp_optics.render.roi import ALL_PLATES, roi_targets
 from poevp_optics.render.samplers import SAMPLERS, sample_count
 from poevp_optics.sources import spectra
