@@ -59,23 +59,36 @@ def add_roi_samples(scene, renderer, frame: int, sample: int, mean, var, spp: in
     (Renderer.roi_boxes: the ROI shape, or every plate in view; Renderer.render_box, own seeds
     per ROI), pooled with the frame's `spp` there (render/roi.py pool_samples; where two boxes
     overlap the second pools with the count the first left). The frame's pixels elsewhere keep
-    `spp`: the effort goes where the error target is. Returns (mean, var)."""
+    `spp`: the effort goes where the error target is. With `render.light_selection = "power_roi"`
+    each box's renders pick the emitters by its own pilot (render/roi.py own_light_weights) and
+    the box's pixels take those renders alone: the frame's samples there drew the emitters by the
+    frame's weights and, pooled by count, would dominate the variance (wet_night_road's plate: a
+    relative error of 1.25 per frame sample against 0.19 per box sample). Returns (mean, var)."""
     boxes = renderer.roi_boxes()
     if not boxes:
         return mean, var
-    from poevp_optics.render.roi import pool_samples
+    from poevp_optics.render.lights import LIGHT_SELECTIONS
+    from poevp_optics.render.roi import own_light_weights, pool_samples, set_light_weights
 
     order = [t.label for t in renderer.roi_labels]
     h, w = mean.shape
     mean = mean.astype(np.float64).copy()
     var = np.asarray(var, dtype=np.float64).copy()
     count = np.full(mean.shape, float(spp))
-    for label, (y0, x0, y1, x1) in boxes.items():
-        box = (max(0, y0 - ROI_MARGIN_PX), max(0, x0 - ROI_MARGIN_PX), min(h, y1 + ROI_MARGIN_PX),
-               min(w, x1 + ROI_MARGIN_PX))
+    boxes = {label: (max(0, y0 - ROI_MARGIN_PX), max(0, x0 - ROI_MARGIN_PX), min(h, y1 + ROI_MARGIN_PX),
+                     min(w, x1 + ROI_MARGIN_PX)) for label, (y0, x0, y1, x1) in boxes.items()}
+    if LIGHT_SELECTIONS[scene.render.light_selection].roi_own:
+        for y0, x0, y1, x1 in boxes.values():        # the frame's samples there drew other lamps
+            count[y0:y1, x0:x1] = 0.0
+    for label, box in boxes.items():
         k = order.index(label)           # the plate's own stream: the first ROI keeps ROI_STREAM's
         seeds = render_seeds(scene.render.seed, frame, ROI_STREAM * (k + 1) + sample, scene.accuracy.mc_splits)
+        own = own_light_weights(renderer, label, box)      # light_selection "power_roi": the ROI's own
+        if own is not None:
+            set_light_weights(renderer, own)
         m2, v2, n2 = renderer.render_box_with_error(seeds, scene.render.roi_spp, box)
+        if own is not None:
+            set_light_weights(renderer, renderer.light_weights)
         pool_samples(mean, var, count, box, m2, v2, n2)
     return mean.astype(np.float32), var
 

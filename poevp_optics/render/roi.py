@@ -179,3 +179,33 @@ def plates_pilot_moments(renderer, frame) -> dict[str, float]:
     regions = [pilot_moments(renderer.mi, renderer.mi_scene, renderer.sensor, renderer.scene.render.seed,
                              (x0 / w, y0 / h, x1 / w, y1 / h)) for y0, x0, y1, x1 in boxes]
     return roi_weighted_moments([frame, *regions]), (box[2] - box[0]) * (box[3] - box[1])
+
+
+def own_light_weights(renderer, label: str, box) -> dict[str, float] | None:
+    """The emitters' sampling weights for the ROI `label`'s own box renders under a light
+    selection with `roi_own` (render/lights.py `power_roi`): p_i ~ sqrt(E[f_i^2]) from the pilot
+    over `box` alone (y0, x0, y1, x1 on the rendered grid). Kept per label until the frame's
+    selection changes (Renderer.select_lights: a new pose's pilot); None for any other selection."""
+    from poevp_optics.render.lights import LIGHT_SELECTIONS, pilot_moments, weights_from_moments
+
+    if not LIGHT_SELECTIONS[renderer.scene.render.light_selection].roi_own or renderer.light_weights is None:
+        return None
+    cache = renderer.__dict__.setdefault("_own_weights", {})
+    if cache.get("") is not renderer.light_weights:          # the frame re-selected: new pose
+        cache.clear()
+        cache[""] = renderer.light_weights
+    if label not in cache:
+        h, w = (n + 2 * renderer.guard_px for n in renderer.scene.render.resolution)
+        y0, x0, y1, x1 = box
+        moments, _ = pilot_moments(renderer.mi, renderer.mi_scene, renderer.sensor, renderer.scene.render.seed,
+                                   (x0 / w, y0 / h, x1 / w, y1 / h))
+        weights = weights_from_moments(moments)
+        cache[label] = {k: weights.get(k, 1.0) for k in renderer.light_weights}
+    return cache[label]
+
+
+def set_light_weights(renderer, weights: dict[str, float]) -> None:
+    """Set the emitters' `sampling_weight` ({emitter id: weight}) in the loaded scene."""
+    for k, v in weights.items():
+        renderer.params[f"{k}.sampling_weight"] = float(v)
+    renderer.params.update()
