@@ -128,6 +128,7 @@ class LoopSpec:
 
     mode: str = param("open", choices=LOOP_MODES)
     init_frames: int = param(2, min=0, max=1000)
+    meter_init: bool = param(False)   # after the first white frame, initialisation frames dim where the last capture clipped
 
 
 def predictor_input(mode: str, camera, ldr, enc, est, flags, index: int, clipped_gain: float) -> np.ndarray:
@@ -245,6 +246,22 @@ def predicted_choice(camera, mask: MaskSpec, pred_8bit: np.ndarray | OnGrid, ind
     return levels, g, fx
 
 
+def metered_choice(camera, mask: MaskSpec, controller: ExposureController, index: int,
+                   attenuator: AttenuatorSpec = AttenuatorSpec()) -> tuple[np.ndarray, float, object]:
+    """(levels, attenuator transmission, exposure choice or None) of a metering frame: the mask
+    law with the last capture held as the prediction (mirror grid, no motion: the predictor is
+    still waiting for its history). Its all-white electrons are the controller's demand: the
+    measurement where the capture was not clipped, the prior or bracket where it was, marked
+    clipped (255) so the law takes the controller's carried demand there, as on a loop frame."""
+    e = controller.demand_e.astype(np.float64)
+    sat = camera.params.saturation_capacity_e
+    x8 = np.where(controller.clip_frames > 0, 255.0, np.minimum(255.0 * e / sat, 254.0))
+    kw = dict(pred_8bit=x8, pred_electrons=e, full_well_e=camera.params.full_well_e, sensor=camera.params)
+    g = attenuator_transmission(camera, mask, attenuator, e, index) if attenuator.enabled else 1.0
+    levels, fx = levels_and_exposure(camera, mask, index, g, e, controller, attenuator, **kw)
+    return levels, g, fx
+
+
 def controller_view(camera, enc, est, flags, index: int):
     """What the exposure controller takes from a capture, on the mirror grid: the all-white
     electrons the reconstruction implies (a lower bound where clipped), the clipped pixels and
@@ -271,6 +288,7 @@ class MaskDecision:
     fallback_px: int = 0             # prediction pixels that were NaN/Inf and fell back to hold
     transmission: float = 1.0        # the global attenuator's commanded setting (camera/attenuator.py)
     exposure: object | None = None   # the frame's exposure time and DMD bit depth (control/exposure_time.py)
+    metered: bool = False            # an initialisation frame dimmed where the last capture clipped (loop.meter_init)
 
 
 @dataclass(frozen=True)
@@ -378,6 +396,12 @@ class LoopStep:
                 pred, _ = checked_prediction(self.model, [h.on(self.predictor_grid).array for h in self.history])
                 self._aimed = self._predicted_bright(resize_onto(OnGrid(pred, self.predictor_grid),
                                                                  self.camera.sensor_grid))
+            if self._meters():
+                mask = self.frame_mask()
+                levels, g, fx = metered_choice(self.camera, mask, self.controller, index, self.attenuator)
+                if measure:                         # aimed where the last capture was bright
+                    self._aimed = self.controller.demand_e >= self.controller.saturation_e
+                return MaskDecision(levels, True, None, transmission=g, exposure=fx, metered=True)
             return MaskDecision(self.camera.white_mask(), True, None)
         mask = self.frame_mask()
         if self.needs_truth:
@@ -393,6 +417,16 @@ class LoopStep:
         if mask.envelope != "fixed":
             self._aimed = self._predicted_bright(pred_s)
         return MaskDecision(levels, False, time.perf_counter() - t0, n_bad, transmission=g, exposure=fx)
+
+    def _meters(self) -> bool:
+        """Whether this initialisation frame is metered (`loop.meter_init`): a causal predictor
+        under the exposure controller's law, after at least one capture. A white frame says of
+        a clipped region only "at least saturated" (plates under our beams are 5-300x over), so
+        without it the first loop frame's guess of such a region is the prior; metered, the
+        region was measured through a mask dimmed by the prior (or bracketed again where it
+        clipped once more), and the first loop frame's mask comes from a measurement."""
+        return (self.loop.meter_init and not self.needs_truth and self.mask.law == "exposure_controller"
+                and self.controller is not None and self.controller.demand_e is not None)
 
     def _true_bright(self, truth: np.ndarray, index: int) -> np.ndarray:
         """The mirrors the true frame (the oracle's input) puts at or above saturation, all white."""
@@ -432,18 +466,21 @@ class LoopStep:
         rec: dict = {}
         if decision.init:
             rec["init"] = True
+        if decision.metered:
+            rec["metered"] = True
         if decision.fallback_px:
             rec["prediction_fallback_pixels"] = decision.fallback_px     # held the last frame there
         if decision.predict_seconds is not None:
             rec["predict_seconds"] = decision.predict_seconds
         fx = decision.exposure
-        shown = self.clock.show(index, decision.levels, decision.init, decision.predict_seconds, fx)
+        preloaded = decision.init and not decision.metered     # a white mask: loaded before the run
+        shown = self.clock.show(index, decision.levels, preloaded, decision.predict_seconds, fx)
         if shown.record and not shown.record.get("init"):
             rec["timing_budget"] = {k: v for k, v in shown.record.items() if k != "frame"}
         g = self._attenuator_setting(decision, index, rec)
         if fx is not None:
             rec["exposure_time"] = {**fx.record(), "nd_transmission": g}
-        if self.mask.envelope != "fixed" and not decision.init:
+        if self.mask.envelope != "fixed" and (not decision.init or decision.metered):
             rec["envelope_px"] = self.envelope_px()
         late = shown.late is not None
         mirror = self.camera.mirror_grid
