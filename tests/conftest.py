@@ -14,6 +14,19 @@ SCENES = ROOT / "scenes"
 os.environ.setdefault("POEVP_CACHE_DIR", str(ROOT / "out" / ".test-cache"))
 
 
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(config, items):
+    """Groups for `make test`'s two workers (pytest-xdist, `--dist loadgroup`): a test module runs
+    on one worker, so its module fixtures are built once; the documentation's command blocks go by
+    page instead (a page's blocks build on each other in one copy of the repository, and the pages
+    are the suite's longest module). Before xdist's own hook, which reads the groups."""
+    for item in items:
+        if item.get_closest_marker("xdist_group") is None:
+            block = getattr(getattr(item, "callspec", None), "params", {}).get("block")
+            group = f"docs:{block.page}" if hasattr(block, "page") else item.nodeid.split("::")[0]
+            item.add_marker(pytest.mark.xdist_group(group))
+
+
 @pytest.fixture
 def write_scene(tmp_path):
     """Write scene.toml (+ optional scene.xml) into a fresh folder; return the folder."""
