@@ -188,6 +188,7 @@ def build_spec(raw: dict, path: Path, ctx: Where | None = None, *, cross_checks:
         raise ctx.fail("budget.late_mask", "'partial' (a mask switching inside the window) is not "
                        "modelled for flickering lamps' emitter-group images; use 'next' or 'ideal'")
     validate.check_attenuator(ctx, sec)
+    validate.check_metering(ctx, sec)
     if tables["flicker"] and not all(m.is_static for m in tables["motion"].values()):
         raise ctx.fail("flicker", "flickering lamps need static geometry (no moving [motion] entry)")
     spectra_ = tables["spectra"]

@@ -361,6 +361,18 @@ def check_controller_prior(ctx, mask: MaskSpec, road, spectra_, has_road: bool) 
                        f"{mask.prior_beam_cd:g} cd = {guess:.4g} x saturation, outside [1, 1e9]")
 
 
+def check_metering(ctx, sec: dict):
+    """`loop.meter_init`: metered initialisation frames are the exposure controller's mask from
+    the last capture, so they need its law and a causal predictor (the oracle reads the truth)."""
+    if not sec["loop"].meter_init:
+        return
+    if sec["mask"].law != "exposure_controller":
+        raise ctx.fail("loop.meter_init", f"meters with the 'exposure_controller' mask law, not {sec['mask'].law!r}")
+    if PREDICTORS[sec["predictor"].name].needs_truth:
+        raise ctx.fail("loop.meter_init", f"the {sec['predictor'].name!r} predictor reads the true frame: "
+                       "it has nothing to meter")
+
+
 def check_attenuator(ctx, sec: dict):
     """[attenuator]: an enabled one needs the DMD, a mask law that takes its transmission
     (`target`, `exposure_controller`) and time to settle between two exposures."""

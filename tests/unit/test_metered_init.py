@@ -131,3 +131,15 @@ def test_metered_frame_is_dimmed_by_the_prior_and_the_first_loop_frame_by_the_me
     frames = report["per_frame"]
     assert frames[1].get("init") and frames[1].get("metered") and not frames[0].get("metered")
     assert not frames[2].get("init")
+
+
+@pytest.mark.parametrize("sets, words", [(['mask.law="target"'], "'exposure_controller' mask law"),
+                                         (['predictor.name="oracle"'], "nothing to meter")])
+def test_metering_without_the_controller_or_with_the_oracle_is_refused(tmp_path, sets, words):
+    from poevp_optics.core.exceptions import SceneError
+
+    folder = _scene(tmp_path, True)
+    _write_frames(folder, 1.0)
+    with pytest.raises(SceneError, match=words) as err:
+        load_scene(folder, sets)
+    assert "loop.meter_init" in str(err.value)
