@@ -3,8 +3,13 @@
 Per frame t the step gives the DMD mask for t (`next_mask`) from what the camera saw up to t - 1,
 then takes what the camera saw at t (`observe`). The first `loop.init_frames` frames are white
 for every predictor, the oracle included (paper Sec. 3; DESIGN.md), and a causal predictor also
-waits until it has `needs_frames` past frames. The same step drives the render run, the chart's
-mask settling, `compare`, `evaluate` and the benchmarks.
+waits until it has `needs_frames` past frames. With `loop.meter_init` (exposure controller, causal
+predictor) every one of those frames after the first is metered instead (`metered_choice`): the
+controller's mask from the last capture, held in place, dims by its prior where that capture
+clipped, so the first loop frame's mask comes from a measurement of every region up to
+prior / target (67x saturation at the default 40) and from one bracket beyond it, not from the
+prior (a white frame says of a clipped region only "at least saturated"). The same step drives
+the render run, the chart's mask settling, `compare`, `evaluate` and the benchmarks.
 
 Loop modes (`LOOP_MODES`, what the predictor sees; DESIGN.md "Loop modes"):
 
