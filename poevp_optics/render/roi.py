@@ -184,9 +184,9 @@ def plates_pilot_moments(renderer, frame) -> dict[str, float]:
 def own_light_weights(renderer, label: str, box) -> dict[str, float] | None:
     """The emitters' sampling weights for the ROI `label`'s own box renders under a light
     selection with `roi_own` (render/lights.py `power_roi`): p_i ~ sqrt(E[f_i^2]) from the pilot
-    over `box` alone (y0, x0, y1, x1 on the rendered grid). Kept per label until the frame's
+    over `box` alone (y0, x0, y1, x1 on the rendered grid), at least ROI_FLOOR x the largest. Kept per label until the frame's
     selection changes (Renderer.select_lights: a new pose's pilot); None for any other selection."""
-    from poevp_optics.render.lights import LIGHT_SELECTIONS, pilot_moments, weights_from_moments
+    from poevp_optics.render.lights import LIGHT_SELECTIONS, ROI_FLOOR, pilot_moments, weights_from_moments
 
     if not LIGHT_SELECTIONS[renderer.scene.render.light_selection].roi_own or renderer.light_weights is None:
         return None
@@ -200,7 +200,7 @@ def own_light_weights(renderer, label: str, box) -> dict[str, float] | None:
         moments, _ = pilot_moments(renderer.mi, renderer.mi_scene, renderer.sensor, renderer.scene.render.seed,
                                    (x0 / w, y0 / h, x1 / w, y1 / h))
         weights = weights_from_moments(moments)
-        cache[label] = {k: weights.get(k, 1.0) for k in renderer.light_weights}
+        cache[label] = {k: max(weights.get(k, 1.0), ROI_FLOOR) for k in renderer.light_weights}
     return cache[label]
 
 

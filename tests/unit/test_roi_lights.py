@@ -55,7 +55,7 @@ def pilot(monkeypatch):
 def test_power_roi_box_takes_its_own_weights_and_renders_alone(pilot):
     r = FakeRenderer("power_roi")
     mean, var = add_roi_samples(r.scene, r, 0, 0, np.full((10, 12), 10.0), np.full((10, 12), 4.0), 4)
-    assert r.used == [{"near": 1.0, "far": lights.FLOOR}]     # sqrt(4) / sqrt(4); 0 floored
+    assert r.used == [{"near": 1.0, "far": lights.ROI_FLOOR}]  # sqrt(4) / sqrt(4); 0 floored
     assert r.params == {"near.sampling_weight": 0.2, "far.sampling_weight": 1.0}   # restored
     assert pilot == [(3 / 12, 2 / 10, 10 / 12, 7 / 10)]      # the box with its 1 px margin, film fractions
     inside = np.zeros((10, 12), bool)
