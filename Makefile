@@ -11,8 +11,9 @@ install:
 demo: install
 	$(POEVP) render scenes/night_road --out out/night_road
 
+# Two workers (pytest-xdist): CI's two cores; tests/conftest.py keeps each module on one worker.
 test: install
-	$(PYTEST) -q -ra tests
+	$(PYTEST) -q -ra -n 2 --dist loadgroup tests
 
 # Refreshes the committed results (benchmarks/results/, the site's Results pages) on purpose:
 # a benchmark run by hand writes into out/benchmarks/ unless given --results.
