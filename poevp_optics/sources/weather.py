@@ -25,7 +25,9 @@ albedo is close to 1; their Mie phase function is forward-peaked, commonly model
 Henyey-Greenstein function with g = 0.8-0.9. In the XML the fog is a Mitsuba `homogeneous`
 medium (`sigma_t` = $weather_fog_sigma_t in m-1, `albedo`, a `hg` phase with g) filling a
 `null`-BSDF box around the scene, with the camera inside it (the sensor's `medium`) and every
-shape's `exterior` set to it; the integrator is `volpath`.
+shape's `exterior` set to it; the integrator is `volpath` with max_depth 2, or `single_scatter`
+(render/materials/single_scatter.py: the same single scattering with the fog's transmittance in
+closed form, fog_highway's).
 
 Wet road. A water film over the asphalt is a smooth (or rippled) dielectric interface over a
 diffuse base: Mitsuba's `plastic` (smooth) or `roughplastic` (GGX ripples) with `int_ior` water

@@ -25,7 +25,8 @@ from tests.conftest import SCENES
 @pytest.fixture(scope="module")
 def fog():
     spec = load_scene(SCENES / "fog_highway", ['render.roi_shape="plates"', "render.resolution=[180,320]",
-                                               "render.roi_spp=8", "render.spp=2"])
+                                               "render.roi_spp=8", "render.spp=2",
+                                               'render.light_selection="power"'])   # pooled with the frame's
     r = Renderer(spec.resolved.render)
     r.set_time(0.0)
     return spec, r
