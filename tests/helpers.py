@@ -1,4 +1,7 @@
-"""Test helpers: small Mitsuba scenes with closed-form answers."""
+"""Test helpers: small Mitsuba scenes with closed-form answers, and EXR-sequence scenes."""
+
+import textwrap
+from pathlib import Path
 
 #: A Lambertian plane facing a coaxial point light and camera (closed-form radiometry).
 PLANE_XML = """\
@@ -71,3 +74,29 @@ MAY_IMPORT: dict[str, frozenset[str]] = {
     "cli": frozenset({*_BELOW_APPS, "apps"}),
     ROOT_PKG: frozenset({"core"}),
 }
+
+
+def exr_sequence_scene(folder: Path, h: int, w: int, frames: int, tail: str = "") -> Path:
+    """Write `folder`/scene.toml for an EXR sequence (frames/*.exr: sensor-weighted photon radiance,
+    one frame per 10 ms exposure at 30 fps, h x w px, no relay blur) with the TOML `tail` appended;
+    returns the folder (its frames/ made, the EXRs are the caller's)."""
+    (folder / "frames").mkdir(parents=True, exist_ok=True)
+    (folder / "scene.toml").write_text(textwrap.dedent(f"""\
+        [source]
+        kind = "exr_sequence"
+        frames = "frames/*.exr"
+        unit = "photon_radiance"
+        fps = 30.0
+        subframes = "nearest"
+        [render]
+        resolution = [{h}, {w}]
+        seed = 5
+        [timing]
+        fps = 30.0
+        frames = {frames}
+        exposure_s = 0.01
+        dmd_window_s = 0.01
+        [relay]
+        psf = "delta"
+        """) + textwrap.dedent(tail))
+    return folder

@@ -4,7 +4,6 @@ moving 100x highlight within two loop frames; the paper's open loop with `flow` 
 
 from __future__ import annotations
 
-import textwrap
 import tomllib
 from pathlib import Path
 
@@ -16,6 +15,7 @@ from poevp_optics.camera.camera import Camera
 from poevp_optics.core.io import write_exr
 from poevp_optics.scene.defaults import BEST_LOOP
 from poevp_optics.scene.load import load_scene
+from tests.helpers import exr_sequence_scene
 
 ROOT = Path(__file__).resolve().parents[2]
 H, W, N, INIT = 48, 112, 7, 2            # sensor px; frames; night_road's two white frames
@@ -25,26 +25,7 @@ PAPER = '[mask]\nlaw = "target"\n[loop]\nmode = "open"\n[predictor]\nname = "flo
 
 def _scene(folder: Path, loop_toml: str) -> Path:
     """An EXR-sequence scene (sensor-weighted photon radiance, one frame per exposure)."""
-    (folder / "frames").mkdir(parents=True, exist_ok=True)
-    (folder / "scene.toml").write_text(textwrap.dedent(f"""\
-        [source]
-        kind = "exr_sequence"
-        frames = "frames/*.exr"
-        unit = "photon_radiance"
-        fps = 30.0
-        subframes = "nearest"
-        [render]
-        resolution = [{H}, {W}]
-        seed = 5
-        [timing]
-        fps = 30.0
-        frames = {N}
-        exposure_s = 0.01
-        dmd_window_s = 0.01
-        [relay]
-        psf = "delta"
-        """) + loop_toml)
-    return folder
+    return exr_sequence_scene(folder, H, W, N, loop_toml)
 
 
 def _box_x(j: int) -> int:

@@ -2,12 +2,11 @@
 clipped region only "at least saturated", so without metering the first loop frame dims it by the
 controller's prior; with it, the second initialisation frame is dimmed by the prior where the
 first clipped, measures the region, and the first loop frame's mask is the law's level for that
-measurement. A static EXR scene: a gradient at 10-50 % of full scale and a highlight at X = 6x
+measurement. A static EXR scene: a gradient at 10-50 % of full scale and a highlight at X = 20x
 saturation (a plate under our beams is 5-300x), the `hold` predictor (no motion to predict)."""
 
 from __future__ import annotations
 
-import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -17,6 +16,7 @@ from poevp_optics.apps.run.render_run import run_frames
 from poevp_optics.camera.camera import Camera
 from poevp_optics.core.io import write_exr
 from poevp_optics.scene.load import load_scene
+from tests.helpers import exr_sequence_scene
 
 H, W, N = 40, 64, 4                  # sensor px, frames: two initialisation frames, two loop frames
 Y0, Y1, X0, X1 = 10, 30, 20, 44      # the highlight's box
@@ -24,24 +24,7 @@ X_SAT, PRIOR, TARGET, LOW, HIGH = 20.0, 40.0, 0.6, 0.4, 0.9
 
 
 def _scene(folder: Path, meter: bool) -> Path:
-    (folder / "frames").mkdir(parents=True, exist_ok=True)
-    (folder / "scene.toml").write_text(textwrap.dedent(f"""\
-        [source]
-        kind = "exr_sequence"
-        frames = "frames/*.exr"
-        unit = "photon_radiance"
-        fps = 30.0
-        subframes = "nearest"
-        [render]
-        resolution = [{H}, {W}]
-        seed = 5
-        [timing]
-        fps = 30.0
-        frames = {N}
-        exposure_s = 0.01
-        dmd_window_s = 0.01
-        [relay]
-        psf = "delta"
+    return exr_sequence_scene(folder, H, W, N, f"""\
         [mask]
         law = "exposure_controller"
         target = {TARGET}
@@ -57,8 +40,7 @@ def _scene(folder: Path, meter: bool) -> Path:
         meter_init = {str(meter).lower()}
         [predictor]
         name = "hold"
-        """))
-    return folder
+        """)
 
 
 def _write_frames(folder: Path, sat: float) -> None:
