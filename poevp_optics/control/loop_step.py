@@ -262,7 +262,7 @@ def metered_choice(camera, mask: MaskSpec, controller: ExposureController, index
     sat = camera.params.saturation_capacity_e
     x8 = np.where(controller.clip_frames > 0, 255.0, np.minimum(255.0 * e / sat, 254.0))
     kw = dict(pred_8bit=x8, pred_electrons=e, full_well_e=camera.params.full_well_e, sensor=camera.params)
-    g = attenuator_transmission(camera, mask, attenuator, e, index) if attenuator.enabled else 1.0
+    g = attenuator_transmission(camera, mask, attenuator, e, index)
     levels, fx = levels_and_exposure(camera, mask, index, g, e, controller, attenuator, **kw)
     return levels, g, fx
 

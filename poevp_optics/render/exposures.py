@@ -67,8 +67,8 @@ def add_roi_samples(scene, renderer, frame: int, sample: int, mean, var, spp: in
     boxes = renderer.roi_boxes()
     if not boxes:
         return mean, var
-    from poevp_optics.render.lights import LIGHT_SELECTIONS
-    from poevp_optics.render.roi import own_light_weights, pool_samples, set_light_weights
+    from poevp_optics.render.lights import LIGHT_SELECTIONS, set_sampling_weights
+    from poevp_optics.render.roi import own_light_weights, pool_samples
 
     order = [t.label for t in renderer.roi_labels]
     h, w = mean.shape
@@ -80,16 +80,18 @@ def add_roi_samples(scene, renderer, frame: int, sample: int, mean, var, spp: in
     if LIGHT_SELECTIONS[scene.render.light_selection].roi_own:
         for y0, x0, y1, x1 in boxes.values():        # the frame's samples there drew other lamps
             count[y0:y1, x0:x1] = 0.0
+    swapped = False
     for label, box in boxes.items():
         k = order.index(label)           # the plate's own stream: the first ROI keeps ROI_STREAM's
         seeds = render_seeds(scene.render.seed, frame, ROI_STREAM * (k + 1) + sample, scene.accuracy.mc_splits)
         own = own_light_weights(renderer, label, box)      # light_selection "power_roi": the ROI's own
         if own is not None:
-            set_light_weights(renderer, own)
+            set_sampling_weights(renderer.params, own)
+            swapped = True
         m2, v2, n2 = renderer.render_box_with_error(seeds, scene.render.roi_spp, box)
-        if own is not None:
-            set_light_weights(renderer, renderer.light_weights)
         pool_samples(mean, var, count, box, m2, v2, n2)
+    if swapped:                                      # the frame's own weights back for its next render
+        set_sampling_weights(renderer.params, renderer.light_weights)
     return mean.astype(np.float32), var
 
 

@@ -189,6 +189,14 @@ def roi_weighted_moments(regions: list[tuple[dict[str, float], float]]) -> dict[
     return out
 
 
+def set_sampling_weights(params, weights: dict[str, float]) -> None:
+    """Write {emitter id: weight} into the loaded scene's `sampling_weight` parameters
+    (mi.traverse `params`) and update it."""
+    for k, v in weights.items():
+        params[f"{k}.sampling_weight"] = float(v)
+    params.update()
+
+
 def weights_from_moments(moments: dict[str, float]) -> dict[str, float]:
     """Sampling weights p_i ~ sqrt(E[f_i^2]), normalised to a largest of 1, floored at FLOOR."""
     root = {k: float(np.sqrt(max(v, 0.0))) for k, v in moments.items()}

@@ -456,7 +456,7 @@ class Renderer:
     def select_lights(self) -> dict[str, float]:
         """Set the emitters' sampling weights by `render.light_selection` (render/lights.py) at
         the current pose; returns {emitter id: weight} (the report's `light_weights`)."""
-        from poevp_optics.render.lights import weights_from_moments
+        from poevp_optics.render.lights import set_sampling_weights, weights_from_moments
 
         choice = LIGHT_SELECTIONS[self.scene.render.light_selection]
         keys = {em.id(): f"{em.id()}.sampling_weight" for em in self.mi_scene.emitters()}
@@ -466,9 +466,7 @@ class Renderer:
         else:
             weights = (weights_from_moments(self._pilot_moments())
                        if choice.from_pilot else {k: 1.0 for k in keys})
-            for k, v in keys.items():
-                self.params[v] = float(weights.get(k, 1.0))
-            self.params.update()
+            set_sampling_weights(self.params, {k: weights.get(k, 1.0) for k in keys})
         self.light_weights = {k: weights[k] for k in keys if k in weights}
         self.stats.extra["light_weights"] = self.light_weights
         return self.light_weights

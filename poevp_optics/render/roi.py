@@ -169,43 +169,42 @@ def plates_pilot_moments(renderer, frame) -> dict[str, float]:
     the frame's (`frame`: render/lights.py pilot_moments over the film), combined by
     lights.roi_weighted_moments; the frame's alone when no plate is in view. Returns (moments,
     the nearest plate's box area in px, 0 without one: the renderer's re-selection trigger)."""
-    from poevp_optics.render.lights import pilot_moments, roi_weighted_moments
+    from poevp_optics.render.lights import roi_weighted_moments
 
     boxes = list(renderer.roi_boxes().values())
     if not boxes:
         return frame[0], 0
-    h, w = (n + 2 * renderer.guard_px for n in renderer.scene.render.resolution)
     box = renderer.roi_box()
-    regions = [pilot_moments(renderer.mi, renderer.mi_scene, renderer.sensor, renderer.scene.render.seed,
-                             (x0 / w, y0 / h, x1 / w, y1 / h)) for y0, x0, y1, x1 in boxes]
+    regions = [box_pilot_moments(renderer, b) for b in boxes]
     return roi_weighted_moments([frame, *regions]), (box[2] - box[0]) * (box[3] - box[1])
+
+
+def box_pilot_moments(renderer, box) -> tuple[dict[str, float], float]:
+    """render/lights.py pilot_moments over the pixel box (y0, x0, y1, x1 on the rendered grid,
+    guard band included) at the current pose."""
+    from poevp_optics.render.lights import pilot_moments
+
+    h, w = (n + 2 * renderer.guard_px for n in renderer.scene.render.resolution)
+    y0, x0, y1, x1 = box
+    return pilot_moments(renderer.mi, renderer.mi_scene, renderer.sensor, renderer.scene.render.seed,
+                         (x0 / w, y0 / h, x1 / w, y1 / h))
 
 
 def own_light_weights(renderer, label: str, box) -> dict[str, float] | None:
     """The emitters' sampling weights for the ROI `label`'s own box renders under a light
     selection with `roi_own` (render/lights.py `power_roi`): p_i ~ sqrt(E[f_i^2]) from the pilot
-    over `box` alone (y0, x0, y1, x1 on the rendered grid), at least ROI_FLOOR x the largest. Kept per label until the frame's
-    selection changes (Renderer.select_lights: a new pose's pilot); None for any other selection."""
-    from poevp_optics.render.lights import LIGHT_SELECTIONS, ROI_FLOOR, pilot_moments, weights_from_moments
+    over `box` alone (y0, x0, y1, x1 on the rendered grid), at least ROI_FLOOR x the largest. Kept
+    per label until the frame's selection changes (Renderer.select_lights: a new pose's pilot);
+    None for any other selection."""
+    from poevp_optics.render.lights import LIGHT_SELECTIONS, ROI_FLOOR, weights_from_moments
 
     if not LIGHT_SELECTIONS[renderer.scene.render.light_selection].roi_own or renderer.light_weights is None:
         return None
-    cache = renderer.__dict__.setdefault("_own_weights", {})
-    if cache.get("") is not renderer.light_weights:          # the frame re-selected: new pose
-        cache.clear()
-        cache[""] = renderer.light_weights
+    selection, cache = renderer.__dict__.get("_own_weights", (None, {}))
+    if selection is not renderer.light_weights:             # the frame re-selected: a new pose
+        cache = {}
+        renderer.__dict__["_own_weights"] = (renderer.light_weights, cache)
     if label not in cache:
-        h, w = (n + 2 * renderer.guard_px for n in renderer.scene.render.resolution)
-        y0, x0, y1, x1 = box
-        moments, _ = pilot_moments(renderer.mi, renderer.mi_scene, renderer.sensor, renderer.scene.render.seed,
-                                   (x0 / w, y0 / h, x1 / w, y1 / h))
-        weights = weights_from_moments(moments)
+        weights = weights_from_moments(box_pilot_moments(renderer, box)[0])
         cache[label] = {k: max(weights.get(k, 1.0), ROI_FLOOR) for k in renderer.light_weights}
     return cache[label]
-
-
-def set_light_weights(renderer, weights: dict[str, float]) -> None:
-    """Set the emitters' `sampling_weight` ({emitter id: weight}) in the loaded scene."""
-    for k, v in weights.items():
-        renderer.params[f"{k}.sampling_weight"] = float(v)
-    renderer.params.update()
