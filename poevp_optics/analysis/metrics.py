@@ -66,11 +66,15 @@ def mask_iou(mask_a: np.ndarray, mask_b: np.ndarray, top: float, threshold: floa
     return float(np.logical_and(a, b).sum() / union) if union else 1.0
 
 
-def plate_white_fraction(img_8bit: np.ndarray, box, percentile: float = 90.0) -> float | None:
+def plate_white_fraction(img_8bit: np.ndarray, box, percentile: float = 90.0, seen=None) -> float | None:
     """The plate's white as a fraction of full scale: the `percentile`-th percentile of the
     8-bit values inside `box` (the white sheeting covers most of a plate, its characters the
-    rest), / 255. None without a box. Issue 18's measure (band 40-90 %)."""
+    rest), / 255; with `seen` (bool, the box's shape) over the pixels that show the plate only
+    (a car ahead hiding part of it is left out). None without a box or without a seen pixel.
+    Issue 18's measure (band 40-90 %)."""
     if box is None:
         return None
     c = crop(img_8bit, box)
+    if seen is not None:
+        c = c[np.asarray(seen, bool)]
     return float(np.percentile(c, percentile) / 255.0) if c.size else None

@@ -106,6 +106,7 @@ class PlateTrack:
         self.boxes = {t.label: None for t in self.targets}
         self.dist = {t.label: [] for t in self.targets}
         self.seen = {t.label: [] for t in self.targets}
+        self.pixels = {t.label: [] for t in self.targets}
 
     def add_pose(self) -> None:
         """Record the renderer's current pose."""
@@ -116,17 +117,33 @@ class PlateTrack:
             self.seen[label].append(v.visible_fraction if v.box is not None else 0.0)
             if v.in_view:
                 self.boxes[label] = union_box(self.boxes[label], v.box)
+                if v.pixels is not None:
+                    self.pixels[label].append((v.box, v.pixels))
+
+    def seen_rows(self, label: str, box) -> tuple[str, ...] | None:
+        """The pixels of the union `box` that show the plate at any pose (render/roi.py
+        PlateView.pixels), one string of '0'/'1' per row (a stored render keeps it as text);
+        None out of view."""
+        if box is None or not self.pixels[label]:
+            return None
+        y0, x0, y1, x1 = box
+        seen = np.zeros((y1 - y0, x1 - x0), bool)
+        for (by0, bx0, by1, bx1), px in self.pixels[label]:
+            seen[by0 - y0:by1 - y0, bx0 - x0:bx1 - x0] |= px
+        return tuple("".join("1" if v else "0" for v in row) for row in seen)
 
     def records(self, mean, var) -> tuple:
-        """({id, text, shape, box, distance_m, visible_fraction, rel_error}, ...) in the scene's
-        order: distance and visible fraction averaged over the poses; rel_error
-        (progressive.rel_error) over the plate's box; box and rel_error None out of view."""
+        """({id, text, shape, box, distance_m, visible_fraction, seen, rel_error}, ...) in the
+        scene's order: distance and visible fraction averaged over the poses; seen, the box's
+        pixels showing the plate at any pose (`seen_rows`); rel_error (progressive.rel_error) over
+        the plate's box; box, seen and rel_error None out of view."""
         out = []
         for t in self.targets:
             box = self.boxes[t.label]
             out.append({"id": t.label, "text": t.text, "shape": t.shape_id, "box": box,
                         "distance_m": float(np.mean(self.dist[t.label])),
                         "visible_fraction": float(np.mean(self.seen[t.label])),
+                        "seen": self.seen_rows(t.label, box),
                         "rel_error": rel_error(mean, var, box) if box is not None else None})
         return tuple(out)
 

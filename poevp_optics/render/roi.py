@@ -15,7 +15,10 @@ report (`per_frame[i].plates`, `plates`). The run's single ROI (`roi`, `saturate
 `plate_white_fraction`, ...) is then the nearest plate in view. A plate is in view when its box
 lies on the film and the camera sees part of it: of `VIEW_GRID` x `VIEW_GRID` points on the plate,
 those whose ray from the camera reaches the plate before anything else (`PlateView.visible_fraction`;
-a car ahead can hide a plate whose box is on the film).
+a car ahead can hide a plate whose box is on the film). Which pixels of its box show the plate
+(`PlateView.pixels`): the camera ray through each pixel's centre whose first hit lies on the plate
+(inside its bounding box grown by VIEW_TOLERANCE_M), so a plate's white is measured on the plate
+itself and not on the car that hides part of it (apps/run/plates.py).
 """
 
 from __future__ import annotations
@@ -56,6 +59,7 @@ class PlateView:
     box: tuple[int, int, int, int] | None
     distance_m: float
     visible_fraction: float
+    pixels: np.ndarray | None = None   # bool, the box's shape: the pixel's centre ray hits the plate first
 
     @property
     def in_view(self) -> bool:
@@ -135,7 +139,35 @@ def plate_view(renderer, shape, box) -> PlateView:
     hit_t = np.array(si.t, dtype=np.float64).ravel()
     valid = np.array(si.is_valid(), dtype=bool).ravel()
     seen = valid & (hit_t >= t - VIEW_TOLERANCE_M)
-    return PlateView(box, dist, float(np.mean(seen)))
+    return PlateView(box, dist, float(np.mean(seen)), plate_pixels(renderer, lo, hi, box))
+
+
+def plate_pixels(renderer, lo, hi, box) -> np.ndarray | None:
+    """Which pixels of `box` (y0, x0, y1, x1 on the rendered grid, guard band included) show the
+    plate whose world bounding box is [lo, hi] (m) at the current pose: the camera ray through
+    the pixel's centre (film fractions over the rendered grid, as the light pilot's,
+    render/lights.py) hits first a point inside that box grown by VIEW_TOLERANCE_M along its
+    thinnest axis (the plate's normal: the plate stands 2 mm proud of its recess, whose floor
+    around the plate is not the plate). Bool array of the box's shape; None without a box."""
+    if box is None:
+        return None
+    mi = renderer.mi
+    h, w = (n + 2 * renderer.guard_px for n in renderer.scene.render.resolution)
+    y0, x0, y1, x1 = box
+    ys, xs = np.meshgrid(np.arange(y0, y1) + 0.5, np.arange(x0, x1) + 0.5, indexing="ij")
+    n = ys.size
+    half = lambda: mi.Float(np.full(n, 0.5, np.float32))
+    ray, _ = renderer.sensor.sample_ray(mi.Float(0.0), half(),
+                                        mi.Point2f(mi.Float((xs.ravel() / w).astype(np.float32)),
+                                                   mi.Float((ys.ravel() / h).astype(np.float32))),
+                                        mi.Point2f(half(), half()))
+    si = renderer.mi_scene.ray_intersect(ray)
+    p = np.array(si.p, dtype=np.float64).reshape(3, -1) if np.array(si.p).shape[0] == 3 else np.array(si.p).T
+    valid = np.array(si.is_valid(), dtype=bool).ravel()
+    tol = np.zeros(3)
+    tol[int(np.argmin(hi - lo))] = VIEW_TOLERANCE_M
+    inside = np.all((p >= (lo - tol)[:, None]) & (p <= (hi + tol)[:, None]), axis=0)
+    return (valid & inside).reshape(ys.shape)
 
 
 def project_box(renderer, shape) -> tuple[int, int, int, int] | None:

@@ -13,7 +13,7 @@ Per frame and plate (`per_frame[i].plates[k]`):
 | visible_fraction | -    | share of the plate's test points the camera sees (render/roi.py) |
 | box              | px   | its box on the sensor grid (y0, x0, y1, x1), union over the exposure |
 | height_px        | px   | that box's height on the sensor |
-| white            | -    | 90th percentile of the box in the 8-bit capture / 255 (ldr, encoded: analysis/metrics.py plate_white_fraction) |
+| white            | -    | 90th percentile of the plate's pixels in the box in the 8-bit capture / 255 (ldr, encoded: analysis/metrics.py plate_white_fraction): the sensor pixels whose centre images a mirror that shows the plate (render/roi.py `PlateView.pixels`), so a car hiding part of the plate is left out |
 | in_band          | -    | encoded white within the mask's band [mask.band_low, mask.band_high] |
 | rel_error        | -    | RMS Monte Carlo standard error / mean radiance over the plate's box (render/progressive.py rel_error) |
 """
@@ -40,12 +40,33 @@ def frame_plates(spec, camera, ex, ldr_dn, enc_dn) -> list[dict]:
                "visible_fraction": p["visible_fraction"], "box": list(box) if box else None,
                "height_px": int(box[2] - box[0]) if box else None, "rel_error": p["rel_error"]}
         if box is not None:
-            w_ldr, w_enc = plate_white_fraction(ldr8, box), plate_white_fraction(enc8, box)
+            seen = seen_on_sensor(camera, p, box)
+            w_ldr, w_enc = plate_white_fraction(ldr8, box, seen=seen), plate_white_fraction(enc8, box, seen=seen)
             rec["white"] = {"ldr": w_ldr, "encoded": w_enc}
             rec["in_band"] = bool(w_enc is not None and lo <= w_enc <= hi)
         else:
             rec["white"], rec["in_band"] = None, None
         out.append(rec)
+    return out
+
+
+def seen_on_sensor(camera, plate: dict, sensor_box) -> np.ndarray | None:
+    """Which pixels of `sensor_box` show the plate: each sensor pixel's centre mapped onto the
+    mirror grid (camera/registration.py, the relay's registration) and looked up in the plate's
+    `seen` rows over its mirror-grid box (render/exposures.py PlateTrack.seen_rows). None where
+    the exposure holds no such rows (a stored render without them: the whole box counts)."""
+    rows = plate.get("seen")
+    if rows is None or plate.get("box") is None:
+        return None
+    seen = np.array([[c == "1" for c in r] for r in rows], dtype=bool).reshape(len(rows), -1)
+    my0, mx0 = plate["box"][0], plate["box"][1]
+    y0, x0, y1, x1 = sensor_box
+    sy, sx = np.meshgrid(np.arange(y0, y1) + 0.5, np.arange(x0, x1) + 0.5, indexing="ij")
+    mx, my = camera.sensor_to_mirror(sx, sy)
+    iy, ix = np.floor(my).astype(np.int64) - my0, np.floor(mx).astype(np.int64) - mx0
+    ok = (iy >= 0) & (iy < seen.shape[0]) & (ix >= 0) & (ix < seen.shape[1])
+    out = np.zeros(sy.shape, bool)
+    out[ok] = seen[iy[ok], ix[ok]]
     return out
 
 
