@@ -186,17 +186,29 @@ def target_levels(pred_electrons: np.ndarray, full_well_e: float, target: float,
 
 
 def band_levels(e_white: np.ndarray, level_exposure: np.ndarray, e_low: float, e_aim: float,
-                e_high: float, min_level: int = 0) -> np.ndarray:
+                e_high: float, min_level: int = 0, nearest: bool = False) -> np.ndarray:
     """DMD level per mirror that puts `e_white` x rel(level) in the band [e_low, e_high] (e-):
     the largest-exposure level at or below `e_aim`; where that lands below `e_low`, the
     largest-exposure level at or below `e_high` (the band is wider than one PWM step except
-    between level 0 and 1, so this lands in the band wherever a level can). Float64 levels."""
+    between level 0 and 1, so this lands in the band wherever a level can). With `nearest`
+    (`mask.aim_rounding = "nearest"`), the next brighter level instead where its signal lies
+    nearer the aim in ratio (e_up / e_aim < e_aim / e_got) and at or below `e_high`: at the
+    coarse low levels (level 2 passes 1.8x level 1 with the DLP6500's 1000:1 leakage) rounding
+    down can leave a highlight's peak anywhere down to e_aim / 1.8, and its body below the band.
+    Float64 levels."""
     e = np.asarray(e_white, dtype=np.float64)
     rel = np.asarray(level_exposure, dtype=np.float64) / float(level_exposure[-1])
     v_aim = target_levels(e, e_aim, 1.0, level_exposure, min_level)
     v_high = target_levels(e, e_high, 1.0, level_exposure, min_level)
     got = e * rel[v_aim.astype(np.int64)]
-    return np.where(got >= e_low, v_aim, v_high)
+    if not nearest:
+        return np.where(got >= e_low, v_aim, v_high)
+    order = min_level + np.argsort(rel[min_level:], kind="stable")
+    pos = np.searchsorted(rel[order], rel[v_aim.astype(np.int64)], side="right") - 1
+    up = order[np.minimum(pos + 1, len(order) - 1)]
+    got_up = e * rel[up]
+    closer_up = (got_up <= e_high) & (got_up * got < e_aim * e_aim)
+    return np.where(closer_up, up.astype(np.float64), np.where(got >= e_low, v_aim, v_high))
 
 
 def predicted_electrons(pred_8bit: np.ndarray, params, clipped_gain: float) -> np.ndarray:
@@ -296,7 +308,8 @@ def _controller_law(spec, top: int, x: MaskInput) -> np.ndarray:
 
     env = smooth_envelope(controller_demand_e(spec, x) * x.transmission, spec.smooth_px)
     e_low, e_aim, e_high = full_scale_electrons(x.sensor, [spec.band_low, spec.target, spec.band_high])
-    return band_levels(env, x.level_exposure, e_low, e_aim, e_high, min(spec.min_level, top))
+    return band_levels(env, x.level_exposure, e_low, e_aim, e_high, min(spec.min_level, top),
+                       nearest=spec.aim_rounding == "nearest")
 
 
 def _paper_law(formula):
@@ -315,6 +328,10 @@ ATTENUATED_LAWS = ("target", "exposure_controller")
 #: How the exposure controller carries a region's demand to the next frame (exposure_control.py):
 #: dilated by 3 smooth_px where the prediction clips, or also moved on at its box's velocity.
 CARRY_MODES = ("dilate", "extrapolate")
+#: How the exposure controller rounds to a level at its aim (`band_levels`): "down", the
+#: largest level at or below the aim; "nearest", the level nearer the aim in ratio, never above
+#: the band.
+AIM_ROUNDING = ("down", "nearest")
 
 MASK_LAWS = Registry("mask law")
 MASK_LAWS.register("threshold_exp", _paper_law(threshold_exp),
@@ -351,6 +368,9 @@ class MaskSpec:
     band_high: float = param(0.9, gt=0, max=1)
     min_level: int = param(0, min=0, max=65535)         # lowest DMD level a law may use
     carry: str = param("dilate", choices=CARRY_MODES)    # exposure_controller: history carried to the next frame
+    aim_rounding: str = param("down", choices=AIM_ROUNDING)  # exposure_controller: the level at the aim: "down" the
+    # largest at or below it, "nearest" the one nearer it in ratio, never above band_high
+
     # exposure_controller's exposure time and DMD bit depth per frame (control/exposure_time.py):
     exposure_time_auto: bool = param(False)                 # choose T_e per frame (off: the scene's exposure)
     exposure_time_s: float = param(0.0, min=0, max=100.0)   # fixed sensor exposure T_e, s (0: not fixed)

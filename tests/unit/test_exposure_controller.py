@@ -174,6 +174,30 @@ def test_band_levels_unreachable_band_stays_below():
     assert over * rel[int(lv[0])] < 0.4 and over * rel[int(lv[0]) + 1] > 0.9 and lv[0] == 0
 
 
+def test_nearest_aim_rounding_is_the_level_nearest_the_aim_in_ratio_within_the_band():
+    """mask.aim_rounding = "nearest": over 2000 demands from 1.5x to 180x saturation (the coarse
+    levels 1-3 and the fine ones), the level is the one among all levels at or above min_level
+    whose signal lies at or below the band's top and nearest the aim in ratio (brute force over
+    the table); "down" is the largest level at or below the aim (closed_form_white's first
+    step). At 1.8x steps (levels 1 -> 2 with 1000:1 leakage) the two differ by up to 1.8x."""
+    table = level_table(1000.0)
+    rel = table / table[-1]
+    overs = np.geomspace(1.5, 0.89 / rel[1], 2000)         # up to where level 1 still fits the band
+    near = band_levels(overs * SAT_E, table, 0.4 * SAT_E, 0.6 * SAT_E, 0.9 * SAT_E, min_level=1, nearest=True)
+    down = band_levels(overs * SAT_E, table, 0.4 * SAT_E, 0.6 * SAT_E, 0.9 * SAT_E, min_level=1)
+    for over, lv_n, lv_d in zip(overs, near.astype(int), down.astype(int)):
+        sig = over * rel[1:]
+        ok = np.flatnonzero(sig <= 0.9) + 1
+        best = ok[np.argmin(np.abs(np.log(over * rel[ok] / 0.6)))]
+        assert lv_n == best, (over, lv_n, best)
+        assert lv_d == np.flatnonzero(over * rel <= 0.6).max() or over * rel[lv_d] <= 0.9
+    # a plate's peak 85x saturation: level 1 leaves it at 0.42 of full scale (in the band, so
+    # "down" keeps it, and the plate's body below it falls under the band), level 2 at 0.75
+    k = int(np.argmin(np.abs(overs - 85.0)))
+    assert 0.4 <= overs[k] * rel[int(down[k])] < 0.45 and 0.7 < overs[k] * rel[int(near[k])] <= 0.9
+    assert np.any(near != down) and np.all(np.abs(near - down) <= 1)
+
+
 def test_paper_laws_remain_registered():
     for name in ("threshold_exp", "threshold_ratio", "target", "exposure_controller", "white"):
         assert name in MASK_LAWS
