@@ -26,12 +26,16 @@ Per scene and gain:
   process: with other jobs on the machine, wall seconds grow and CPU seconds do not);
 - per plate: frames in view, distance and height range, MC error (RMS MC standard error / mean
   radiance over its box; mean and worst frame), and the fraction of the frames after the white
-  initialisation frames, with the plate in view, whose encoded white (90th percentile of the box
-  in the 8-bit capture / 255) lies in [mask.band_low, mask.band_high];
+  initialisation frames, with the plate in view, whose encoded white (90th percentile of the
+  box's pixels that show the plate, in the 8-bit capture / 255: a car ahead hiding part of it is
+  left out, apps/run/plates.py) lies in [mask.band_low, mask.band_high];
 - with --alpr: whole-frame ALPR (analysis/recognition.py `alpr_read`: PP-OCRv4 detection and
   recognition on the whole 8-bit capture, the detections over the plate joined, every character
   must match) on the loop frames where the plate is in view and at least --min-height px tall,
-  with Wilson 95 % intervals (analysis/statistics.py).
+  with Wilson 95 % intervals (analysis/statistics.py); beside it the same reading with the
+  plate's box replaced by its ideal image (`ideal_plate`: the plate's texture area-averaged onto
+  the box at the measured white, no blur, no noise, nothing hidden), the recogniser's own limit
+  on that text at that size.
 
 Writes scene_library.md into out/benchmarks/ (benchmarks/results/ with --results), rewritten after
 every run, so a cut-off run keeps what it finished.
@@ -45,6 +49,7 @@ import time
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
+import numpy as np
 
 from benchmarks.common import ROOT, add_results_flag, cpu_seconds, machine_line, markdown_table, output_folder, save_text
 
@@ -129,7 +134,8 @@ def run_scene(scene: str, sets: list[str], alpr: bool, min_height: int) -> dict:
     texts = plate_texts(spec, report)
     reads = {}
     if alpr:
-        reads = plate_reads(report, kept, min_height, texts)
+        reads = plate_reads(report, kept, min_height, texts,
+                            {k: v.plate_format for k, v in (getattr(spec, "vehicle", {}) or {}).items()})
     return {"spec": spec, "resolution": tuple(spec.render.resolution), "render_s": render_s, "camera_s": camera_s,
             "predict_s": predict_s, "wall_s": wall, "cpu_s": cpu, "plates": report["metrics"]["plates"],
             "init_frames": spec.loop.init_frames, "reads": reads, "texts": texts,
@@ -148,9 +154,12 @@ def plate_texts(spec, report: dict) -> dict[str, str]:
     return out
 
 
-def plate_reads(report: dict, kept: dict, min_height: int, labels: dict[str, str]) -> dict:
-    """{plate id: (frames read, frames tried, texts read)} over the loop frames where the plate is
-    in view and >= min_height px tall: whole-frame ALPR on the 8-bit encoded capture."""
+def plate_reads(report: dict, kept: dict, min_height: int, labels: dict[str, str],
+                formats: dict[str, str] | None = None) -> dict:
+    """{plate id: (frames read, frames tried, texts read, frames the ideal plate reads)} over the
+    loop frames where the plate is in view and >= min_height px tall: whole-frame ALPR on the
+    8-bit encoded capture, and on the same capture with the plate's box replaced by its ideal
+    image (`ideal_plate`: the recogniser's own limit on that text at that size, no camera)."""
     from poevp_optics.analysis.recognition import alpr_read, correct
 
     out: dict = {}
@@ -158,14 +167,36 @@ def plate_reads(report: dict, kept: dict, min_height: int, labels: dict[str, str
         if f.get("init"):
             continue
         for p in f.get("plates") or []:
-            k, n, texts = out.get(p["id"], (0, 0, []))
+            k, n, texts, ki = out.get(p["id"], (0, 0, [], 0))
             if p["in_view"] and p["box"] and (p["height_px"] or 0) >= min_height:
-                r = alpr_read(kept[f["index"]]["capture"], tuple(p["box"]))
+                cap = kept[f["index"]]["capture"]
+                r = alpr_read(cap, tuple(p["box"]))
                 ok = correct(r.text, labels[p["id"]])
                 k, n = k + ok, n + 1
                 if not ok:
                     texts = [*texts, r.text or "-"]
-            out[p["id"]] = (k, n, texts)
+                ideal = ideal_plate(cap, tuple(p["box"]), labels[p["id"]], (formats or {}).get(p["id"], "eu"),
+                                    (p.get("white") or {}).get("encoded"))
+                ki += correct(alpr_read(ideal, tuple(p["box"])).text, labels[p["id"]])
+            out[p["id"]] = (k, n, texts, ki)
+    return out
+
+
+def ideal_plate(capture: np.ndarray, box, text: str, plate_format: str, white: float | None) -> np.ndarray:
+    """The 8-bit capture with the plate's box (y0, x0, y1, x1) replaced by the plate's ideal
+    image: its texture (sources/plates.py, the scene's font and layout) area-averaged onto the
+    box's pixels, its sheeting at the capture's measured white (`white`, fraction of full scale;
+    0.6 when unknown) and its ink at 5 % of that; no blur, no noise, nothing hidden."""
+    import cv2
+
+    from poevp_optics.sources.plates import plate_texture
+
+    y0, x0, y1, x1 = box
+    tex = plate_texture(text, sheeting_pattern=False, plate_format=plate_format).astype(np.float32) / 255.0
+    small = cv2.resize(tex, (x1 - x0, y1 - y0), interpolation=cv2.INTER_AREA)
+    w8 = 255.0 * (white if white else 0.6)
+    out = capture.copy()
+    out[y0:y1, x0:x1] = np.clip(np.rint(w8 * (0.05 + 0.95 * small)), 0, 255).astype(np.uint8)
     return out
 
 
@@ -191,21 +222,22 @@ def scene_section(scene: str, runs: list[tuple[float, dict]], alpr: bool, min_he
     header = ["beams", "plate", "text", "frames in view", "distance (m)", "height (px)", "MC error mean",
               "MC error worst frame", "white after init (mean)", "in band after init"]
     if alpr:
-        header += [f"ALPR reads (>= {min_height} px)", "Wilson 95 %"]
+        header += [f"ALPR reads (>= {min_height} px)", "Wilson 95 %", "ideal plate image reads"]
     rows = []
     for g, r in runs:
         for ident, s in r["plates"]["per_plate"].items():
             band = ("-" if s["in_band_fraction_after_init"] is None else
                     f"{s['frames_in_band_after_init']}/{s['frames_after_init_in_view']} "
-                    f"({s['in_band_fraction_after_init'] * 100:.0f} %)")
+                    f"({s['in_band_fraction_after_init'] * 100:.1f} %)")
             row = [f"{g:g}x", ident, f"`{r['texts'][ident]}`", f"{s['frames_in_view']}/{s['frames']}",
                    _rng(s["distance_m"], "{:.1f}"), _rng(s["height_px"]), _pct(s["rel_error_mean"]),
                    _pct(s["rel_error_max"]),
                    "-" if s["white_encoded_mean"] is None else f"{s['white_encoded_mean']:.2f}", band]
             if alpr:
-                k, n, _ = r["reads"].get(ident, (0, 0, []))
+                k, n, _, ki = r["reads"].get(ident, (0, 0, [], 0))
                 lo, hi = wilson_interval(k, n)
-                row += [f"{k}/{n}" if n else "- (none that tall)", f"{lo * 100:.0f}-{hi * 100:.0f} %" if n else "-"]
+                row += [f"{k}/{n}" if n else "- (none that tall)", f"{lo * 100:.0f}-{hi * 100:.0f} %" if n else "-",
+                        f"{ki}/{n}" if n else "-"]
             rows.append(row)
     lo, hi = runs[0][1]["plates"]["band"]
     beam, shared = runs[0][1]["beam"], runs[0][1]["shared"]
@@ -243,9 +275,9 @@ def pooled(results: dict, alpr: bool) -> list[list]:
                     n += s["frames_after_init_in_view"]
                     worst = max(worst, s["rel_error_max"] or 0.0)
                     if s["in_band_fraction_after_init"] is not None and s["in_band_fraction_after_init"] < 0.95:
-                        below.append(f"{scene}/{ident} {s['in_band_fraction_after_init'] * 100:.0f} %")
+                        below.append(f"{scene}/{ident} {s['in_band_fraction_after_init'] * 100:.1f} %")
                     if alpr:
-                        kk, nn, _ = r["reads"].get(ident, (0, 0, []))
+                        kk, nn, *_ = r["reads"].get(ident, (0, 0, []))
                         k, m = k + kk, m + nn
         row = [f"{g:g}x", f"{inb}/{n} ({inb / max(n, 1) * 100:.0f} %)", _pct(worst), "; ".join(below) or "none"]
         if alpr:
@@ -265,12 +297,16 @@ def write_page(args, results: dict, scale_label: str, started: float) -> str:
             f"Scale: **{scale_label}**. Every library scene as `poevp render` runs it, with every vehicle plate its "
             f"own region of interest (`render.roi_shape = \"plates\"`), {args.frames} frames, at our default "
             f"beams and at {', '.join(g for g in args.gains.split(',') if g != '1')}x them (re-rendered). "
-            f"In band: the plate's encoded white (90th percentile of its box in the 8-bit capture / 255) within "
+            f"In band: the plate's encoded white (90th percentile of its box's pixels that show the plate, in the "
+            f"8-bit capture / 255; a car ahead hiding part of it is left out) within "
             f"the controller's band, over the frames after the white initialisation frames with the plate in "
             f"view. MC error: RMS Monte Carlo standard error / mean radiance over the plate's box. "
             + ("ALPR: PP-OCRv4 detection + recognition on the whole 8-bit capture, the detections over the "
                "plate joined, every character must match; counted on the loop frames where the plate is in "
-               f"view and at least {args.min_height} px tall. " if args.alpr else "ALPR not run (`--alpr`). ")
+               f"view and at least {args.min_height} px tall. Ideal plate image: the same reading with the plate's "
+               "box replaced by its texture area-averaged onto the box at the measured white (no blur, no noise, "
+               "nothing hidden): what the recogniser reads of that text at that size without a camera. "
+               if args.alpr else "ALPR not run (`--alpr`). ")
             + f"Machine: {machine_line()}; other jobs shared it. This page took "
               f"{(time.perf_counter() - started) / 60:.1f} min.\n\n"
             f"Command: `.venv/bin/python -m benchmarks.scene_library {' '.join(args.argv) or ''}`\n\n"
