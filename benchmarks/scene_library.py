@@ -25,7 +25,7 @@ Per scene and gain:
   loop's own work, the temporal-error estimate and the report), total wall and CPU seconds (this
   process: with other jobs on the machine, wall seconds grow and CPU seconds do not);
 - per plate: frames in view, distance and height range, MC error (RMS MC standard error / mean
-  radiance over its box; mean and worst frame), and the fraction of the frames after the white
+  radiance over its pixels that show it; mean and worst frame), and the fraction of the frames after the white
   initialisation frames, with the plate in view, whose encoded white (90th percentile of the
   box's pixels that show the plate, in the 8-bit capture / 255: a car ahead hiding part of it is
   left out, apps/run/plates.py) lies in [mask.band_low, mask.band_high];
@@ -300,7 +300,7 @@ def write_page(args, results: dict, scale_label: str, started: float) -> str:
             f"In band: the plate's encoded white (90th percentile of its box's pixels that show the plate, in the "
             f"8-bit capture / 255; a car ahead hiding part of it is left out) within "
             f"the controller's band, over the frames after the white initialisation frames with the plate in "
-            f"view. MC error: RMS Monte Carlo standard error / mean radiance over the plate's box. "
+            f"view. MC error: RMS Monte Carlo standard error / mean radiance over the plate's pixels in its box. "
             + ("ALPR: PP-OCRv4 detection + recognition on the whole 8-bit capture, the detections over the "
                "plate joined, every character must match; counted on the loop frames where the plate is in "
                f"view and at least {args.min_height} px tall. Ideal plate image: the same reading with the plate's "

@@ -120,31 +120,32 @@ class PlateTrack:
                 if v.pixels is not None:
                     self.pixels[label].append((v.box, v.pixels))
 
-    def seen_rows(self, label: str, box) -> tuple[str, ...] | None:
+    def seen_pixels(self, label: str, box) -> np.ndarray | None:
         """The pixels of the union `box` that show the plate at any pose (render/roi.py
-        PlateView.pixels), one string of '0'/'1' per row (a stored render keeps it as text);
-        None out of view."""
+        PlateView.pixels), bool of the box's shape; None out of view."""
         if box is None or not self.pixels[label]:
             return None
         y0, x0, y1, x1 = box
         seen = np.zeros((y1 - y0, x1 - x0), bool)
         for (by0, bx0, by1, bx1), px in self.pixels[label]:
             seen[by0 - y0:by1 - y0, bx0 - x0:bx1 - x0] |= px
-        return tuple("".join("1" if v else "0" for v in row) for row in seen)
+        return seen
 
     def records(self, mean, var) -> tuple:
         """({id, text, shape, box, distance_m, visible_fraction, seen, rel_error}, ...) in the
         scene's order: distance and visible fraction averaged over the poses; seen, the box's
-        pixels showing the plate at any pose (`seen_rows`); rel_error (progressive.rel_error) over
+        pixels showing the plate at any pose (`seen_pixels`), one string of '0'/'1' per row (a
+        stored render keeps it as text); rel_error (progressive.rel_error) over those pixels of
         the plate's box; box, seen and rel_error None out of view."""
         out = []
         for t in self.targets:
             box = self.boxes[t.label]
+            seen = self.seen_pixels(t.label, box)
             out.append({"id": t.label, "text": t.text, "shape": t.shape_id, "box": box,
                         "distance_m": float(np.mean(self.dist[t.label])),
                         "visible_fraction": float(np.mean(self.seen[t.label])),
-                        "seen": self.seen_rows(t.label, box),
-                        "rel_error": rel_error(mean, var, box) if box is not None else None})
+                        "seen": None if seen is None else tuple("".join("1" if v else "0" for v in row) for row in seen),
+                        "rel_error": rel_error(mean, var, box, seen) if box is not None else None})
         return tuple(out)
 
 

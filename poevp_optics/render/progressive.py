@@ -59,11 +59,14 @@ class Target:
     boxes: tuple = ()            # several ROIs (render.roi_shape = "plates"): the worst box decides
 
 
-def rel_error(mean: np.ndarray, var: np.ndarray, box=None) -> float | None:
-    """RMS per-pixel MC standard error over the mean radiance of the frame (or of `box`)."""
+def rel_error(mean: np.ndarray, var: np.ndarray, box=None, pixels=None) -> float | None:
+    """RMS per-pixel MC standard error over the mean radiance of the frame (or of `box`; with
+    `pixels`, bool of the box's shape, of those pixels of it: a plate's own)."""
     if box is not None:
         y0, x0, y1, x1 = box
         mean, var = mean[y0:y1, x0:x1], var[y0:y1, x0:x1]
+        if pixels is not None and np.any(pixels):
+            mean, var = mean[pixels], var[pixels]
     m = float(np.mean(mean, dtype=np.float64))
     if m <= 0:
         return None

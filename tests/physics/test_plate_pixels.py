@@ -111,3 +111,19 @@ def test_the_white_is_measured_on_the_seen_pixels_through_the_registration():
     assert plate_white_fraction(img, sbox) == pytest.approx(40 / 255)
     # a stored render without the rows: the whole box counts, as before
     assert seen_on_sensor(camera, {"box": mbox, "seen": None}, sbox) is None
+
+
+def test_a_plates_mc_error_is_over_its_own_pixels():
+    """progressive.rel_error with the plate's pixels: RMS standard error / mean over those pixels
+    only, computed here by hand; the car ahead (dark, noisy) is left out."""
+    from poevp_optics.render.progressive import rel_error
+
+    mean = np.full((10, 20), 2.0)
+    var = np.full((10, 20), 0.04 ** 2)                   # 2 % per pixel on the plate
+    mean[2:8, 12:18], var[2:8, 12:18] = 0.1, 0.05 ** 2    # the car ahead: 50 % per pixel
+    box = (2, 4, 8, 18)
+    seen = np.ones((6, 14), bool)
+    seen[:, 8:] = False
+    assert rel_error(mean, var, box, seen) == pytest.approx(0.04 / 2.0)
+    whole = np.sqrt((48 * 0.04 ** 2 + 36 * 0.05 ** 2) / 84) / ((48 * 2.0 + 36 * 0.1) / 84)
+    assert rel_error(mean, var, box) == pytest.approx(whole)

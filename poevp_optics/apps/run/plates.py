@@ -15,7 +15,7 @@ Per frame and plate (`per_frame[i].plates[k]`):
 | height_px        | px   | that box's height on the sensor |
 | white            | -    | 90th percentile of the plate's pixels in the box in the 8-bit capture / 255 (ldr, encoded: analysis/metrics.py plate_white_fraction): the sensor pixels whose centre images a mirror that shows the plate (render/roi.py `PlateView.pixels`), so a car hiding part of the plate is left out |
 | in_band          | -    | encoded white within the mask's band [mask.band_low, mask.band_high] |
-| rel_error        | -    | RMS Monte Carlo standard error / mean radiance over the plate's box (render/progressive.py rel_error) |
+| rel_error        | -    | RMS Monte Carlo standard error / mean radiance over the plate's pixels in its box (render/progressive.py rel_error) |
 """
 
 from __future__ import annotations
@@ -53,7 +53,7 @@ def frame_plates(spec, camera, ex, ldr_dn, enc_dn) -> list[dict]:
 def seen_on_sensor(camera, plate: dict, sensor_box) -> np.ndarray | None:
     """Which pixels of `sensor_box` show the plate: each sensor pixel's centre mapped onto the
     mirror grid (camera/registration.py, the relay's registration) and looked up in the plate's
-    `seen` rows over its mirror-grid box (render/exposures.py PlateTrack.seen_rows). None where
+    `seen` rows over its mirror-grid box (render/exposures.py PlateTrack.records). None where
     the exposure holds no such rows (a stored render without them: the whole box counts)."""
     rows = plate.get("seen")
     if rows is None or plate.get("box") is None:
