@@ -17,7 +17,7 @@ lies on the film and the camera sees part of it: of `VIEW_GRID` x `VIEW_GRID` po
 those whose ray from the camera reaches the plate before anything else (`PlateView.visible_fraction`;
 a car ahead can hide a plate whose box is on the film). Which pixels of its box show the plate
 (`PlateView.pixels`): the camera ray through each pixel's centre whose first hit lies on the plate
-(inside its bounding box grown by VIEW_TOLERANCE_M), so a plate's white is measured on the plate
+(inside its bounding box, grown by VIEW_TOLERANCE_M along its normal), so a plate's white is measured on the plate
 itself and not on the car that hides part of it (apps/run/plates.py).
 """
 
@@ -155,12 +155,11 @@ def plate_pixels(renderer, lo, hi, box) -> np.ndarray | None:
     h, w = (n + 2 * renderer.guard_px for n in renderer.scene.render.resolution)
     y0, x0, y1, x1 = box
     ys, xs = np.meshgrid(np.arange(y0, y1) + 0.5, np.arange(x0, x1) + 0.5, indexing="ij")
-    n = ys.size
-    half = lambda: mi.Float(np.full(n, 0.5, np.float32))
-    ray, _ = renderer.sensor.sample_ray(mi.Float(0.0), half(),
+    half = mi.Float(np.full(ys.size, 0.5, np.float32))      # mid-band wavelength, lens centre
+    ray, _ = renderer.sensor.sample_ray(mi.Float(0.0), half,
                                         mi.Point2f(mi.Float((xs.ravel() / w).astype(np.float32)),
                                                    mi.Float((ys.ravel() / h).astype(np.float32))),
-                                        mi.Point2f(half(), half()))
+                                        mi.Point2f(half, half))
     si = renderer.mi_scene.ray_intersect(ray)
     p = np.array(si.p, dtype=np.float64).reshape(3, -1) if np.array(si.p).shape[0] == 3 else np.array(si.p).T
     valid = np.array(si.is_valid(), dtype=bool).ravel()
