@@ -88,13 +88,10 @@ from poevp_optics.control.predictors.flow import (MIN_REGION_PX, SATURATED, forw
 
 #: Longest chain of displacements followed back (four frames of history: the loop keeps four).
 MAX_CHAIN = 3
-#: Largest change of displacement between frames, relative to |d_t|, still read as acceleration
-#: (and the most a measured displacement may depart from an inherited one: module docstring, step 1).
+#: Largest change of displacement between frames, relative to |d_t|, still read as acceleration.
 ACCEL_GATE = 1.0
 #: A region with no match inherits the chains of the earlier regions that, moved on by their
-#: expected displacement, cover this fraction of the smaller area (of theirs and its): a lamp that
-#: merged lies wholly inside the blob and a piece split off lies wholly inside the blob it left
-#: (cover near 1), a light appearing beside another meets only its rim ...
+#: expected displacement, cover this fraction of the smaller area (of theirs and its) ...
 PARENT_COVER = 0.5
 #: ... within its outline dilated by this (px): the expected displacement's error on a light
 #: turning or braking (a few px over a frame), well under the gap between two cars' lamps.
@@ -213,7 +210,7 @@ def _chains(pairs, cc, gshift, max_chain: int) -> dict[int, _Chain]:
     prev: dict[int, _Chain] = {}                       # the oldest frame's regions: no chains
     for i in range(1, n + 1):                          # frame t-n+i, its pair with frame t-n+i-1
         labels, stats, matches = pairs[n - i]
-        prev_labels, prev_stats = pairs[n - i + 1][:2] if i > 1 else cc[-1 - n][1:3]
+        prev_labels, prev_stats = (pairs[n - i + 1][0], pairs[n - i + 1][1]) if i > 1 else (cc[-1 - n][1], cc[-1 - n][2])
         cur: dict[int, _Chain] = {}
         for k, m in matches.items():
             if m.prev_label:
