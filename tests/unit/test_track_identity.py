@@ -104,29 +104,3 @@ def test_split_lamps_continue_their_blob_s_motion():
             tr = track_at(tracks, labels, c)
             assert len(tr.displacements) == 3
             np.testing.assert_allclose(ds[tracks.index(tr)], v, atol=tol, err_msg=name)
-
-
-def lamp_frame(lamps) -> np.ndarray:
-    """`frame` with a peak per lamp: lamps [((x, y) px, saturated radius px)]."""
-    yy, xx = np.mgrid[:SHAPE[0], :SHAPE[1]].astype(np.float64)
-    f = np.zeros(SHAPE)
-    for (cx, cy), r in lamps:
-        f += 255.0 * np.exp((r ** 2 - (xx - cx) ** 2 - (yy - cy) ** 2) / (2 * SIGMA_PX ** 2))
-    return np.minimum(f, 255.0).astype(np.float32)
-
-
-@pytest.mark.parametrize("step", [10.0, -10.0])
-def test_an_inherited_chain_lasts_while_the_measured_motion_agrees(step):
-    """A lamp moving 10 px/frame is followed, where it was expected, by a lamp of twice its area
-    (no match: it inherits the chain (10, 10)); that lamp then moves by `step`. Moving on (10) the
-    chain continues, (10, 10, 10); reversing (-10: departing by 20 px, more than the acceleration
-    gate's 1 x 10 px) it restarts from its own measurement, (-10)."""
-    hist = [lamp_frame([((40.0, 48.0), 7.0)]), lamp_frame([((50.0, 48.0), 7.0)]),
-            lamp_frame([((60.0, 48.0), 10.5)]), lamp_frame([((60.0 + step, 48.0), 10.5)])]
-    _, a1, _ = blobs(hist[1])
-    _, a2, _ = blobs(hist[2])
-    assert a2[0] > 2 * a1[0]                                              # not alike: no match on frame 2
-    tracks, _ = region_tracks(hist)
-    (tr,) = tracks
-    expected = [(step, 0.0), (10.0, 0.0), (10.0, 0.0)] if step > 0 else [(step, 0.0)]
-    np.testing.assert_allclose(tr.displacements, expected, atol=0.3)
