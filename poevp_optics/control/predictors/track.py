@@ -19,22 +19,7 @@ Per frame t (history oldest first, up to four frames):
    lights that took each other's old place, like lamps crossing, are exchanged where that departs
    less from the motion each had the frame before, `unswap`); that region is followed on to frame t-2 the same way, and so on:
    displacements d_t, d_{t-1}, d_{t-2} (px, x and y), each with its correlation response. A
-   weak response or a lost match ends the measured chain.
-   **Lost matches, merges and splits.** A region with no match (two lamps of crossing cars
-   joined in one blob, whose area is not alike either's; a piece of a blob that parted, like an
-   approaching car's two lamps; a light whose correlation failed) takes the chain of the earlier
-   regions it came from (`find_parents`, `inherited_chain`). Each earlier region with a chain is
-   moved on by its expected displacement e_j (px: its own motion extrapolated by the table
-   below, plus the pair's measured global shift), and is a parent when it then covers at least
-   PARENT_COVER of the smaller of the two areas (its and the region's) within the region's
-   outline dilated by PARENT_DILATE_PX (px). The region's chain is the parents' area-weighted
-   mean expected displacement, e = sum_j A_j e_j / sum_j A_j (A_j: parent j's area in px),
-   followed by the area-weighted means of the parents' own chains as far back as the shortest
-   reaches: a merged blob moves as its lights did on average, a piece split off a blob as the
-   blob did. Once matched again, a region continues its inherited chain only while its measured
-   displacement agrees with the inherited one within the acceleration gate below (else the
-   parents were other lights and its chain restarts from what it measured). A region with no
-   parent (nothing before it at its place) is new and has no chain.
+   weak response or a lost match ends the chain; a region with no match at all is new.
    **Global motion.** Our camera pitches over road bumps and yaws as we steer, and that moves
    every light by one shift. Per frame pair, the shift most matched regions share is the
    global shift g (region_motion.py `global_shift`: a consensus of at least three regions within
@@ -90,12 +75,6 @@ from poevp_optics.control.predictors.flow import (MIN_REGION_PX, SATURATED, forw
 MAX_CHAIN = 3
 #: Largest change of displacement between frames, relative to |d_t|, still read as acceleration.
 ACCEL_GATE = 1.0
-#: A region with no match inherits the chains of the earlier regions that, moved on by their
-#: expected displacement, cover this fraction of the smaller area (of theirs and its) ...
-PARENT_COVER = 0.5
-#: ... within its outline dilated by this (px): the expected displacement's error on a light
-#: turning or braking (a few px over a frame), well under the gap between two cars' lamps.
-PARENT_DILATE_PX = 3
 
 
 #: Per-frame growth ratios within this of 1 are read as no growth (the outline's pixel noise on a
@@ -166,117 +145,23 @@ def region_tracks(history: list[np.ndarray], max_chain: int = MAX_CHAIN) -> tupl
         pairs.insert(0, pair)
     gshift, gresp = global_chain(pairs)
     labels, stats = cc[-1][1], cc[-1][2]
-    chains = _chains(pairs, cc, gshift, max_chain)
     tracks = []
     for k in range(1, len(stats)):
         x, y, bw, bh, area = (int(v) for v in stats[k])
         if area < MIN_REGION_PX:
             continue
-        c = chains.get(k, _NO_CHAIN)
-        tracks.append(RegionTrack(k, (y, x, y + bh, x + bw), area, c.displacements, c.responses, c.growths,
+        disp, resp, grow, label = [], [], [], k
+        for _, _, matches in pairs:
+            m = matches.get(label)
+            if m is None or not m.prev_label:
+                break                                    # new in this frame, or too small to follow
+            disp.append(m.shift)
+            resp.append(m.response)
+            grow.append(m.growth)
+            label = m.prev_label
+        tracks.append(RegionTrack(k, (y, x, y + bh, x + bw), area, tuple(disp), tuple(resp), tuple(grow),
                                   gshift, gresp))
     return tracks, labels
-
-
-@dataclass(frozen=True)
-class _Chain:
-    """A region's displacements (px, newest first), their responses and its growths."""
-
-    displacements: tuple[tuple[float, float], ...] = ()
-    responses: tuple[float, ...] = ()
-    growths: tuple[float, ...] = ()
-    measured: tuple[bool, ...] = ()                    # per displacement: measured, or inherited
-
-
-_NO_CHAIN = _Chain()
-
-
-@dataclass(frozen=True)
-class Parent:
-    """An earlier region a region without a match came from (`find_parents`): its area (px),
-    expected displacement e (px, x and y) and chain."""
-
-    area: int
-    expected: np.ndarray
-    chain: _Chain
-
-
-def _chains(pairs, cc, gshift, max_chain: int) -> dict[int, _Chain]:
-    """{label: chain} of the last frame's regions (module docstring, step 1), built oldest frame
-    first: a matched region's chain is its shift from the earlier region followed by that
-    region's chain (cut where the shift belies an inherited chain by more than the acceleration
-    gate); a region without a match inherits its parents' (`find_parents`, `inherited_chain`)."""
-    n = len(pairs)
-    prev: dict[int, _Chain] = {}                       # the oldest frame's regions: no chains
-    for i in range(1, n + 1):                          # frame t-n+i, its pair with frame t-n+i-1
-        labels, stats, matches = pairs[n - i]
-        prev_labels, prev_stats = (pairs[n - i + 1][0], pairs[n - i + 1][1]) if i > 1 else (cc[-1 - n][1], cc[-1 - n][2])
-        cur: dict[int, _Chain] = {}
-        for k, m in matches.items():
-            if m.prev_label:
-                c = prev.get(m.prev_label, _NO_CHAIN)
-                if c.displacements and not c.measured[0] and np.hypot(*np.subtract(m.shift, c.displacements[0])) > \
-                        ACCEL_GATE * max(float(np.hypot(*m.shift)), 1.0):
-                    c = _NO_CHAIN                      # its measured motion belies the inherited one
-                cur[k] = _Chain(((m.shift,) + c.displacements)[:max_chain], ((m.response,) + c.responses)[:max_chain],
-                                ((m.growth,) + c.growths)[:max_chain], ((True,) + c.measured)[:max_chain])
-            elif prev:
-                cur[k] = inherited_chain(find_parents(k, labels, stats, prev_labels, prev_stats, prev,
-                                                      gshift[n - i + 1:], gshift[n - i]), max_chain)
-        prev = cur
-    return prev
-
-
-def find_parents(k: int, labels, stats, prev_labels, prev_stats, prev_chains: dict, older_g, g_pair) -> list[Parent]:
-    """The earlier regions region k (which has no match) came from (module docstring, step 1,
-    "Lost matches"): each earlier region with a chain, moved on by its expected displacement e
-    (its own motion extrapolated, `closed_form_displacement` of its chain less the global shifts
-    `older_g`, plus this pair's measured global shift `g_pair`; px), that covers at least
-    PARENT_COVER of the smaller of the two areas within k's outline dilated by PARENT_DILATE_PX."""
-    x, y, bw, bh, area = (int(v) for v in stats[k])
-    h, w = labels.shape
-    r = PARENT_DILATE_PX
-    y0, x0, y1, x1 = max(y - r, 0), max(x - r, 0), min(y + bh + r, h), min(x + bw + r, w)
-    disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
-    near = cv2.dilate((labels[y0:y1, x0:x1] == k).astype(np.uint8), disk) > 0
-    out = []
-    for j, c in prev_chains.items():
-        if not c.displacements:
-            continue
-        px, py, pw, ph, parea = (int(v) for v in prev_stats[j])
-        g = np.zeros((len(c.displacements), 2))
-        m = min(len(g), len(older_g))
-        if m:
-            g[:m] = np.asarray(older_g[:m], np.float64)
-        e = closed_form_displacement(np.asarray(c.displacements, np.float64) - g) + np.asarray(g_pair, np.float64)
-        ex, ey = int(round(e[0])), int(round(e[1]))
-        if px + ex >= x1 or px + pw + ex <= x0 or py + ey >= y1 or py + ph + ey <= y0:
-            continue
-        ys, xs = np.nonzero(prev_labels[py:py + ph, px:px + pw] == j)
-        ys, xs = ys + py + ey, xs + px + ex
-        keep = (ys >= y0) & (ys < y1) & (xs >= x0) & (xs < x1)
-        ys, xs = ys[keep], xs[keep]
-        if np.count_nonzero(near[ys - y0, xs - x0]) >= PARENT_COVER * min(area, parea):
-            out.append(Parent(parea, e, c))
-    return out
-
-
-def inherited_chain(parents: list[Parent], max_chain: int = MAX_CHAIN) -> _Chain:
-    """The chain of a region without a match from its parents: their expected displacement e,
-    then their own chains, each entry the mean over the parents weighted by their areas (px), as
-    far back as the shortest parent chain reaches; responses the same; no growths. No parent: no
-    chain (a new light)."""
-    if not parents:
-        return _NO_CHAIN
-    wts = np.array([p.area for p in parents], np.float64)
-    wts /= wts.sum()
-    length = min(max_chain, 1 + min(len(p.chain.displacements) for p in parents))
-    disp, resp = np.zeros((length, 2)), np.zeros(length)
-    for wt, p in zip(wts, parents):
-        c = p.chain
-        disp += wt * np.vstack([p.expected[None], np.asarray(c.displacements[:length - 1], np.float64).reshape(-1, 2)])
-        resp += wt * np.asarray((c.responses[0],) + c.responses[:length - 1], np.float64)
-    return _Chain(tuple((float(a), float(b)) for a, b in disp), tuple(float(v) for v in resp), (), (False,) * length)
 
 
 def closed_form_displacement(displacements) -> np.ndarray:
