@@ -22,8 +22,8 @@ from poevp_optics.camera.dmd import (DMD, DMDSpec, Schedule, displayed_levels, f
 from poevp_optics.camera.layout import image_plane_pitch_m, layout_of
 from poevp_optics.camera import objective as obj
 from poevp_optics.camera.objective import ObjectiveParams, ObjectiveSpec
-from poevp_optics.camera.registration import (_mirror_coords, apply_taps, apply_taps_numpy, box_to_sensor,
-                                              forward_taps, is_identity, to_mirror)
+from poevp_optics.camera.registration import (apply_taps, apply_taps_numpy, box_to_sensor, forward_taps,
+                                              is_identity, mirror_coords, to_mirror)
 from poevp_optics.camera.relay import PSFContext, RelaySpec, build_psf, convolve, max_support_px
 from poevp_optics.camera.sensor import (NoiseSwitches, Sensor, SensorParams, SensorSpec, pixel_etendue_m2_sr,
                                          resolve_sensor)
@@ -259,7 +259,7 @@ class Camera:
 
     def sensor_to_mirror(self, sx, sy):
         """Sensor-grid coordinates (px, arrays) -> the mirror-grid coordinates they image (mx, my)."""
-        return _mirror_coords(self.registration, sx, sy, self.mirror_shape, self.shape)
+        return mirror_coords(self.registration, sx, sy, self.mirror_shape, self.shape)
 
     def white_mask(self) -> np.ndarray | None:
         """All mirrors at the top level (the LDR twin), on the mirror grid; None without a DMD."""

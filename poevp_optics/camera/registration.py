@@ -40,7 +40,7 @@ def is_identity(reg) -> bool:
     return reg.scale == 1.0 and reg.rotation_deg == 0.0 and tuple(reg.offset_px) == (0.0, 0.0)
 
 
-def _mirror_coords(reg, sx, sy, mirror_shape, sensor_shape):
+def mirror_coords(reg, sx, sy, mirror_shape, sensor_shape):
     """Inverse map: sensor coordinates -> mirror coordinates (arrays)."""
     hs, ws = sensor_shape
     hm, wm = mirror_shape
@@ -77,7 +77,7 @@ def forward_taps(reg, mirror_shape: tuple[int, int], sensor_shape: tuple[int, in
     sy, sx = np.meshgrid(np.arange(hs), np.arange(ws), indexing="ij")
     py = (sy[..., None] + oy.ravel()).reshape(hs * ws, -1)
     px = (sx[..., None] + ox.ravel()).reshape(hs * ws, -1)
-    mx, my = _mirror_coords(reg, px, py, mirror_shape, sensor_shape)
+    mx, my = mirror_coords(reg, px, py, mirror_shape, sensor_shape)
     ix, iy = np.floor(mx).astype(np.int64), np.floor(my).astype(np.int64)
     inside = (ix >= 0) & (ix < wm) & (iy >= 0) & (iy < hm)
     idx = np.where(inside, iy * wm + ix, 0)

@@ -83,11 +83,11 @@ def test_a_plate_hidden_by_a_car_ahead_shows_only_where_it_is_seen(toll):
 def test_the_white_is_measured_on_the_seen_pixels_through_the_registration():
     from poevp_optics.apps.run.plates import seen_on_sensor
     from poevp_optics.analysis.metrics import plate_white_fraction
-    from poevp_optics.camera.registration import RegistrationSpec, _mirror_coords
+    from poevp_optics.camera.registration import RegistrationSpec, mirror_coords
 
     mirror_shape, sensor_shape = (60, 100), (40, 80)       # a guard band of 10 mirrors
     reg = RegistrationSpec(offset_px=[3.0, -2.0])
-    camera = SimpleNamespace(sensor_to_mirror=lambda sx, sy: _mirror_coords(reg, sx, sy, mirror_shape, sensor_shape))
+    camera = SimpleNamespace(sensor_to_mirror=lambda sx, sy: mirror_coords(reg, sx, sy, mirror_shape, sensor_shape))
     mbox = (20, 30, 32, 70)                                 # the plate's box on the mirror grid
     seen = np.zeros((12, 40), bool)
     seen[:, :24] = True                                      # a car ahead hides its right 16 columns

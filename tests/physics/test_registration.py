@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from poevp_optics.camera.camera import Camera
-from poevp_optics.camera.registration import _mirror_coords, apply_taps, apply_taps_numpy, forward_taps
+from poevp_optics.camera.registration import apply_taps, apply_taps_numpy, forward_taps, mirror_coords
 from poevp_optics.camera.registration import RegistrationSpec
 from poevp_optics.scene.load import load_scene
 from tests.conftest import SCENES
@@ -31,7 +31,7 @@ def _interior(reg, mirror_shape, sensor_shape):
     ok = np.ones((hs, ws), bool)
     for dy in (0.0, 1.0):
         for dx in (0.0, 1.0):
-            mx, my = _mirror_coords(reg, sx + dx, sy + dy, mirror_shape, sensor_shape)
+            mx, my = mirror_coords(reg, sx + dx, sy + dy, mirror_shape, sensor_shape)
             ok &= (mx > 0) & (mx < mirror_shape[1]) & (my > 0) & (my < mirror_shape[0])
     return ok
 
