@@ -29,13 +29,14 @@ Per scene and gain:
   initialisation frames, with the plate in view, whose encoded white (90th percentile of the
   box's pixels that show the plate, in the 8-bit capture / 255: a car ahead hiding part of it is
   left out, apps/run/plates.py) lies in [mask.band_low, mask.band_high];
-- with --alpr: whole-frame ALPR (analysis/recognition.py `alpr_read`: PP-OCRv4 detection and
-  recognition on the whole 8-bit capture, the detections over the plate joined, every character
-  must match) on the loop frames where the plate is in view and at least --min-height px tall,
-  with Wilson 95 % intervals (analysis/statistics.py); beside it the same reading with the
-  plate's box replaced by its ideal image (`ideal_plate`: the plate's texture area-averaged onto
-  the box at the measured white, no blur, no noise, nothing hidden), the recogniser's own limit
-  on that text at that size.
+- with --alpr: whole-frame ALPR (analysis/recognition.py `alpr_read`: PP-OCRv4 detection on the
+  whole 8-bit capture; the detections over the plate read by the plate-font CRNN,
+  analysis/plate_ocr.py, and by PP-OCRv4's own recogniser; every character must match) on the
+  loop frames where the plate is in view and at least --min-height px tall, with Wilson 95 %
+  intervals (analysis/statistics.py); beside each the same reading with the plate's box replaced
+  by its ideal image (`ideal_plate`: the plate's texture area-averaged onto the box at the
+  measured white, no blur, no noise, nothing hidden), that recogniser's own limit on that text at
+  that size.
 
 Writes scene_library.md into out/benchmarks/ (benchmarks/results/ with --results), rewritten after
 every run, so a cut-off run keeps what it finished.
@@ -156,29 +157,30 @@ def plate_texts(spec, report: dict) -> dict[str, str]:
 
 def plate_reads(report: dict, kept: dict, min_height: int, labels: dict[str, str],
                 formats: dict[str, str] | None = None) -> dict:
-    """{plate id: (frames read, frames tried, texts read, frames the ideal plate reads)} over the
-    loop frames where the plate is in view and >= min_height px tall: whole-frame ALPR on the
-    8-bit encoded capture, and on the same capture with the plate's box replaced by its ideal
-    image (`ideal_plate`: the recogniser's own limit on that text at that size, no camera)."""
-    from poevp_optics.analysis.recognition import alpr_read, correct
+    """{plate id: {recogniser: (frames read, frames tried, texts read, frames the ideal plate
+    reads)}} over the loop frames where the plate is in view and >= min_height px tall: whole-frame
+    ALPR with each recogniser (analysis/recognition.py RECOGNISERS) on the 8-bit encoded capture,
+    and on the same capture with the plate's box replaced by its ideal image (`ideal_plate`: the
+    recogniser's own limit on that text at that size, no camera)."""
+    from poevp_optics.analysis.recognition import RECOGNISERS, alpr_read, correct
 
     out: dict = {}
     for f in report["per_frame"]:
         if f.get("init"):
             continue
         for p in f.get("plates") or []:
-            k, n, texts, ki = out.get(p["id"], (0, 0, [], 0))
-            if p["in_view"] and p["box"] and (p["height_px"] or 0) >= min_height:
-                cap = kept[f["index"]]["capture"]
-                r = alpr_read(cap, tuple(p["box"]))
+            per = out.setdefault(p["id"], {r: (0, 0, [], 0) for r in RECOGNISERS})
+            if not (p["in_view"] and p["box"] and (p["height_px"] or 0) >= min_height):
+                continue
+            cap = kept[f["index"]]["capture"]
+            ideal = ideal_plate(cap, tuple(p["box"]), labels[p["id"]], (formats or {}).get(p["id"], "eu"),
+                                (p.get("white") or {}).get("encoded"))
+            for rec in RECOGNISERS:
+                k, n, texts, ki = per[rec]
+                r = alpr_read(cap, tuple(p["box"]), recogniser=rec)
                 ok = correct(r.text, labels[p["id"]])
-                k, n = k + ok, n + 1
-                if not ok:
-                    texts = [*texts, r.text or "-"]
-                ideal = ideal_plate(cap, tuple(p["box"]), labels[p["id"]], (formats or {}).get(p["id"], "eu"),
-                                    (p.get("white") or {}).get("encoded"))
-                ki += correct(alpr_read(ideal, tuple(p["box"])).text, labels[p["id"]])
-            out[p["id"]] = (k, n, texts, ki)
+                ki += correct(alpr_read(ideal, tuple(p["box"]), recogniser=rec).text, labels[p["id"]])
+                per[rec] = (k + ok, n + 1, texts if ok else [*texts, r.text or "-"], ki)
     return out
 
 
@@ -222,7 +224,8 @@ def scene_section(scene: str, runs: list[tuple[float, dict]], alpr: bool, min_he
     header = ["beams", "plate", "text", "frames in view", "distance (m)", "height (px)", "MC error mean",
               "MC error worst frame", "white after init (mean)", "in band after init"]
     if alpr:
-        header += [f"ALPR reads (>= {min_height} px)", "Wilson 95 %", "ideal plate image reads"]
+        header += [f"ALPR reads, plate recogniser (>= {min_height} px)", "Wilson 95 %", "ideal image reads",
+                   "ALPR reads, PP-OCRv4", "ideal image reads, PP-OCRv4"]
     rows = []
     for g, r in runs:
         for ident, s in r["plates"]["per_plate"].items():
@@ -234,10 +237,12 @@ def scene_section(scene: str, runs: list[tuple[float, dict]], alpr: bool, min_he
                    _pct(s["rel_error_max"]),
                    "-" if s["white_encoded_mean"] is None else f"{s['white_encoded_mean']:.2f}", band]
             if alpr:
-                k, n, _, ki = r["reads"].get(ident, (0, 0, [], 0))
+                reads = r["reads"].get(ident, {})
+                k, n, _, ki = reads.get("plate", (0, 0, [], 0))
+                kp, _, _, kip = reads.get("ppocr", (0, 0, [], 0))
                 lo, hi = wilson_interval(k, n)
-                row += [f"{k}/{n}" if n else "- (none that tall)", f"{lo * 100:.0f}-{hi * 100:.0f} %" if n else "-",
-                        f"{ki}/{n}" if n else "-"]
+                row += ([f"{k}/{n}", f"{lo * 100:.0f}-{hi * 100:.0f} %", f"{ki}/{n}", f"{kp}/{n}", f"{kip}/{n}"]
+                        if n else ["- (none that tall)", "-", "-", "-", "-"])
             rows.append(row)
     lo, hi = runs[0][1]["plates"]["band"]
     beam, shared = runs[0][1]["beam"], runs[0][1]["shared"]
@@ -250,8 +255,9 @@ def scene_section(scene: str, runs: list[tuple[float, dict]], alpr: bool, min_he
             + ".\n\nSeconds (wall, no images written):\n\n"
             + markdown_table(["beams", "render", "camera", "predictor", "rest", "total wall", "CPU s"], timing)
             + "\n\n" + markdown_table(header, rows) + "\n")
-    misses = [f"- {g:g}x {ident}: misread as " + ", ".join(f"`{t}`" for t in r["reads"][ident][2])
-              for g, r in runs for ident in r["reads"] if r["reads"][ident][2]] if alpr else []
+    names = {"plate": "plate recogniser", "ppocr": "PP-OCRv4"}
+    misses = [f"- {g:g}x {ident}, {names[rec]}: misread as " + ", ".join(f"`{t}`" for t in got[2])
+              for g, r in runs for ident, per in r["reads"].items() for rec, got in per.items() if got[2]] if alpr else []
     if misses:
         text += "\nALPR misreads (whole frame, text over the plate):\n\n" + "\n".join(misses) + "\n"
     return text
@@ -264,7 +270,7 @@ def pooled(results: dict, alpr: bool) -> list[list]:
     gains = sorted({g for runs in results.values() for g, _ in runs})
     rows = []
     for g in gains:
-        inb = n = k = m = 0
+        inb = n = k = m = kp = 0
         worst, below = 0.0, []
         for scene, runs in results.items():
             for gg, r in runs:
@@ -277,12 +283,15 @@ def pooled(results: dict, alpr: bool) -> list[list]:
                     if s["in_band_fraction_after_init"] is not None and s["in_band_fraction_after_init"] < 0.95:
                         below.append(f"{scene}/{ident} {s['in_band_fraction_after_init'] * 100:.1f} %")
                     if alpr:
-                        kk, nn, *_ = r["reads"].get(ident, (0, 0, []))
+                        kk, nn, *_ = r["reads"].get(ident, {}).get("plate", (0, 0, []))
                         k, m = k + kk, m + nn
+                        kp += r["reads"].get(ident, {}).get("ppocr", (0,))[0]
         row = [f"{g:g}x", f"{inb}/{n} ({inb / max(n, 1) * 100:.0f} %)", _pct(worst), "; ".join(below) or "none"]
         if alpr:
             lo, hi = wilson_interval(k, m)
-            row += [f"{k}/{m}" + (f" ({lo * 100:.0f}-{hi * 100:.0f} %)" if m else "")]
+            lp, hp = wilson_interval(kp, m)
+            row += [f"{k}/{m}" + (f" ({lo * 100:.0f}-{hi * 100:.0f} %)" if m else ""),
+                    f"{kp}/{m}" + (f" ({lp * 100:.0f}-{hp * 100:.0f} %)" if m else "")]
         rows.append(row)
     return rows
 
@@ -291,7 +300,8 @@ def write_page(args, results: dict, scale_label: str, started: float) -> str:
     header = ["beams", "plate-frames in band after init", "worst plate MC error (one frame)",
               "plates below 95 % in band"]
     if args.alpr:
-        header += [f"ALPR reads (>= {args.min_height} px), Wilson 95 %"]
+        header += [f"ALPR reads, plate recogniser (>= {args.min_height} px), Wilson 95 %",
+                   "ALPR reads, PP-OCRv4, Wilson 95 %"]
     sections = "\n".join(scene_section(s, runs, args.alpr, args.min_height) for s, runs in results.items())
     text = (f"# The scene library at our beams and at 10x them\n\n"
             f"Scale: **{scale_label}**. Every library scene as `poevp render` runs it, with every vehicle plate its "
@@ -301,11 +311,13 @@ def write_page(args, results: dict, scale_label: str, started: float) -> str:
             f"8-bit capture / 255; a car ahead hiding part of it is left out) within "
             f"the controller's band, over the frames after the white initialisation frames with the plate in "
             f"view. MC error: RMS Monte Carlo standard error / mean radiance over the plate's pixels in its box. "
-            + ("ALPR: PP-OCRv4 detection + recognition on the whole 8-bit capture, the detections over the "
-               "plate joined, every character must match; counted on the loop frames where the plate is in "
-               f"view and at least {args.min_height} px tall. Ideal plate image: the same reading with the plate's "
-               "box replaced by its texture area-averaged onto the box at the measured white (no blur, no noise, "
-               "nothing hidden): what the recogniser reads of that text at that size without a camera. "
+            + ("ALPR: PP-OCRv4 text detection on the whole 8-bit capture, the detections over the plate read "
+               "by the recogniser trained on the plate font (a CRNN, as in the paper's protocol; its texts "
+               "never include a scene's) as one crop, every character must match; beside it PP-OCRv4's own "
+               "general-text recogniser on each detection, joined. Counted on the loop frames where the plate "
+               f"is in view and at least {args.min_height} px tall. Ideal plate image: the same reading with the "
+               "plate's box replaced by its texture area-averaged onto the box at the measured white (no blur, "
+               "no noise, nothing hidden): what each recogniser reads of that text at that size without a camera. "
                if args.alpr else "ALPR not run (`--alpr`). ")
             + f"Machine: {machine_line()}; other jobs shared it. This page took "
               f"{(time.perf_counter() - started) / 60:.1f} min.\n\n"

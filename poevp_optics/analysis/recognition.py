@@ -9,6 +9,9 @@ ONNX files inside the wheel, so no download happens at run time. Two readings of
   or a vehicle-sized window around the plate, as a two-stage system's vehicle detector would hand
   over) at its own size (not upscaled); the text counts when the detections whose centres lie over
   the plate's position, joined left to right, match the label in every character (paper Eq. 4).
+  With `recogniser="plate"` the detections over the plate are read as one crop by a CRNN trained
+  on the plate font (analysis/plate_ocr.py), whose reading has no language prior to turn a round
+  O between digits into a zero.
 - `read_plate`, recognition only: the recogniser on the geometric plate box (the scene knows it:
   `render.roi_shape`), upscaled 2x (`UPSCALE`). No detection can miss, but the box's edges
   (plate border, neighbouring paint) enter the recogniser's input.
@@ -32,6 +35,12 @@ import numpy as np
 #: (rounded to multiples of 32) and a longer one is scaled down to 2000 px.
 DET_CONFIG = {"det_limit_type": "max", "det_limit_side_len": 1280}
 UPSCALE = 2          # recognition only: the plate crop, upscaled
+#: Whole-frame ALPR's recognisers: PP-OCRv4's general scene-text recogniser, or the CRNN trained
+#: on the plate font (analysis/plate_ocr.py), as the paper's protocol reads plates.
+RECOGNISERS = ("ppocr", "plate")
+#: The plate recogniser's crop: the detections over the plate, grown by this x their height on
+#: every side (inside the margins its training crops draw, apps/train/plate_ocr_data.py).
+PLATE_CROP_GROW = 0.1
 
 
 def normalise(text: str) -> str:
@@ -87,12 +96,25 @@ class AlprRead:
     seconds: float
 
 
-def alpr_read(img_8bit: np.ndarray, box, region=None) -> AlprRead:
+def _over_plate(quad, box, offset) -> bool:
+    """Whether a detection's centre lies over the plate `box` grown by half its height."""
+    y0, x0, y1, x1 = box
+    m = 0.5 * (y1 - y0)
+    q = np.asarray(quad, dtype=np.float64)
+    cx, cy = q[:, 0].mean() + offset[1], q[:, 1].mean() + offset[0]
+    return x0 - m <= cx <= x1 + m and y0 - m <= cy <= y1 + m
+
+
+def alpr_read(img_8bit: np.ndarray, box, region=None, recogniser: str = "ppocr") -> AlprRead:
     """Detection + recognition on `region` (y0, x0, y1, x1; None: the whole frame) of an 8-bit
-    frame; the text is the detections whose centres lie inside the plate `box` (grown by half
-    its height), joined left to right."""
+    frame. `recogniser` "ppocr": PP-OCRv4 reads each detection, and the text is the detections
+    whose centres lie over the plate `box` (grown by half its height), joined left to right.
+    "plate": the plate-font CRNN (analysis/plate_ocr.py) reads one crop, the detections over the
+    plate joined into one box grown by `PLATE_CROP_GROW` of its height on every side."""
     from poevp_optics.core.runtime import ocr_engine
 
+    if recogniser not in RECOGNISERS:
+        raise ValueError(f"recogniser {recogniser!r}: expected one of {', '.join(RECOGNISERS)}")
     h, w = img_8bit.shape[:2]
     ry0, rx0, ry1, rx1 = region if region is not None else (0, 0, h, w)
     sub = img_8bit[ry0:ry1, rx0:rx1]
@@ -100,19 +122,34 @@ def alpr_read(img_8bit: np.ndarray, box, region=None) -> AlprRead:
         return AlprRead("", 0.0, 0, 0.0)
     bgr = _bgr_upscaled(sub, 1)
     t0 = time.perf_counter()
+    if recogniser == "plate":
+        quads, _ = ocr_engine(**DET_CONFIG)(bgr, use_det=True, use_cls=False, use_rec=False)
+        return _plate_read(sub, [q for q in quads or () if _over_plate(q, box, (ry0, rx0))],
+                           len(quads or ()), t0)
     res, _ = ocr_engine(**DET_CONFIG)(bgr, use_det=True, use_cls=False, use_rec=True)
     dt = time.perf_counter() - t0
-    y0, x0, y1, x1 = box
-    m = 0.5 * (y1 - y0)
-    hits = []
-    for quad, text, conf in res or ():
-        q = np.asarray(quad, dtype=np.float64)
-        cx, cy = q[:, 0].mean() + rx0, q[:, 1].mean() + ry0
-        if x0 - m <= cx <= x1 + m and y0 - m <= cy <= y1 + m:
-            hits.append((cx, str(text), float(conf)))
-    hits.sort()
+    hits = sorted((np.asarray(quad, dtype=np.float64)[:, 0].mean(), str(text), float(conf))
+                  for quad, text, conf in res or () if _over_plate(quad, box, (ry0, rx0)))
     return AlprRead("".join(t for _, t, _ in hits), float(np.mean([c for *_, c in hits])) if hits else 0.0,
                     len(res or ()), dt)
+
+
+def _plate_read(sub: np.ndarray, quads: list, detections: int, t0: float) -> AlprRead:
+    """The plate-font CRNN on the union of `quads` (in `sub`'s pixels), grown by PLATE_CROP_GROW."""
+    from poevp_optics.analysis.plate_ocr import read_crops
+
+    if not quads:
+        return AlprRead("", 0.0, detections, time.perf_counter() - t0)
+    pts = np.concatenate([np.asarray(q, dtype=np.float64) for q in quads])
+    (qx0, qy0), (qx1, qy1) = pts.min(0), pts.max(0)
+    g = PLATE_CROP_GROW * (qy1 - qy0)
+    y0, x0 = max(0, int(np.floor(qy0 - g))), max(0, int(np.floor(qx0 - g)))
+    y1, x1 = min(sub.shape[0], int(np.ceil(qy1 + g))), min(sub.shape[1], int(np.ceil(qx1 + g)))
+    crop = sub[y0:y1, x0:x1]
+    if crop.shape[0] < 2 or crop.shape[1] < 2:
+        return AlprRead("", 0.0, detections, time.perf_counter() - t0)
+    text, conf = read_crops([crop])[0]
+    return AlprRead(text, conf, detections, time.perf_counter() - t0)
 
 
 def correct(read: str, label: str) -> bool:
