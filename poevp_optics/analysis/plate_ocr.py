@@ -29,7 +29,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from poevp_optics.control.predictors.dmvfn import WeightsError
+from poevp_optics.control.predictors.dmvfn import WeightsError, load_state, read_weights_file
 from poevp_optics.core.paths import ASSETS_DIR
 
 #: The characters a plate may hold; CTC's blank is class 0.
@@ -129,21 +129,8 @@ def save_plate_ocr(model: PlateCRNN, path: Path, meta: dict) -> None:
 def load_plate_ocr(path: Path) -> tuple[PlateCRNN, dict]:
     """A PlateCRNN from safetensors (never pickle); one-line errors on a missing, corrupt,
     non-finite or mismatched file."""
-    from safetensors import SafetensorError, safe_open
-    from safetensors.torch import load_file
-
     path = Path(path)
-    if not path.is_file():
-        raise WeightsError(f"{path}: plate recogniser weights not found")
-    try:
-        with safe_open(str(path), framework="pt") as f:
-            meta = f.metadata() or {}
-        tensors = load_file(str(path))
-    except (SafetensorError, OSError, ValueError) as e:
-        raise WeightsError(f"{path}: not a readable safetensors file ({e})") from None
-    for key, t in tensors.items():
-        if t.is_floating_point() and not bool(torch.isfinite(t).all()):
-            raise WeightsError(f"{path}: weights hold NaN or Inf ({key}): a corrupted or diverged training run")
+    tensors, meta = read_weights_file(path, "plate recogniser weights")
     try:
         if json.loads(meta.get("model", "null")) != "plate_crnn":
             raise WeightsError(f"{path}: not plate recogniser weights (metadata 'model' is {meta.get('model')!r})")
@@ -153,12 +140,7 @@ def load_plate_ocr(path: Path) -> tuple[PlateCRNN, dict]:
         cfg = PlateOcrConfig(channels=tuple(raw["channels"]), hidden=int(raw["hidden"]))
     except (KeyError, TypeError, json.JSONDecodeError) as e:
         raise WeightsError(f"{path}: missing or bad 'config' metadata ({e})") from None
-    model = PlateCRNN(cfg)
-    try:
-        model.load_state_dict(tensors, strict=True)
-    except RuntimeError as e:
-        raise WeightsError(f"{path}: weights do not match the model: {str(e).strip().splitlines()[0]}") from None
-    model.eval()
+    model = load_state(PlateCRNN(cfg), tensors, path)
     return model, {k: json.loads(v) for k, v in meta.items() if k not in ("config", "model", "charset")}
 
 

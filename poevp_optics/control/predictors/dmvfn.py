@@ -215,15 +215,15 @@ def save_weights(model: DMVFN, path: Path, meta: dict) -> None:
         save_file({k: v.detach().contiguous() for k, v in model.state_dict().items()}, str(tmp), metadata=md)
 
 
-def load_weights(path: Path, expect: DMVFNConfig | None = None) -> tuple[DMVFN, dict]:
-    """Load a DMVFN from safetensors (never pickle); clear errors on corruption or mismatch."""
-    from safetensors import SafetensorError
+def read_weights_file(path: Path, what: str) -> tuple[dict, dict]:
+    """(tensors, metadata) of a safetensors file (never pickle); a one-line WeightsError naming
+    the file when it is missing (`what` names the weights), unreadable, or holds NaN or Inf."""
+    from safetensors import SafetensorError, safe_open
     from safetensors.torch import load_file
-    from safetensors import safe_open
 
     path = Path(path)
     if not path.is_file():
-        raise WeightsError(f"{path}: predictor weights not found")
+        raise WeightsError(f"{path}: {what} not found")
     try:
         with safe_open(str(path), framework="pt") as f:
             meta = f.metadata() or {}
@@ -235,6 +235,22 @@ def load_weights(path: Path, expect: DMVFNConfig | None = None) -> tuple[DMVFN, 
             n = int((~torch.isfinite(t)).sum())
             raise WeightsError(f"{path}: weights hold NaN or Inf ({n} of {t.numel()} values of {key}): "
                                "a corrupted or diverged training run")
+    return tensors, meta
+
+
+def load_state(model: torch.nn.Module, tensors: dict, path: Path) -> torch.nn.Module:
+    """`model` with `tensors` loaded strictly, in eval mode; a one-line WeightsError on a mismatch."""
+    try:
+        model.load_state_dict(tensors, strict=True)
+    except RuntimeError as e:
+        first = str(e).strip().splitlines()[0]
+        raise WeightsError(f"{path}: weights do not match the model: {first}") from None
+    return model.eval()
+
+
+def load_weights(path: Path, expect: DMVFNConfig | None = None) -> tuple[DMVFN, dict]:
+    """Load a DMVFN from safetensors (never pickle); clear errors on corruption or mismatch."""
+    tensors, meta = read_weights_file(path, "predictor weights")
     try:
         raw = json.loads(meta["config"])
         cfg = DMVFNConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in raw.items()})
@@ -242,13 +258,7 @@ def load_weights(path: Path, expect: DMVFNConfig | None = None) -> tuple[DMVFN, 
         raise WeightsError(f"{path}: missing or bad 'config' metadata ({e})") from None
     if expect is not None and cfg != expect:
         raise WeightsError(f"{path}: weights are for {cfg}, expected {expect}")
-    model = DMVFN(cfg)
-    try:
-        model.load_state_dict(tensors, strict=True)
-    except RuntimeError as e:
-        first = str(e).strip().splitlines()[0]
-        raise WeightsError(f"{path}: weights do not match the model: {first}") from None
-    model.eval()
+    model = load_state(DMVFN(cfg), tensors, path)
     return model, {k: json.loads(v) for k, v in meta.items() if k != "config"}
 
 

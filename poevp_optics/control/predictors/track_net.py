@@ -48,7 +48,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from poevp_optics.control.predictors.dmvfn import WeightsError, weights_identity
+from poevp_optics.control.predictors.dmvfn import WeightsError, load_state, read_weights_file, weights_identity
 from poevp_optics.control.predictors.track import MAX_CHAIN, RegionTrack, RegionTracker, closed_form_global
 from poevp_optics.core.paths import ASSETS_DIR
 
@@ -135,33 +135,15 @@ def save_track_net(model: TrackNet, path: Path, meta: dict) -> None:
 def load_track_net(path: Path) -> tuple[TrackNet, dict]:
     """A TrackNet from safetensors (never pickle); one-line errors on a missing, corrupt,
     non-finite or mismatched file."""
-    from safetensors import SafetensorError, safe_open
-    from safetensors.torch import load_file
-
     path = Path(path)
-    if not path.is_file():
-        raise WeightsError(f"{path}: track_net weights not found")
-    try:
-        with safe_open(str(path), framework="pt") as f:
-            meta = f.metadata() or {}
-        tensors = load_file(str(path))
-    except (SafetensorError, OSError, ValueError) as e:
-        raise WeightsError(f"{path}: not a readable safetensors file ({e})") from None
-    for key, t in tensors.items():
-        if t.is_floating_point() and not bool(torch.isfinite(t).all()):
-            raise WeightsError(f"{path}: weights hold NaN or Inf ({key}): a corrupted or diverged training run")
+    tensors, meta = read_weights_file(path, "track_net weights")
     try:
         if json.loads(meta.get("model", "null")) != "track_net":
             raise WeightsError(f"{path}: not track_net weights (metadata 'model' is {meta.get('model')!r})")
         cfg = TrackNetConfig(**json.loads(meta["config"]))
     except (KeyError, TypeError, json.JSONDecodeError) as e:
         raise WeightsError(f"{path}: missing or bad 'config' metadata ({e})") from None
-    model = TrackNet(cfg)
-    try:
-        model.load_state_dict(tensors, strict=True)
-    except RuntimeError as e:
-        raise WeightsError(f"{path}: weights do not match the model: {str(e).strip().splitlines()[0]}") from None
-    model.eval()
+    model = load_state(TrackNet(cfg), tensors, path)
     return model, {k: json.loads(v) for k, v in meta.items() if k not in ("config", "model")}
 
 
