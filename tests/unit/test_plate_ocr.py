@@ -122,3 +122,22 @@ def test_alpr_with_the_plate_recogniser_on_an_empty_frame_and_a_bad_name():
     assert r.text == "" and r.detections == 0
     with pytest.raises(ValueError, match="recogniser 'tesseract'"):
         alpr_read(empty, (40, 40, 66, 163), recogniser="tesseract")
+
+
+def test_scene_library_counts_each_recogniser_on_captures_and_ideal_images():
+    """benchmarks/scene_library.py `plate_reads` over a two-frame report: the init frame and the
+    plate under 20 px are not counted; on the one counted frame (`IO 8B 01`, 26 px) the plate
+    recogniser reads the capture and the ideal image, and each recogniser's tally is its own."""
+    from benchmarks.scene_library import plate_reads
+
+    frame, box = _frame("IO 8B 01", 26)
+    plate = {"id": "mid", "in_view": True, "box": list(box), "height_px": 26, "white": {"encoded": 0.55}}
+    report = {"per_frame": [{"index": 0, "init": True, "plates": [plate]},
+                            {"index": 1, "plates": [plate]},
+                            {"index": 2, "plates": [{**plate, "height_px": 12}]}]}
+    kept = {i: {"capture": frame} for i in range(3)}
+    reads = plate_reads(report, kept, 20, {"mid": "IO 8B 01"})
+    assert set(reads["mid"]) == {"plate", "ppocr"}
+    assert reads["mid"]["plate"] == (1, 1, [], 1)
+    k, n, texts, _ = reads["mid"]["ppocr"]
+    assert n == 1 and k + len(texts) == 1
