@@ -128,11 +128,11 @@ def test_record(model: PlateCRNN, n_random: int, reps: int) -> dict:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", type=Path, default=Path("out/recogniser/plate_crnn.safetensors"))
-    ap.add_argument("--steps", type=int, default=6000)
+    ap.add_argument("--steps", type=int, default=7000)
     ap.add_argument("--batch", type=int, default=64)
     ap.add_argument("--lr", type=float, default=1.5e-3)
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--train-crops", type=int, default=40000)
+    ap.add_argument("--train-crops", type=int, default=45000)
     ap.add_argument("--val-crops", type=int, default=2000)
     ap.add_argument("--test-crops", type=int, default=2000)
     ap.add_argument("--test-reps", type=int, default=8, help="held-out crops per text and height")
