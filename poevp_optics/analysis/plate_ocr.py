@@ -29,8 +29,8 @@ import numpy as np
 import torch
 from torch import nn
 
-from poevp_optics.control.predictors.dmvfn import WeightsError, load_state, read_weights_file
 from poevp_optics.core.paths import ASSETS_DIR
+from poevp_optics.core.weights import WeightsError, load_state, read_weights_file
 
 #: The characters a plate may hold; CTC's blank is class 0.
 CHARSET = "0123456789ABCDEFGHIJKLMNOPQRSTUVWXYZ"

@@ -11,7 +11,7 @@ import torch
 from poevp_optics.analysis.plate_ocr import CHARSET, INPUT_H, INPUT_W, decode, default_weights, load_plate_ocr, prepare
 from poevp_optics.analysis.recognition import alpr_read, correct
 from poevp_optics.apps.train.plate_ocr_data import dataset, plate_crop, scene_texts, training_texts
-from poevp_optics.control.predictors.dmvfn import WeightsError
+from poevp_optics.core.weights import WeightsError
 from poevp_optics.sources.plates import plate_texture
 
 #: The toll_or_junction scene's texts: nothing but the pairs a reader confuses.

@@ -295,7 +295,7 @@ def check_predictor(spec: SceneSpec, job: str, name: str) -> None:
     if not _runs_predictor(spec, job, name):
         return
     from poevp_optics.control.predictors import make_predictor
-    from poevp_optics.control.predictors.dmvfn import WeightsError
+    from poevp_optics.core.weights import WeightsError
 
     try:
         pred = make_predictor(name, spec.predictor.weights, spec.predictor.resolution)

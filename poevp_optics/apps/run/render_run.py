@@ -269,7 +269,7 @@ def loop_step_of(spec, camera: Camera) -> LoopStep | None:
     """The scene's closed loop (None without a DMD); weights errors name the scene's key."""
     if camera.dmd is None:
         return None
-    from poevp_optics.control.predictors.dmvfn import WeightsError
+    from poevp_optics.core.weights import WeightsError
 
     try:
         return LoopStep.from_params(camera, spec.resolved.loop)

@@ -29,7 +29,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from poevp_optics.core.exceptions import UserError
+from poevp_optics.core.weights import WeightsError, load_state, read_weights_file
 from poevp_optics.control.predictors.base import Predictor
 from poevp_optics.control.predictors.flow import SATURATED
 from poevp_optics.core.paths import ASSETS_DIR
@@ -201,10 +201,6 @@ def count_macs(model: DMVFN, h: int, w: int) -> int:
 
 
 # ----------------------------------------------------------------------------- weights
-class WeightsError(UserError):
-    """Missing, corrupted, non-finite or mismatched predictor weights."""
-
-
 def save_weights(model: DMVFN, path: Path, meta: dict) -> None:
     from safetensors.torch import save_file
 
@@ -213,39 +209,6 @@ def save_weights(model: DMVFN, path: Path, meta: dict) -> None:
     md = {"config": json.dumps(asdict(model.cfg)), **{k: json.dumps(v) for k, v in meta.items()}}
     with atomic_path(path) as tmp:
         save_file({k: v.detach().contiguous() for k, v in model.state_dict().items()}, str(tmp), metadata=md)
-
-
-def read_weights_file(path: Path, what: str) -> tuple[dict, dict]:
-    """(tensors, metadata) of a safetensors file (never pickle); a one-line WeightsError naming
-    the file when it is missing (`what` names the weights), unreadable, or holds NaN or Inf."""
-    from safetensors import SafetensorError, safe_open
-    from safetensors.torch import load_file
-
-    path = Path(path)
-    if not path.is_file():
-        raise WeightsError(f"{path}: {what} not found")
-    try:
-        with safe_open(str(path), framework="pt") as f:
-            meta = f.metadata() or {}
-        tensors = load_file(str(path))
-    except (SafetensorError, OSError, ValueError) as e:
-        raise WeightsError(f"{path}: not a readable safetensors file ({e})") from None
-    for key, t in tensors.items():
-        if t.is_floating_point() and not bool(torch.isfinite(t).all()):
-            n = int((~torch.isfinite(t)).sum())
-            raise WeightsError(f"{path}: weights hold NaN or Inf ({n} of {t.numel()} values of {key}): "
-                               "a corrupted or diverged training run")
-    return tensors, meta
-
-
-def load_state(model: torch.nn.Module, tensors: dict, path: Path) -> torch.nn.Module:
-    """`model` with `tensors` loaded strictly, in eval mode; a one-line WeightsError on a mismatch."""
-    try:
-        model.load_state_dict(tensors, strict=True)
-    except RuntimeError as e:
-        first = str(e).strip().splitlines()[0]
-        raise WeightsError(f"{path}: weights do not match the model: {first}") from None
-    return model.eval()
 
 
 def load_weights(path: Path, expect: DMVFNConfig | None = None) -> tuple[DMVFN, dict]:

@@ -48,7 +48,8 @@ import numpy as np
 import torch
 from torch import nn
 
-from poevp_optics.control.predictors.dmvfn import WeightsError, load_state, read_weights_file, weights_identity
+from poevp_optics.control.predictors.dmvfn import weights_identity
+from poevp_optics.core.weights import WeightsError, load_state, read_weights_file
 from poevp_optics.control.predictors.track import MAX_CHAIN, RegionTrack, RegionTracker, closed_form_global
 from poevp_optics.core.paths import ASSETS_DIR
 
