@@ -30,7 +30,7 @@ import torch
 from torch import nn
 
 from poevp_optics.core.paths import ASSETS_DIR
-from poevp_optics.core.weights import WeightsError, load_state, read_weights_file
+from poevp_optics.core.weights import WeightsError, load_state, read_weights_file, write_weights_file
 
 #: The characters a plate may hold; CTC's blank is class 0.
 CHARSET = "0123456789ABCDEFGHIJKLMNOPQRSTUVWXYZ"
@@ -116,24 +116,15 @@ def default_weights() -> Path:
 
 
 def save_plate_ocr(model: PlateCRNN, path: Path, meta: dict) -> None:
-    from safetensors.torch import save_file
-
-    from poevp_optics.core.io import atomic_path
-
-    md = {"config": json.dumps(asdict(model.cfg)), "model": json.dumps("plate_crnn"),
-          "charset": json.dumps(CHARSET), **{k: json.dumps(v) for k, v in meta.items()}}
-    with atomic_path(Path(path)) as tmp:
-        save_file({k: v.detach().contiguous() for k, v in model.state_dict().items()}, str(tmp), metadata=md)
+    write_weights_file(path, model, {"config": asdict(model.cfg), "model": "plate_crnn", "charset": CHARSET, **meta})
 
 
 def load_plate_ocr(path: Path) -> tuple[PlateCRNN, dict]:
     """A PlateCRNN from safetensors (never pickle); one-line errors on a missing, corrupt,
     non-finite or mismatched file."""
     path = Path(path)
-    tensors, meta = read_weights_file(path, "plate recogniser weights")
+    tensors, meta = read_weights_file(path, "plate recogniser weights", model="plate_crnn")
     try:
-        if json.loads(meta.get("model", "null")) != "plate_crnn":
-            raise WeightsError(f"{path}: not plate recogniser weights (metadata 'model' is {meta.get('model')!r})")
         if json.loads(meta["charset"]) != CHARSET:
             raise WeightsError(f"{path}: trained for another character set ({meta['charset']})")
         raw = json.loads(meta["config"])

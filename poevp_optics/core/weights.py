@@ -4,6 +4,7 @@ analysis/plate_ocr.py: the plate recogniser)."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 from poevp_optics.core.exceptions import UserError
@@ -13,9 +14,22 @@ class WeightsError(UserError):
     """Missing, corrupted, non-finite or mismatched weights."""
 
 
-def read_weights_file(path: Path, what: str) -> tuple[dict, dict]:
+def write_weights_file(path: Path, model, meta: dict) -> None:
+    """`model`'s state (a torch module) to a safetensors file, written atomically, each `meta`
+    value stored as JSON in the file's metadata."""
+    from safetensors.torch import save_file
+
+    from poevp_optics.core.io import atomic_path
+
+    md = {k: json.dumps(v) for k, v in meta.items()}
+    with atomic_path(Path(path)) as tmp:
+        save_file({k: v.detach().contiguous() for k, v in model.state_dict().items()}, str(tmp), metadata=md)
+
+
+def read_weights_file(path: Path, what: str, model: str | None = None) -> tuple[dict, dict]:
     """(tensors, metadata) of a safetensors file (never pickle); a one-line WeightsError naming
-    the file when it is missing (`what` names the weights), unreadable, or holds NaN or Inf."""
+    the file when it is missing (`what` names the weights), unreadable, holds NaN or Inf, or
+    (with `model`) its metadata's 'model' is another."""
     import torch
     from safetensors import SafetensorError, safe_open
     from safetensors.torch import load_file
@@ -34,6 +48,13 @@ def read_weights_file(path: Path, what: str) -> tuple[dict, dict]:
             n = int((~torch.isfinite(t)).sum())
             raise WeightsError(f"{path}: weights hold NaN or Inf ({n} of {t.numel()} values of {key}): "
                                "a corrupted or diverged training run")
+    if model is not None:
+        try:
+            found = json.loads(meta.get("model", "null"))
+        except json.JSONDecodeError:
+            found = None
+        if found != model:
+            raise WeightsError(f"{path}: not {what} (metadata 'model' is {meta.get('model')!r})")
     return tensors, meta
 
 

@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from poevp_optics.analysis.plate_ocr import CHARSET
+from poevp_optics.analysis.recognition import normalise
 from poevp_optics.core.paths import REPO_ROOT
 from poevp_optics.sources.plates import PLATE_FORMATS, plate_texture
 
@@ -40,7 +41,6 @@ SUPER = 4                      # the plate is drawn at SUPER x the sensor's pixe
 
 def scene_texts(root: Path = REPO_ROOT / "scenes") -> set[str]:
     """Every plate text the shipped scenes draw (`text` / `plate_text` keys), normalised."""
-    import re
     import tomllib
 
     out: set[str] = set()
@@ -49,7 +49,7 @@ def scene_texts(root: Path = REPO_ROOT / "scenes") -> set[str]:
         if isinstance(node, dict):
             for k, v in node.items():
                 if k in ("text", "plate_text") and isinstance(v, str):
-                    out.add(re.sub(r"[^A-Z0-9]", "", v.upper()))
+                    out.add(normalise(v))
                 walk(v)
         elif isinstance(node, list):
             for v in node:

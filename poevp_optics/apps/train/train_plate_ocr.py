@@ -25,6 +25,7 @@ import numpy as np
 import torch
 
 from poevp_optics.analysis.plate_ocr import PlateCRNN, PlateOcrConfig, decode, encode, save_plate_ocr
+from poevp_optics.analysis.recognition import normalise
 from poevp_optics.apps.train.plate_ocr_data import dataset, plate_crop, scene_texts
 
 SPLIT_SEEDS = {"train": 0, "val": 1_000_003, "test": 2_000_003}
@@ -51,13 +52,9 @@ def accuracy(model: PlateCRNN, x: np.ndarray, texts: list[str], batch: int = 512
     with torch.no_grad():
         for i in range(0, len(x), batch):
             reads = decode(model(torch.from_numpy(x[i:i + batch])[:, None]))
-            ok += sum(r == "".join(encode_chars(t)) for (r, _), t in zip(reads, texts[i:i + batch]))
+            ok += sum(r == normalise(t) for (r, _), t in zip(reads, texts[i:i + batch]))
     model.train()
     return ok / max(len(x), 1)
-
-
-def encode_chars(text: str) -> str:
-    return "".join(c for c in text.upper() if c.isalnum())
 
 
 def fit(steps: int, batch: int, lr: float, seed: int, n_train: int, n_val: int, log=print):

@@ -29,7 +29,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from poevp_optics.core.weights import WeightsError, load_state, read_weights_file
+from poevp_optics.core.weights import WeightsError, load_state, read_weights_file, write_weights_file
 from poevp_optics.control.predictors.base import Predictor
 from poevp_optics.control.predictors.flow import SATURATED
 from poevp_optics.core.paths import ASSETS_DIR
@@ -202,13 +202,7 @@ def count_macs(model: DMVFN, h: int, w: int) -> int:
 
 # ----------------------------------------------------------------------------- weights
 def save_weights(model: DMVFN, path: Path, meta: dict) -> None:
-    from safetensors.torch import save_file
-
-    from poevp_optics.core.io import atomic_path
-
-    md = {"config": json.dumps(asdict(model.cfg)), **{k: json.dumps(v) for k, v in meta.items()}}
-    with atomic_path(path) as tmp:
-        save_file({k: v.detach().contiguous() for k, v in model.state_dict().items()}, str(tmp), metadata=md)
+    write_weights_file(path, model, {"config": asdict(model.cfg), **meta})
 
 
 def load_weights(path: Path, expect: DMVFNConfig | None = None) -> tuple[DMVFN, dict]:

@@ -49,7 +49,7 @@ import torch
 from torch import nn
 
 from poevp_optics.control.predictors.dmvfn import weights_identity
-from poevp_optics.core.weights import WeightsError, load_state, read_weights_file
+from poevp_optics.core.weights import WeightsError, load_state, read_weights_file, write_weights_file
 from poevp_optics.control.predictors.track import MAX_CHAIN, RegionTrack, RegionTracker, closed_form_global
 from poevp_optics.core.paths import ASSETS_DIR
 
@@ -123,24 +123,15 @@ def default_weights() -> Path:
 
 
 def save_track_net(model: TrackNet, path: Path, meta: dict) -> None:
-    from safetensors.torch import save_file
-
-    from poevp_optics.core.io import atomic_path
-
-    md = {"config": json.dumps(asdict(model.cfg)), "model": json.dumps("track_net"),
-          **{k: json.dumps(v) for k, v in meta.items()}}
-    with atomic_path(Path(path)) as tmp:
-        save_file({k: v.detach().contiguous() for k, v in model.state_dict().items()}, str(tmp), metadata=md)
+    write_weights_file(path, model, {"config": asdict(model.cfg), "model": "track_net", **meta})
 
 
 def load_track_net(path: Path) -> tuple[TrackNet, dict]:
     """A TrackNet from safetensors (never pickle); one-line errors on a missing, corrupt,
     non-finite or mismatched file."""
     path = Path(path)
-    tensors, meta = read_weights_file(path, "track_net weights")
+    tensors, meta = read_weights_file(path, "track_net weights", model="track_net")
     try:
-        if json.loads(meta.get("model", "null")) != "track_net":
-            raise WeightsError(f"{path}: not track_net weights (metadata 'model' is {meta.get('model')!r})")
         cfg = TrackNetConfig(**json.loads(meta["config"]))
     except (KeyError, TypeError, json.JSONDecodeError) as e:
         raise WeightsError(f"{path}: missing or bad 'config' metadata ({e})") from None
