@@ -14,16 +14,20 @@ class WeightsError(UserError):
     """Missing, corrupted, non-finite or mismatched weights."""
 
 
-def write_weights_file(path: Path, model, meta: dict) -> None:
+def write_weights_file(path: Path, model, meta: dict, float_dtype=None) -> None:
     """`model`'s state (a torch module) to a safetensors file, written atomically, each `meta`
-    value stored as JSON in the file's metadata."""
+    value stored as JSON in the file's metadata; `float_dtype` (e.g. torch.float16): floating
+    tensors stored in it (they load back into the float32 module)."""
     from safetensors.torch import save_file
 
     from poevp_optics.core.io import atomic_path
 
     md = {k: json.dumps(v) for k, v in meta.items()}
+    state = {k: v.detach().contiguous() for k, v in model.state_dict().items()}
+    if float_dtype is not None:
+        state = {k: v.to(float_dtype) if v.is_floating_point() else v for k, v in state.items()}
     with atomic_path(Path(path)) as tmp:
-        save_file({k: v.detach().contiguous() for k, v in model.state_dict().items()}, str(tmp), metadata=md)
+        save_file(state, str(tmp), metadata=md)
 
 
 def read_weights_file(path: Path, what: str, model: str | None = None) -> tuple[dict, dict]:

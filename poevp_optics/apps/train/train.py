@@ -1,6 +1,8 @@
 """`poevp train-predictor`: train DMVFN(-lite) on simulator-rendered plate sequences.
 
 Loss: multi-scale L1 (full, 1/2, 1/4 resolution; the paper's L1 loss family, Hu et al. 2023),
+plus, with `saturation_weight` > 0, that weight times 1 - the soft IoU of the predicted and true
+saturated regions (`saturated_iou_loss`: the pixels the mask law dims against those it must),
 AdamW with a cosine learning-rate decay, batches of (x_{t-1}, x_t -> x_{t+1}) triplets. Training
 is time-boxed (`--minutes`) and resumable: a checkpoint (model + AdamW moments, safetensors) and
 its state JSON are written atomically every `--checkpoint-every` steps; re-running the same run
@@ -45,6 +47,31 @@ def multiscale_l1(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     return loss / 3
 
 
+#: Soft saturation of a predicted value v on [0, 1]: sigmoid((v - SOFT_LEVEL) / SOFT_WIDTH); a
+#: value of 1 (a warped clipped pixel) counts 0.977, 250 DN 0.24, 245 DN 0.002.
+SOFT_LEVEL, SOFT_WIDTH = 0.985, 0.004
+#: A true pixel is saturated at or above this (the 8-bit clip, 254.5 of 255: prediction_metrics).
+TRUE_LEVEL = 254.5 / 255.0
+
+
+def saturated_iou_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """1 - soft IoU of the predicted and true saturated regions (SOFT_LEVEL, TRUE_LEVEL), per
+    sample, averaged over the samples whose target has a saturated pixel (0 when none has)."""
+    s_t = (target >= TRUE_LEVEL).float()
+    s_p = torch.sigmoid((pred - SOFT_LEVEL) / SOFT_WIDTH)
+    inter = (s_p * s_t).flatten(1).sum(1)
+    union = (s_p + s_t - s_p * s_t).flatten(1).sum(1)
+    has = s_t.flatten(1).sum(1) > 0
+    if not bool(has.any()):
+        return pred.sum() * 0.0
+    return (1.0 - inter[has] / union[has].clamp_min(1e-6)).mean()
+
+
+def loss_name(saturation_weight: float) -> str:
+    """The training loss as the run's identity and record name it."""
+    return "multiscale_l1" + (f" + {saturation_weight:g} * (1 - saturated soft IoU)" if saturation_weight else "")
+
+
 def triplets(frames: np.ndarray) -> np.ndarray:
     """(N, T, H, W) -> index array (M, 2) of (sequence, t) with t-1, t, t+1 valid."""
     n, t = frames.shape[:2]
@@ -67,11 +94,12 @@ def frames_sha256(*arrays: np.ndarray) -> str:
     return h.hexdigest()
 
 
-def run_identity(name: str, cfg, *, lr: float, batch: int, seed: int, data_sha256: str, source: str) -> dict:
+def run_identity(name: str, cfg, *, lr: float, batch: int, seed: int, data_sha256: str, source: str,
+                 loss: str = "multiscale_l1") -> dict:
     """What makes two training runs the same run (module docstring): a checkpoint is resumed
     only by a run with an equal identity."""
     return {"name": name, "config": jsonable(asdict(cfg)), "lr": float(lr), "batch": int(batch), "seed": int(seed),
-            "data_sha256": data_sha256, "source": source}
+            "data_sha256": data_sha256, "source": source, "loss": loss}
 
 
 def _save_checkpoint(out: Path, model, opt, state: dict) -> None:
@@ -163,11 +191,14 @@ def train(name: str = "dmvfn_lite", *, minutes: float = 10.0, sequences: int = 4
           val_sequences: int = 8, batch: int = 4, lr: float = 2e-3, seed: int = 0,
           out: Path = Path("out/train"), weights_out: Path | None = None, max_steps: int | None = None,
           checkpoint_every: int = 50, resolution=(368, 640), progress: bool = True,
-          frames_data: tuple | None = None, device: str = "auto", source: str | None = None, log=None, command=None) -> dict:
+          frames_data: tuple | None = None, device: str = "auto", source: str | None = None, log=None, command=None,
+          saturation_weight: float = 0.0, float16_weights: bool = False) -> dict:
     """Train and save weights; returns the training record (also written as JSON). frames_data:
     (train, val) uint8 (N, T, H, W) frames of `source` (apps/train/train_data.py) instead of the
     procedural set; device: cpu, cuda or auto (cuda when torch.cuda.is_available()); log: where the
-    one-line note on a checkpoint of another run goes (default stderr); command: the command line kept."""
+    one-line note on a checkpoint of another run goes (default stderr); command: the command line kept;
+    saturation_weight: weight of `saturated_iou_loss` beside the multi-scale L1 (0: L1 alone);
+    float16_weights: `weights_out` stores half floats (the checkpoint stays float32)."""
     cfg = LITE if name == "dmvfn_lite" else FULL
     rng = np.random.default_rng(seed)
     routing_rng = torch.Generator().manual_seed(seed)
@@ -183,7 +214,10 @@ def train(name: str = "dmvfn_lite", *, minutes: float = 10.0, sequences: int = 4
         model = DMVFN(cfg)
     opt = torch.optim.AdamW(model.parameters(), lr=lr, weight_decay=1e-4)
     source = source or "scenes/highbeam_plate, procedurally varied (apps/train/training_data.py)"
-    run = run_identity(name, cfg, lr=lr, batch=batch, seed=seed, data_sha256=frames_sha256(data, val), source=source)
+    if not np.isfinite(saturation_weight) or saturation_weight < 0:
+        raise ValueError(f"saturation_weight {saturation_weight!r}: a finite weight >= 0")
+    run = run_identity(name, cfg, lr=lr, batch=batch, seed=seed, data_sha256=frames_sha256(data, val), source=source,
+                       loss=loss_name(saturation_weight))
     state = _load_checkpoint(out, model, opt, run, log) or {"step": 0, "seconds": 0.0, "losses": [], "run": run}
     model.to(device)
     _optimizer_to(opt, device, keep=("step",))
@@ -204,6 +238,8 @@ def train(name: str = "dmvfn_lite", *, minutes: float = 10.0, sequences: int = 4
         prev, cur, nxt = (t.to(device) for t in _batch(data, sel, c))
         pred, _, _ = model(prev, cur, train_routing=cfg.routing, generator=routing_rng)
         loss = multiscale_l1(pred, nxt)
+        if saturation_weight:
+            loss = loss + saturation_weight * saturated_iou_loss(pred, nxt)
         opt.zero_grad()
         loss.backward()
         opt.step()
@@ -220,22 +256,30 @@ def train(name: str = "dmvfn_lite", *, minutes: float = 10.0, sequences: int = 4
     _optimizer_to(opt, torch.device("cpu"))
     _save_checkpoint(out, model, opt, state)
     model.eval()
-    pred_model = DMVFNPredictor(model, name, None)
-    validation = {"model": evaluate(pred_model, val), "hold": evaluate(Hold(), val),
-                  "flow": evaluate(FlowExtrapolation(), val)}
     record = {"name": name, "command": command, "config": asdict(cfg), "parameters": count_parameters(model),
               "gmac_368x640": count_macs(model, 368, 640) / 1e9, "steps": state["step"],
               "train_seconds": state["seconds"], "data_seconds": data_s, "batch": batch, "lr": lr,
+              "loss": run["loss"], "weights_dtype": "float16" if float16_weights else "float32",
               "loss_first_50": float(np.mean(state["losses"][:50])) if state["losses"] else None,
               "loss_last_50": float(np.mean(state["losses"][-50:])) if state["losses"] else None,
               "dataset": {"train_sequences": sequences, "val_sequences": val_sequences,
                           "frames": frames, "resolution": list(resolution), "seed": seed,
                           "source": source, "sha256": run["data_sha256"]},
-              "validation": validation, "torch_threads": torch.get_num_threads(), "device": str(device)}
-    record = jsonable(record)
-    if weights_out is not None:
-        save_weights(model, Path(weights_out), {"training": {k: v for k, v in record.items() if k != "validation"},
-                                                "validation": record["validation"]})
-        write_json(Path(weights_out).with_suffix(".json"), record)
+              "validation": None, "torch_threads": torch.get_num_threads(), "device": str(device)}
+
+    def write(rec):
+        rec = jsonable(rec)
+        if weights_out is not None:
+            save_weights(model, Path(weights_out), {"training": {k: v for k, v in rec.items() if k != "validation"},
+                                                    "validation": rec["validation"]}, float16=float16_weights)
+            write_json(Path(weights_out).with_suffix(".json"), rec)
+        return rec
+
+    write(record)     # the trained weights are kept even if validation is cut short
+    model.to(device)  # validation runs the network where it trained
+    record["validation"] = {"model": evaluate(DMVFNPredictor(model, name, None), val),
+                            "hold": evaluate(Hold(), val), "flow": evaluate(FlowExtrapolation(), val)}
+    model.cpu()
+    record = write(record)
     write_json(out / "record.json", record)
     return record

@@ -73,6 +73,11 @@ def cmd_train(args) -> int:
         if not args.scene:
             raise UserError("train-predictor --data-only: name the SCENE whose data to build")
         return cmd_train_data(args)
+    if args.data == "paths" and (args.scene or args.name == "track_net"):
+        raise UserError("train-predictor --data paths: the motion-path frames train dmvfn or dmvfn_lite "
+                        "without a SCENE")
+    if not 0.0 <= args.saturation_weight < float("inf"):
+        raise UserError(f"--saturation-weight {args.saturation_weight}: a finite weight >= 0")
     if args.name == "track_net":
         import time
 
@@ -109,12 +114,24 @@ def cmd_train(args) -> int:
         data = build_data(args.scene, data_config(args), cluster=data_cluster(args), progress=not args.quiet)
         frames_data = (data.splits["train"]["frames"], data.splits["val"]["frames"])
         source = f"{data.manifest['scene']} (apps/train/train_data.py, sha256 {data.sha256})"
+    elif args.data == "paths":
+        import os
+
+        from poevp_optics.apps.train.path_frames import path_frames, source_line
+
+        n_train, n_val = int(str(args.sequences or 48).split(",")[0]), args.val_sequences
+        frames, res = args.frames or 8, data_config(args).resolution if args.resolution else (368, 640)
+        workers = args.threads or os.cpu_count() or 1
+        frames_data = (path_frames("train", n_train, frames, res, workers), path_frames("val", n_val, frames, res, workers))
+        source = source_line(n_train, n_val, frames, res)
     procedural = {"resolution": data_config(args).resolution} if args.resolution else {}
     rec = train(args.name, minutes=args.minutes, sequences=int(str(args.sequences or 48).split(",")[0]),
                 frames=args.frames or 6, val_sequences=args.val_sequences, batch=args.batch or 4,
                 lr=args.lr or 2e-3, seed=args.seed, out=Path(args.out), weights_out=weights,
                 max_steps=args.max_steps, frames_data=frames_data, device=args.device, source=source,
-                command=command_line("train-predictor", args), **procedural)
+                command=command_line("train-predictor", args), saturation_weight=args.saturation_weight,
+                float16_weights=args.float16_weights,
+                **procedural)
     v = rec["validation"]
     print(f"poevp: trained {args.name} for {rec['steps']} steps ({rec['train_seconds']:.0f} s); "
           f"validation highlight IoU {v['model']['highlight_iou']:.3f} (hold {v['hold']['highlight_iou']:.3f}, "
@@ -157,6 +174,13 @@ def add_train_parsers(sub) -> None:
     p.add_argument("--device", default="auto", choices=("cpu", "cuda", "auto"),
                    help="auto: cuda when torch.cuda.is_available()")
     p.add_argument("--data-only", action="store_true", help="build the data (as train-data) and stop")
+    p.add_argument("--data", default="plates", choices=("plates", "paths"),
+                   help="dmvfn without SCENE: 'plates', the procedural highbeam_plate set; 'paths', 1-3 "
+                   "highlighted cars on motion paths at once (apps/train/path_frames.py; default 8 frames)")
+    p.add_argument("--saturation-weight", type=float, default=0.0,
+                   help="dmvfn: weight of 1 - the predicted and true saturated regions' soft IoU beside the L1 loss")
+    p.add_argument("--float16-weights", action="store_true",
+                   help="dmvfn: store the weights as half floats (half the file; they load into the float32 network)")
     add_train_data_options(p)
     p.set_defaults(func=cmd_train)
 

@@ -201,8 +201,9 @@ def count_macs(model: DMVFN, h: int, w: int) -> int:
 
 
 # ----------------------------------------------------------------------------- weights
-def save_weights(model: DMVFN, path: Path, meta: dict) -> None:
-    write_weights_file(path, model, {"config": asdict(model.cfg), **meta})
+def save_weights(model: DMVFN, path: Path, meta: dict, float16: bool = False) -> None:
+    """Weights and metadata to safetensors; float16: stored as half floats (half the size)."""
+    write_weights_file(path, model, {"config": asdict(model.cfg), **meta}, torch.float16 if float16 else None)
 
 
 def load_weights(path: Path, expect: DMVFNConfig | None = None) -> tuple[DMVFN, dict]:
@@ -236,13 +237,14 @@ class DMVFNPredictor(Predictor):
         import cv2
 
         c = self.model.cfg.channels
+        device = next(self.model.parameters()).device     # the network runs where its weights are
         frames = [np.ascontiguousarray(h, dtype=np.float32) for h in history[-2:]]
-        full = [torch.from_numpy(f)[None, None] for f in frames]
+        full = [torch.from_numpy(f)[None, None].to(device) for f in frames]
         prev, cur = (torch.clamp(t / 255.0, 0.0, 1.0).expand(1, c, *t.shape[-2:]) for t in full)
         with torch.inference_mode():
             _, flow, mask = self.model(prev, cur, with_prediction=False)
-            m = torch.sigmoid(mask)[0, 0].numpy()
-            fl = flow[0].numpy()
+            m = torch.sigmoid(mask)[0, 0].cpu().numpy()
+            fl = flow[0].cpu().numpy()
         # the same bilinear backward warp with border clamping as `backward_warp`, by OpenCV
         # (3x faster on 2 cores; equal to 4e-5 of the value range)
         h, w = frames[1].shape
