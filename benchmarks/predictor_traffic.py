@@ -32,7 +32,7 @@ import numpy as np
 
 from benchmarks.common import add_results_flag, machine_line, markdown_table, output_folder, save_text
 
-PREDICTORS = ("hold", "flow", "dmvfn_lite", "track", "track_net")
+PREDICTORS = ("hold", "flow", "dmvfn_lite", "dmvfn", "track", "track_net")
 CLASSICAL = ("flow", "track")
 CONTEXT = 4
 #: Frame rate the learned predictor must reach at 368x640 on the CPU: the camera's 30 fps video.
