@@ -211,7 +211,7 @@ def main(argv=None):
             f"Disjoint from training: generator analysis/traffic_paths.py (training: analysis/motion_paths.py), "
             f"shape ranges checked apart ({len(check_disjoint(TRAINING_SHAPES))} overlaps), seeds from "
             f"{cases[0][2]} on (training: 0-2,300,000). {len(cases)} scenes ({a.per_cell} per family and speed), "
-            f"{len(rows) // max(len(preds), 1)} frames per predictor.\n\n"
+            f"{sum(r['predictor'] == preds[0] for r in rows)} frames per predictor.\n\n"
             f"Run: {time.perf_counter() - t0:.0f} s; machine: {machine_line()}.\n\n"
             f"{bars(summ, families, preds)}\n{tables(rows, summ, families, preds, SPEEDS_PX, seconds)}")
     print(text)

@@ -130,7 +130,7 @@ def cmd_train(args) -> int:
                 lr=args.lr or 2e-3, seed=args.seed, out=Path(args.out), weights_out=weights,
                 max_steps=args.max_steps, frames_data=frames_data, device=args.device, source=source,
                 command=command_line("train-predictor", args), saturation_weight=args.saturation_weight,
-                float16_weights=args.float16_weights,
+                float16_weights=args.float16_weights, progress=not args.quiet,
                 **procedural)
     v = rec["validation"]
     print(f"poevp: trained {args.name} for {rec['steps']} steps ({rec['train_seconds']:.0f} s); "
