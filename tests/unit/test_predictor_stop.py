@@ -16,7 +16,7 @@ import pytest
 
 from poevp_optics.control.predictors import make_predictor
 
-CAUSAL = ("hold", "flow", "track", "track_net", "dmvfn_lite")
+CAUSAL = ("hold", "flow", "track", "track_net", "dmvfn_lite", "dmvfn")
 SHAPE = (184, 320)
 
 
