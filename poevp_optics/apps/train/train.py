@@ -187,6 +187,30 @@ def _procedural(sequences: int, val_sequences: int, frames: int, seed: int, reso
             build_dataset(val_sequences, frames, seed=9000 + seed, resolution=resolution, progress=progress))
 
 
+def _step(model, opt, triplet, routing_rng, saturation_weight: float) -> float:
+    """One AdamW step on a batch of (prev, cur, next) frames; the loss (module docstring)."""
+    prev, cur, nxt = triplet
+    pred, _, _ = model(prev, cur, train_routing=model.cfg.routing, generator=routing_rng)
+    loss = multiscale_l1(pred, nxt)
+    if saturation_weight:
+        loss = loss + saturation_weight * saturated_iou_loss(pred, nxt)
+    opt.zero_grad()
+    loss.backward()
+    opt.step()
+    return loss.item()
+
+
+def _write_record(model, record: dict, weights_out: Path | None, float16: bool) -> dict:
+    """The training record made JSON-safe; with `weights_out`, the weights (record in their
+    metadata, validation apart) and the record as JSON beside them."""
+    record = jsonable(record)
+    if weights_out is not None:
+        save_weights(model, Path(weights_out), {"training": {k: v for k, v in record.items() if k != "validation"},
+                                                "validation": record["validation"]}, float16=float16)
+        write_json(Path(weights_out).with_suffix(".json"), record)
+    return record
+
+
 def train(name: str = "dmvfn_lite", *, minutes: float = 10.0, sequences: int = 48, frames: int = 6,
           val_sequences: int = 8, batch: int = 4, lr: float = 2e-3, seed: int = 0,
           out: Path = Path("out/train"), weights_out: Path | None = None, max_steps: int | None = None,
@@ -235,16 +259,9 @@ def train(name: str = "dmvfn_lite", *, minutes: float = 10.0, sequences: int = 4
         for g in opt.param_groups:
             g["lr"] = lr * (0.1 + 0.9 * 0.5 * (1 + np.cos(np.pi * frac)))
         sel = idx[rng.integers(0, len(idx), batch)]
-        prev, cur, nxt = (t.to(device) for t in _batch(data, sel, c))
-        pred, _, _ = model(prev, cur, train_routing=cfg.routing, generator=routing_rng)
-        loss = multiscale_l1(pred, nxt)
-        if saturation_weight:
-            loss = loss + saturation_weight * saturated_iou_loss(pred, nxt)
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
+        state["losses"].append(_step(model, opt, (t.to(device) for t in _batch(data, sel, c)), routing_rng,
+                                     saturation_weight))
         state["step"] += 1
-        state["losses"].append(loss.item())
         if state["step"] % checkpoint_every == 0:
             state["seconds"] = time.perf_counter() - t0
             _save_checkpoint(out, model, opt, state)
@@ -266,20 +283,11 @@ def train(name: str = "dmvfn_lite", *, minutes: float = 10.0, sequences: int = 4
                           "frames": frames, "resolution": list(resolution), "seed": seed,
                           "source": source, "sha256": run["data_sha256"]},
               "validation": None, "torch_threads": torch.get_num_threads(), "device": str(device)}
-
-    def write(rec):
-        rec = jsonable(rec)
-        if weights_out is not None:
-            save_weights(model, Path(weights_out), {"training": {k: v for k, v in rec.items() if k != "validation"},
-                                                    "validation": rec["validation"]}, float16=float16_weights)
-            write_json(Path(weights_out).with_suffix(".json"), rec)
-        return rec
-
-    write(record)     # the trained weights are kept even if validation is cut short
+    _write_record(model, record, weights_out, float16_weights)  # kept even if validation is cut short
     model.to(device)  # validation runs the network where it trained
     record["validation"] = {"model": evaluate(DMVFNPredictor(model, name, None), val),
                             "hold": evaluate(Hold(), val), "flow": evaluate(FlowExtrapolation(), val)}
     model.cpu()
-    record = write(record)
+    record = _write_record(model, record, weights_out, float16_weights)
     write_json(out / "record.json", record)
     return record
