@@ -114,7 +114,8 @@ def test_trained_weights_are_kept_when_validation_is_cut_short(tmp_path, monkeyp
     assert meta["training"]["loss"] == "multiscale_l1 + 0.05 * (1 - saturated soft IoU)"
     monkeypatch.undo()
     monkeypatch.setattr(train_mod, "build_dataset", _bars)
-    rec = train_mod.train("dmvfn_lite", out=tmp_path / "a", **kw)
+    rec = train_mod.train("dmvfn_lite", out=tmp_path / "a", data_seconds=2.5, **kw)
+    assert 2.5 <= rec["data_seconds"] < 60       # the caller's time making the frames is counted
     _, meta = load_weights(tmp_path / "w.safetensors", expect=LITE)
     assert meta["validation"]["model"]["highlight_frames"] == rec["validation"]["model"]["highlight_frames"] > 0
     assert json.loads((tmp_path / "w.json").read_text())["validation"] == meta["validation"]

@@ -216,13 +216,13 @@ def train(name: str = "dmvfn_lite", *, minutes: float = 10.0, sequences: int = 4
           out: Path = Path("out/train"), weights_out: Path | None = None, max_steps: int | None = None,
           checkpoint_every: int = 50, resolution=(368, 640), progress: bool = True,
           frames_data: tuple | None = None, device: str = "auto", source: str | None = None, log=None, command=None,
-          saturation_weight: float = 0.0, float16_weights: bool = False) -> dict:
+          saturation_weight: float = 0.0, float16_weights: bool = False, data_seconds: float = 0.0) -> dict:
     """Train and save weights; returns the training record (also written as JSON). frames_data:
-    (train, val) uint8 (N, T, H, W) frames of `source` (apps/train/train_data.py) instead of the
-    procedural set; device: cpu, cuda or auto (cuda when torch.cuda.is_available()); log: where the
-    one-line note on a checkpoint of another run goes (default stderr); command: the command line kept;
-    saturation_weight: weight of `saturated_iou_loss` beside the multi-scale L1 (0: L1 alone);
-    float16_weights: `weights_out` stores half floats (the checkpoint stays float32)."""
+    (train, val) uint8 (N, T, H, W) frames of `source` instead of the procedural set, made in
+    `data_seconds` s; device: cpu, cuda or auto (cuda when torch sees one); log: where the note on
+    another run's checkpoint goes (default stderr); command: the command line kept; saturation_weight:
+    weight of `saturated_iou_loss` beside the L1 (0: L1 alone); float16_weights: `weights_out`
+    stores half floats (the checkpoint stays float32)."""
     cfg = LITE if name == "dmvfn_lite" else FULL
     rng = np.random.default_rng(seed)
     routing_rng = torch.Generator().manual_seed(seed)
@@ -231,7 +231,7 @@ def train(name: str = "dmvfn_lite", *, minutes: float = 10.0, sequences: int = 4
     t_data = time.perf_counter()
     data, val = frames_data or _procedural(sequences, val_sequences, frames, seed, resolution, progress)
     sequences, val_sequences, frames, resolution = len(data), len(val), data.shape[1], tuple(data.shape[2:])
-    data_s = time.perf_counter() - t_data
+    data_s = time.perf_counter() - t_data + data_seconds
     device = torch.device(resolve_device(device))   # a lent GPU if any
     with torch.random.fork_rng(devices=[]):      # seeded weight init, global RNG left untouched
         torch.manual_seed(seed)

@@ -107,7 +107,9 @@ def cmd_train(args) -> int:
     from poevp_optics.apps.train.train import train
 
     weights = Path(args.weights_out) if args.weights_out else Path("out/predictor") / f"{args.name}.safetensors"
-    frames_data, source = None, None
+    import time
+
+    frames_data, source, t_data = None, None, time.perf_counter()
     if args.scene:
         from poevp_optics.apps.train.train_data import build_data
 
@@ -131,7 +133,7 @@ def cmd_train(args) -> int:
                 max_steps=args.max_steps, frames_data=frames_data, device=args.device, source=source,
                 command=command_line("train-predictor", args), saturation_weight=args.saturation_weight,
                 float16_weights=args.float16_weights, progress=not args.quiet,
-                **procedural)
+                data_seconds=time.perf_counter() - t_data, **procedural)
     v = rec["validation"]
     print(f"poevp: trained {args.name} for {rec['steps']} steps ({rec['train_seconds']:.0f} s); "
           f"validation highlight IoU {v['model']['highlight_iou']:.3f} (hold {v['hold']['highlight_iou']:.3f}, "
