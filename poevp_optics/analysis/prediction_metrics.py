@@ -10,8 +10,6 @@ where the truth has some) scores IoU 0 and undimmed fraction 1: a miss, never a 
 from __future__ import annotations
 
 import numpy as np
-import torch
-import torch.nn.functional as F
 
 _MS_WEIGHTS = (0.0448, 0.2856, 0.3001, 0.2363, 0.1333)   # Wang et al. 2003, Table 1
 

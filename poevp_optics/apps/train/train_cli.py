@@ -4,6 +4,8 @@ the parsers."""
 
 from __future__ import annotations
 
+import os
+import time
 from pathlib import Path
 
 from poevp_optics.apps.cli_args import add_cluster_options, positive_int, tls_options
@@ -53,8 +55,6 @@ def data_cluster(args):
 
 
 def cmd_train_data(args) -> int:
-    import time
-
     from poevp_optics.apps.train.train_data import build_data
 
     runtime.set_threads(args.threads)
@@ -79,8 +79,6 @@ def cmd_train(args) -> int:
     if not 0.0 <= args.saturation_weight < float("inf"):
         raise UserError(f"--saturation-weight {args.saturation_weight}: a finite weight >= 0")
     if args.name == "track_net":
-        import time
-
         from poevp_optics.apps.train.train_track import train_track_net_scene
         from poevp_optics.core.paths import ASSETS_DIR
 
@@ -107,8 +105,7 @@ def cmd_train(args) -> int:
     from poevp_optics.apps.train.train import train
 
     weights = Path(args.weights_out) if args.weights_out else Path("out/predictor") / f"{args.name}.safetensors"
-    import time
-
+    n_train = int(str(args.sequences or 48).split(",")[0])
     frames_data, source, t_data = None, None, time.perf_counter()
     if args.scene:
         from poevp_optics.apps.train.train_data import build_data
@@ -117,17 +114,15 @@ def cmd_train(args) -> int:
         frames_data = (data.splits["train"]["frames"], data.splits["val"]["frames"])
         source = f"{data.manifest['scene']} (apps/train/train_data.py, sha256 {data.sha256})"
     elif args.data == "paths":
-        import os
-
         from poevp_optics.apps.train.path_frames import path_frames, source_line
 
-        n_train, n_val = int(str(args.sequences or 48).split(",")[0]), args.val_sequences
+        n_val = args.val_sequences
         frames, res = args.frames or 8, data_config(args).resolution if args.resolution else (368, 640)
         workers = args.threads or os.cpu_count() or 1
         frames_data = (path_frames("train", n_train, frames, res, workers), path_frames("val", n_val, frames, res, workers))
         source = source_line(n_train, n_val, frames, res)
     procedural = {"resolution": data_config(args).resolution} if args.resolution else {}
-    rec = train(args.name, minutes=args.minutes, sequences=int(str(args.sequences or 48).split(",")[0]),
+    rec = train(args.name, minutes=args.minutes, sequences=n_train,
                 frames=args.frames or 6, val_sequences=args.val_sequences, batch=args.batch or 4,
                 lr=args.lr or 2e-3, seed=args.seed, out=Path(args.out), weights_out=weights,
                 max_steps=args.max_steps, frames_data=frames_data, device=args.device, source=source,
