@@ -35,7 +35,7 @@ from poevp_optics.apps.train.training_data import build_dataset
 from poevp_optics.control.predictors.dmvfn import FULL, LITE, DMVFN, DMVFNPredictor, count_macs, count_parameters, save_weights
 from poevp_optics.control.predictors.flow import FlowExtrapolation
 from poevp_optics.control.predictors.base import Hold
-from poevp_optics.analysis.prediction_metrics import highlight_iou, ms_ssim, psnr, tail
+from poevp_optics.analysis.prediction_metrics import SATURATED_8BIT, highlight_iou, ms_ssim, psnr, tail
 
 
 def multiscale_l1(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
@@ -50,8 +50,8 @@ def multiscale_l1(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
 #: Soft saturation of a predicted value v on [0, 1]: sigmoid((v - SOFT_LEVEL) / SOFT_WIDTH); a
 #: value of 1 (a warped clipped pixel) counts 0.977, 250 DN 0.24, 245 DN 0.002.
 SOFT_LEVEL, SOFT_WIDTH = 0.985, 0.004
-#: A true pixel is saturated at or above this (the 8-bit clip, 254.5 of 255: prediction_metrics).
-TRUE_LEVEL = 254.5 / 255.0
+#: A true pixel is saturated at or above this: the 8-bit clip marker, on [0, 1].
+TRUE_LEVEL = SATURATED_8BIT / 255.0
 
 
 def saturated_iou_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
@@ -223,6 +223,8 @@ def train(name: str = "dmvfn_lite", *, minutes: float = 10.0, sequences: int = 4
     another run's checkpoint goes (default stderr); command: the command line kept; saturation_weight:
     weight of `saturated_iou_loss` beside the L1 (0: L1 alone); float16_weights: `weights_out`
     stores half floats (the checkpoint stays float32)."""
+    if not np.isfinite(saturation_weight) or saturation_weight < 0:
+        raise ValueError(f"saturation_weight {saturation_weight!r}: a finite weight >= 0")
     cfg = LITE if name == "dmvfn_lite" else FULL
     rng = np.random.default_rng(seed)
     routing_rng = torch.Generator().manual_seed(seed)
@@ -238,8 +240,6 @@ def train(name: str = "dmvfn_lite", *, minutes: float = 10.0, sequences: int = 4
         model = DMVFN(cfg)
     opt = torch.optim.AdamW(model.parameters(), lr=lr, weight_decay=1e-4)
     source = source or "scenes/highbeam_plate, procedurally varied (apps/train/training_data.py)"
-    if not np.isfinite(saturation_weight) or saturation_weight < 0:
-        raise ValueError(f"saturation_weight {saturation_weight!r}: a finite weight >= 0")
     run = run_identity(name, cfg, lr=lr, batch=batch, seed=seed, data_sha256=frames_sha256(data, val), source=source,
                        loss=loss_name(saturation_weight))
     state = _load_checkpoint(out, model, opt, run, log) or {"step": 0, "seconds": 0.0, "losses": [], "run": run}
