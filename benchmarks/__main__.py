@@ -10,7 +10,7 @@ import sys
 SCRIPTS = ["render_error_vs_time", "subframes_error", "camera_throughput", "predictor_latency",
            "loop_comparison", "sweep_scaling", "stage_performance", "work_precision", "objective_psf",
            "night_road_check", "render_cost", "scene_flow", "sweep_reuse", "search_vs_grid", "recognition",
-           "predictor_traffic", "scene_library"]
+           "predictor_traffic", "predictor_scenes", "scene_library"]
 
 if __name__ == "__main__":
     ap = argparse.ArgumentParser(prog="python -m benchmarks", description="run every benchmark script in turn")

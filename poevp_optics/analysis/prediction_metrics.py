@@ -1,6 +1,7 @@
 """Prediction quality: PSNR, MS-SSIM (Wang, Simoncelli & Bovik 2003), and what the mask needs:
-the IoU of the saturated regions and the fraction of truly saturated pixels a prediction leaves
-undimmed; `tail` summarises per-frame scores with their p90 and worst frame beside the median.
+the IoU of the saturated regions, the fraction of truly saturated pixels a prediction leaves
+undimmed, and the fraction of the pixels that switched (came on or went out) it gets right;
+`tail` summarises per-frame scores with their p90 and worst frame beside the median.
 
 A frame whose truth holds no saturated pixel has nothing to dim: its saturated-region scores are
 NaN and `tail` leaves it out (counted). A prediction that loses the highlight (no saturated pixel
@@ -87,6 +88,19 @@ def undimmed_fraction(pred: np.ndarray, truth: np.ndarray, level: float = SATURA
     if n_true == 0:
         return float("nan")
     return float(np.logical_and(b, np.asarray(pred) < level).sum() / n_true)
+
+
+def switched_right(pred: np.ndarray, prev: np.ndarray, truth: np.ndarray, level: float = SATURATED_8BIT) -> float:
+    """Of the pixels whose saturation (>= level) changed from `prev` (the newest frame the
+    predictor saw) to `truth` (a light moving, appearing or going out), the fraction the
+    prediction gets right: the motion the mask must follow, undiluted by standing lights.
+    0 for a prediction that repeats `prev` (hold); NaN when no pixel changed."""
+    s_prev, s_true = np.asarray(prev) >= level, np.asarray(truth) >= level
+    changed = s_prev != s_true
+    n = int(changed.sum())
+    if n == 0:
+        return float("nan")
+    return float(((np.asarray(pred) >= level) == s_true)[changed].sum() / n)
 
 
 def highlight_iou(pred: np.ndarray, truth: np.ndarray, level: float = 250.0) -> float:
