@@ -75,12 +75,19 @@ class RunResult:
     extensions: list = field(default_factory=list)   # the scene's report extensions and their state
 
 
+def capture_inputs(spec, ex: RenderedExposure) -> tuple[list, dict]:
+    """(radiance samples, timing keyword) a capture of exposure `ex` takes: its time samples with
+    their times (`capture_timing`), or a static scene's one radiance image."""
+    if spec.is_static:
+        return [ex.radiance.data], {}
+    return list(ex.subframes), ex.capture_timing()
+
+
 def capture_frame(spec, camera: Camera, step: LoopStep | None, ex: RenderedExposure, res: RunResult) -> FrameCapture:
     """LDR twin (DMD all white), the loop's mask, the encoded capture and its reconstruction."""
     i = ex.index
     truth = camera.dmd_image(ex.radiance.data)            # mirror grid: the image the objective forms there
-    subs = list(ex.subframes) if not spec.is_static else [ex.radiance.data]   # the camera applies the objective
-    timing = ex.capture_timing() if not spec.is_static else {}
+    subs, timing = capture_inputs(spec, ex)              # the camera applies the objective
     ldr = camera.capture(subs, camera.white_mask(), i, capture_seed(spec.sensor.seed, spec.render.seed, i, LDR_STREAM),
                          **timing)
     rec = {"index": i}
@@ -163,8 +170,7 @@ def unclipped_mc_error(camera: Camera, ex: RenderedExposure, capture_dn: np.ndar
 def _against_oracle(spec, camera: Camera, fc: FrameCapture) -> None:
     """A causal predictor's frame: the oracle mask's capture and the mask's error against it."""
     max_dn, box, i = camera.params.max_dn, fc.box, fc.exposure.index
-    subs = list(fc.exposure.subframes) if not spec.is_static else [fc.exposure.radiance.data]
-    timing = fc.exposure.capture_timing() if not spec.is_static else {}
+    subs, timing = capture_inputs(spec, fc.exposure)
     oc = camera.capture(subs, fc.oracle, i, capture_seed(spec.sensor.seed, spec.render.seed, i, ENCODED_STREAM),
                         **timing, transmission=fc.oracle_transmission, exposure=fc.oracle_exposure)
     fc.record["saturated_fraction_roi"]["oracle"] = saturated_fraction(crop(oc.dn, box), max_dn)
@@ -185,8 +191,7 @@ def _law_comparison(spec, camera: Camera, fc: FrameCapture, res: RunResult, caus
     if spec.mask.law == "white" or causal:
         return
     max_dn, box, i = camera.params.max_dn, fc.box, fc.exposure.index
-    subs = list(fc.exposure.subframes) if not spec.is_static else [fc.exposure.radiance.data]
-    timing = fc.exposure.capture_timing() if not spec.is_static else {}
+    subs, timing = capture_inputs(spec, fc.exposure)
     for lname, (law, a, b) in PAPER_LAWS.items():
         ms = MaskSpec(law=law, vs=200.0, a=a, b=b, smooth_px=spec.mask.smooth_px)
         m2 = oracle_mask(camera, ms, camera.dmd_image(fc.exposure.radiance.data), i)
