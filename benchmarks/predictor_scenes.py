@@ -44,6 +44,7 @@ def scene_frames(name: str, scale: float, gain: float, frames: int = FRAMES) -> 
     our beams x `gain`, render and capture seconds)."""
     from benchmarks.loop_alpr import scene_sets
     from poevp_optics.analysis.metrics import to_8bit
+    from poevp_optics.apps.run.render_run import capture_inputs
     from poevp_optics.camera.camera import Camera
     from poevp_optics.core.seeds import LDR_STREAM, capture_seed
     from poevp_optics.render.radiance import open_source
@@ -56,8 +57,7 @@ def scene_frames(name: str, scale: float, gain: float, frames: int = FRAMES) -> 
     cam = Camera.from_params(spec.resolved.camera)
     out = []
     for ex in open_source(spec.resolved.render, cam.guard_px).exposures(False):
-        subs = [ex.radiance.data] if spec.is_static else list(ex.subframes)
-        timing = {} if spec.is_static else ex.capture_timing()
+        subs, timing = capture_inputs(spec, ex)
         seed = capture_seed(spec.sensor.seed, spec.render.seed, ex.index, LDR_STREAM)
         ldr = cam.capture(subs, cam.white_mask(), ex.index, seed, **timing)
         out.append(to_8bit(ldr.dn, cam.params.max_dn).astype(np.uint8))
@@ -121,6 +121,7 @@ def tables(summ: dict, cells: list[str], predictors: list[str]) -> str:
 
 
 def main(argv=None):
+    from poevp_optics.analysis.prediction_metrics import SATURATED_8BIT
     from poevp_optics.control.predictors import make_predictor
     from poevp_optics.core import runtime
     from poevp_optics.scene.scale import parse_scale, scale_text
@@ -139,15 +140,17 @@ def main(argv=None):
     models = {n: make_predictor(n) for n in preds}
     doc = __doc__.split("    .venv/bin/python")[0].split("\n", 2)[2].strip()
     t0 = time.perf_counter()
-    rows, cells, runs = [], [], []
+    rows, cells, runs, seconds = [], [], [], {n: [] for n in preds}
     for name in a.scenes.split(","):
         for gain in (float(g) for g in a.gains.split(",")):
             frames, render_s = scene_frames(name, scale, gain)
             cell = f"{name} x{gain:g}"
-            r, _ = score(frames, models, cell)
+            r, s = score(frames, models, cell)
             rows += r
+            for n in preds:
+                seconds[n] += s[n]
             cells.append(cell)
-            sat = frames >= 254.5
+            sat = frames >= SATURATED_8BIT
             runs.append([cell, f"{frames.shape[1]}x{frames.shape[2]}", len(frames), f"{render_s:.0f}",
                          f"{100 * float(np.mean(sat[CONTEXT:])):.2f}",
                          f"{float(np.mean((sat[CONTEXT:] != sat[CONTEXT - 1:-1]).sum(axis=(1, 2)))):.0f}"])
@@ -156,7 +159,9 @@ def main(argv=None):
                     f"{doc}\n\nRun: {time.perf_counter() - t0:.0f} s; machine: {machine_line()}.\n\n"
                     + markdown_table(["cell", "frame size", "frames", "render + capture s", "saturated pixels %",
                                       "switched pixels a frame"],
-                                     runs) + "\n\n" + tables(summary(rows, cells, preds), cells, preds))
+                                     runs) + "\n\n" + tables(summary(rows, cells, preds), cells, preds)
+                    + "\nPrediction wall time a frame, median over every cell (this machine, other jobs may share it): "
+                    + ", ".join(f"{n} {1e3 * float(np.median(seconds[n])):.3g} ms" for n in preds) + ".\n")
             save_text(dest / "predictor_scenes.md", text)
     print(text)
 
