@@ -41,6 +41,19 @@ def test_forward_splat_brightest_wins():
     assert out[0, 2] == 200.0
 
 
+def test_forward_splat_keeps_a_standing_clipped_pixel_under_a_dimmer_landing():
+    """A halo pixel (200 DN) carried by the flow onto a clipped pixel that stands (255, no flow)
+    leaves it clipped; onto a dim standing pixel (30 DN) it lands. The halo's own place, left
+    behind, shows the background (the grey erosion: the darkest pixel within the largest
+    displacement + 1 px)."""
+    frame = np.array([[10.0, 200.0, 255.0, 200.0, 30.0]], np.float32)
+    flow = np.zeros((1, 5, 2), np.float32)
+    flow[0, 1, 0] = 1.0                                   # 200 onto the standing 255
+    flow[0, 3, 0] = 1.0                                   # 200 onto the standing 30
+    out = forward_splat(frame, flow)
+    np.testing.assert_array_equal(out[0], [10.0, 10.0, 255.0, 30.0, 200.0])
+
+
 def test_dmvfn_shapes_params_and_deterministic_inference():
     full, lite = DMVFN(FULL).eval(), DMVFN(LITE).eval()
     assert 3.0e6 < count_parameters(full) < 5.0e6          # paper: about 3.56 M

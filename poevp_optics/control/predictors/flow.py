@@ -195,7 +195,10 @@ def region_translations(prev_sat: np.ndarray, cur_sat: np.ndarray, flow: np.ndar
 def forward_splat(frame: np.ndarray, flow: np.ndarray, min_value: float = 128.0,
                   min_motion_px: float = 0.5) -> np.ndarray:
     """Move bright (>= min_value) moving (|flow| >= min_motion_px) pixels by `flow` (px, (H, W,
-    2) as x, y); brightest wins on collisions; every other pixel keeps its value (hold)."""
+    2) as x, y); every other pixel keeps its value (hold). Brightest wins where pixels land
+    together and where one lands on a pixel that stays: a standing clipped light is not eaten
+    by its own halo's pixels carried in by the dense flow (a fog glow whose clipped region
+    stands while the flow reads its wavering edge as motion), nor by a dimmer light passing."""
     h, w = frame.shape
     moving = (frame >= min_value) & ((flow[..., 0] ** 2 + flow[..., 1] ** 2) >= min_motion_px ** 2)
     ys, xs = np.nonzero(moving)
@@ -215,6 +218,5 @@ def forward_splat(frame: np.ndarray, flow: np.ndarray, min_value: float = 128.0,
     flat = out.ravel()
     src = ys * w + xs
     flat[src] = background.ravel()[src]
-    order = np.argsort(vals, kind="stable")              # ascending: brightest written last
-    flat[dest[order]] = vals[order]
+    np.maximum.at(flat, dest, vals)
     return out
