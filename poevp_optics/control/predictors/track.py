@@ -33,7 +33,10 @@ Per frame t (history oldest first, up to four frames):
    r_{t+1} = c_0 r_t + c_1 r_{t-1} + c_2 r_{t-2}: `track` uses the closed forms below; `track_net`
    takes the coefficients from a small trained network (track_net.py) fed only with quantities
    that do not change under rotation or mirroring of the image (lengths and dot products of the
-   displacements), so it has no preferred direction by construction.
+   displacements), so it has no preferred direction by construction. A region whose own chain
+   swings back and forth (its displacement changes by more than the acceleration gate twice
+   running, `wavering`: the clipped outline of a standing glow, a fog halo or a lamp's wet-road
+   reflection, not a vehicle) stands: it moves with the global motion alone, in both predictors.
    A region's growth (linear size ratio frame to frame, from the matched regions' areas) is
    continued when the last two agree (`closed_form_growth`): an approaching light grows about
    its centroid (the shift of a growing region is its centroid's: flow.py `region_matches`).
@@ -164,6 +167,21 @@ def region_tracks(history: list[np.ndarray], max_chain: int = MAX_CHAIN) -> tupl
     return tracks, labels
 
 
+def wavering(displacements) -> bool:
+    """True when a region's own chain (px, newest first) changes by more than the acceleration
+    gate twice running: |d_t - d_{t-1}| > ACCEL_GATE x max(|d_t|, 1 px) and the same between
+    d_{t-1} and d_{t-2}. A vehicle cannot jerk back and forth like that (a reversal happens
+    once, over a ramp); the outline of a standing glow does, frame after frame (a fog halo or
+    a wet road's reflection of a street lamp whose clipped edge flickers with the noise and the
+    Monte Carlo samples), and its centroid then reads 2-10 px of motion that is not there.
+    Such a region stands: it moves with the frame's global motion alone (module docstring)."""
+    d = np.asarray(displacements, dtype=np.float64).reshape(-1, 2)
+    if len(d) < 3:
+        return False
+    return bool(np.hypot(*(d[0] - d[1])) > ACCEL_GATE * max(float(np.hypot(*d[0])), 1.0)
+                and np.hypot(*(d[1] - d[2])) > ACCEL_GATE * max(float(np.hypot(*d[1])), 1.0))
+
+
 def closed_form_displacement(displacements) -> np.ndarray:
     """d_{t+1} (px, x and y) from d_t, d_{t-1}, d_{t-2} (newest first) by the table's rows."""
     d = np.asarray(displacements, dtype=np.float64).reshape(-1, 2)
@@ -264,7 +282,7 @@ class RegionTracker(Predictor):
         if not tracks:
             return []
         g = closed_form_global(tracks[0].global_shifts)
-        return [closed_form_displacement(t.relative()) + g for t in tracks]
+        return [g if wavering(r) else closed_form_displacement(r) + g for r in (t.relative() for t in tracks)]
 
     def __call__(self, history):
         frames = [np.asarray(f, dtype=np.float32) for f in history[-(MAX_CHAIN + 1):]]

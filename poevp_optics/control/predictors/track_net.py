@@ -20,7 +20,8 @@ small regions of standing lights (a street lamp's or a parked car's, 16-265 px) 
 correlation reads 0.3-1 px of motion where nothing moves (37 % of them on the held-out traffic,
 analysis/traffic_paths.py), and moving a 150 px region by 1 px costs its mask 10-20 % of its IoU.
 A stopped light reverses within a frame only in a collision, and a light truly creeping under
-STOP_PX a frame is missed by less than that.
+STOP_PX a frame is missed by less than that. A region whose chain swings back and forth
+(track.py `wavering`) stands too, as in `track`: a standing glow's outline, not a motion.
 
 Architecture (ours): MLP 15 -> 64 -> 64 -> 3 with GELU, outputs added to the constant-velocity
 coefficients (1, 0, 0), so an untrained network is `flow`'s motion model. 5.4 k parameters,
@@ -50,7 +51,7 @@ from torch import nn
 
 from poevp_optics.control.predictors.dmvfn import weights_identity
 from poevp_optics.core.weights import WeightsError, load_state, read_weights_file, write_weights_file
-from poevp_optics.control.predictors.track import MAX_CHAIN, RegionTrack, RegionTracker, closed_form_global
+from poevp_optics.control.predictors.track import MAX_CHAIN, RegionTrack, RegionTracker, closed_form_global, wavering
 from poevp_optics.core.paths import ASSETS_DIR
 
 N_FEATURES = 15
@@ -188,7 +189,8 @@ class TrackNetPredictor(RegionTracker):
             return []
         disp, valid, resp = chain_arrays(tracks, relative=True)
         g = closed_form_global(tracks[0].global_shifts)
-        return list(numpy_forward(self.layers, disp, valid, resp).astype(np.float64) + g)
+        own = numpy_forward(self.layers, disp, valid, resp).astype(np.float64)
+        return [g if wavering(t.relative()) else d + g for t, d in zip(tracks, own)]
 
     def describe(self) -> dict:
         held = {k: v["track_net"] for k, v in self.meta.get("test", {}).items() if "track_net" in v}
