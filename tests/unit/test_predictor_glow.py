@@ -1,4 +1,5 @@
-"""A standing glow whose outline wavers is predicted where it stands; a moving light is not.
+"""A standing glow whose outline wavers is predicted where it stands (moving lights: test_track.py,
+test_predictor_stop.py, test_global_motion.py).
 
 A fog halo or a street lamp's reflection on a wet road is a large clipped region that does not
 travel, but whose clipped edge moves with the noise and the Monte Carlo samples from frame to

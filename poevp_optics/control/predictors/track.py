@@ -173,7 +173,7 @@ def wavering(displacements) -> bool:
     d_{t-1} and d_{t-2}. A vehicle cannot jerk back and forth like that (a reversal happens
     once, over a ramp); the outline of a standing glow does, frame after frame (a fog halo or
     a wet road's reflection of a street lamp whose clipped edge flickers with the noise and the
-    Monte Carlo samples), and its centroid then reads 2-10 px of motion that is not there.
+    Monte Carlo samples), and its outline's correlation then reads motion that is not there.
     Such a region stands: it moves with the frame's global motion alone (module docstring)."""
     d = np.asarray(displacements, dtype=np.float64).reshape(-1, 2)
     if len(d) < 3:
