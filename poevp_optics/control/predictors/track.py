@@ -266,7 +266,7 @@ def grow_region(out: np.ndarray, frame: np.ndarray, region: np.ndarray, box, d, 
 
 class RegionTracker(Predictor):
     """`track`: DIS flow for the frame, a closed-form extrapolated displacement per saturated
-    region (module docstring). Subclasses replace `next_displacement`."""
+    region (module docstring). Subclasses replace `own_motion`."""
 
     name = "track"
     needs_frames = 2              # works from two frames (constant velocity), better with four
@@ -275,14 +275,19 @@ class RegionTracker(Predictor):
     def __init__(self, preset: int = cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST):
         self.dis = cv2.DISOpticalFlow_create(preset)
 
+    def own_motion(self, tracks: list[RegionTrack]) -> list[np.ndarray]:
+        """Each region's own next displacement (px), relative to the frame's global motion: its
+        relative chain extrapolated by the closed forms (module docstring, step 2)."""
+        return [closed_form_displacement(t.relative()) for t in tracks]
+
     def next_displacement(self, tracks: list[RegionTrack]) -> list[np.ndarray]:
-        """d_{t+1} (px) per track: its own motion relative to the frame's global motion,
-        extrapolated, plus the global motion extrapolated (module docstring, step 2); a new
-        region (no chain) moves with the global motion alone."""
+        """d_{t+1} (px) per track: its own motion (`own_motion`) plus the global motion
+        extrapolated (module docstring, step 2); a new region (no chain) or a wavering one
+        (`wavering`) moves with the global motion alone."""
         if not tracks:
             return []
         g = closed_form_global(tracks[0].global_shifts)
-        return [g if wavering(r) else closed_form_displacement(r) + g for r in (t.relative() for t in tracks)]
+        return [g if wavering(t.relative()) else d + g for t, d in zip(tracks, self.own_motion(tracks))]
 
     def __call__(self, history):
         frames = [np.asarray(f, dtype=np.float32) for f in history[-(MAX_CHAIN + 1):]]

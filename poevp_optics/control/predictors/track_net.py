@@ -51,7 +51,7 @@ from torch import nn
 
 from poevp_optics.control.predictors.dmvfn import weights_identity
 from poevp_optics.core.weights import WeightsError, load_state, read_weights_file, write_weights_file
-from poevp_optics.control.predictors.track import MAX_CHAIN, RegionTrack, RegionTracker, closed_form_global, wavering
+from poevp_optics.control.predictors.track import MAX_CHAIN, RegionTrack, RegionTracker
 from poevp_optics.core.paths import ASSETS_DIR
 
 N_FEATURES = 15
@@ -180,17 +180,15 @@ class TrackNetPredictor(RegionTracker):
         self.layers = [(m.weight.detach().numpy().astype(np.float32), m.bias.detach().numpy().astype(np.float32))
                        for m in model.net if isinstance(m, nn.Linear)]
 
-    def next_displacement(self, tracks: list[RegionTrack]) -> list[np.ndarray]:
+    def own_motion(self, tracks: list[RegionTrack]) -> list[np.ndarray]:
         """The model on each region's relative chain (its displacements less the frame's global
-        shifts), plus the frame's global motion extrapolated as `track` does (track.py
-        `closed_form_global`: the camera's pitch oscillation, which the model's training paths
-        do not hold)."""
+        shifts). `RegionTracker.next_displacement` adds the frame's global motion extrapolated
+        as `track` does (track.py `closed_form_global`: the camera's pitch oscillation, which the
+        model's training paths do not hold) and keeps wavering regions standing."""
         if not tracks:
             return []
         disp, valid, resp = chain_arrays(tracks, relative=True)
-        g = closed_form_global(tracks[0].global_shifts)
-        own = numpy_forward(self.layers, disp, valid, resp).astype(np.float64)
-        return [g if wavering(t.relative()) else d + g for t, d in zip(tracks, own)]
+        return list(numpy_forward(self.layers, disp, valid, resp).astype(np.float64))
 
     def describe(self) -> dict:
         held = {k: v["track_net"] for k, v in self.meta.get("test", {}).items() if "track_net" in v}
