@@ -245,3 +245,24 @@ def test_track_net_numpy_forward_equals_the_model():
     stopped = disp[:, 0].norm(dim=-1).numpy() < STOP_PX
     assert stopped.sum() == 20
     np.testing.assert_array_equal(got[stopped], 0.0)
+
+
+@pytest.mark.parametrize("name", ["track", "track_net"])
+def test_measurements_kept_between_calls_change_no_prediction(name, monkeypatch):
+    """A tracker called on a sliding history keeps each frame's and frame pair's measurements
+    (track.py `MeasureCache`): its predictions equal, bit for bit, a fresh tracker's on each
+    history, and each call after the first measures one new frame pair, not three."""
+    from poevp_optics.analysis.traffic_paths import draw_scene
+    from poevp_optics.control.predictors import track as track_mod
+
+    calls = []
+    measure = track_mod.measure_pair
+    monkeypatch.setattr(track_mod, "measure_pair", lambda *a: calls.append(1) or measure(*a))
+    frames = draw_scene("crossing", 24.0, 4242).frames[:10]
+    kept = make_predictor(name)
+    for t in range(4, len(frames)):
+        hist = list(frames[t - 4:t])
+        before = len(calls)
+        got = kept(hist)
+        assert len(calls) - before == (3 if t == 4 else 1)
+        np.testing.assert_array_equal(got, make_predictor(name)(hist))

@@ -134,23 +134,44 @@ def saturated_components(sat: np.ndarray) -> tuple:
 
 
 def region_matches(prev_sat: np.ndarray, cur_sat: np.ndarray, prev_cc: tuple | None = None,
-                   cur_cc: tuple | None = None, prior: dict | None = None):
+                   cur_cc: tuple | None = None, prior: dict | None = None, measured: tuple | None = None):
     """(labels, stats, matches) of frame t's saturated regions: each region of at least
-    `MIN_REGION_PX` with its translation from frame t-1 (`region_shift`) and its match there
-    (region_motion.py `match_regions`: mutual, areas alike, response >= `MIN_RESPONSE`; a
-    region without one is new). A region left new takes over the earlier region its
-    neighbours' shift puts it on from a holder that moved much further (`reclaim`: a lamp whose
-    twin took its old place), is measured again with the earlier regions already taken hidden
-    (`rematch_left`: two like lights crossing), and two matches that took each other's earlier
-    region are exchanged where that moves them less (`unswap`). A matched region that grew or
-    shrank by more than `GROWTH_SHIFT` (and at most `CENTROID_GROWTH_MAX`) takes the shift of
-    its centroid instead: outlines of two sizes correlate at either edge (+-3 px on a lamp
-    growing 10 %), the centroid of a light growing about its centre stays put. labels, stats: cv2.connectedComponentsWithStats of `cur_sat`. prev_cc,
-    cur_cc: the frames' `saturated_components` when already computed. prior: {frame t-1 label:
-    its shift from frame t-2} where known (`unswap`'s constant-velocity prediction)."""
+    `MIN_REGION_PX` with its translation from frame t-1 and its match there (`measure_pair`),
+    two matches that took each other's earlier region exchanged where that moves them less
+    (region_motion.py `unswap`). A matched region that grew or shrank by more than
+    `GROWTH_SHIFT` (and at most `CENTROID_GROWTH_MAX`) takes the shift of its centroid instead:
+    outlines of two sizes correlate at either edge (+-3 px on a lamp growing 10 %), the centroid
+    of a light growing about its centre stays put. labels, stats: cv2.connectedComponentsWithStats
+    of `cur_sat`. prev_cc, cur_cc: the frames' `saturated_components` when already computed.
+    prior: {frame t-1 label: its shift from frame t-2} where known (`unswap`'s constant-velocity
+    prediction). measured: `measure_pair`'s result for these frames when already computed (it
+    does not depend on `prior`; it is read, not changed)."""
     from dataclasses import replace
 
-    from poevp_optics.control.region_motion import match_regions, reclaim, rematch_left, unswap
+    from poevp_optics.control.region_motion import unswap
+
+    labels, stats, cents, prev_labels, prev_stats, prev_cents, matches, remeasure = \
+        measured or measure_pair(prev_sat, cur_sat, prev_cc, cur_cc)
+    matches = dict(unswap(matches, prev_labels, prev_stats, labels, stats, remeasure, prior))
+    for k, m in matches.items():
+        if m.prev_label and abs(m.growth - 1.0) > GROWTH_SHIFT and \
+                1.0 / CENTROID_GROWTH_MAX <= m.growth <= CENTROID_GROWTH_MAX:
+            matches[k] = replace(m, shift=tuple(float(v) for v in cents[k] - prev_cents[m.prev_label]))
+    return labels, stats, matches
+
+
+def measure_pair(prev_sat: np.ndarray, cur_sat: np.ndarray, prev_cc: tuple | None = None,
+                 cur_cc: tuple | None = None) -> tuple:
+    """What `region_matches` reads of two frames before `unswap`: (labels, stats, centroids of
+    frame t; labels, stats, centroids of frame t-1; matches; remeasure). Each region of at least
+    `MIN_REGION_PX` gets its translation from frame t-1 (`region_shift`) and its match there
+    (region_motion.py `match_regions`: mutual, areas alike, response >= `MIN_RESPONSE`; a region
+    without one is new). A region left new takes over the earlier region its neighbours' shift
+    puts it on from a holder that moved much further (`reclaim`: a lamp whose twin took its old
+    place), and is measured again with the earlier regions already taken hidden
+    (`rematch_left`: two like lights crossing). remeasure(k, hidden, only): region k's shift
+    against frame t-1's outline without its `hidden` regions, or of region `only` alone."""
+    from poevp_optics.control.region_motion import match_regions, reclaim, rematch_left
 
     n, labels, stats, cents, _ = cur_cc or saturated_components(cur_sat)
     _, prev_labels, prev_stats, prev_cents, prev_outline = prev_cc or saturated_components(prev_sat)
@@ -162,20 +183,13 @@ def region_matches(prev_sat: np.ndarray, cur_sat: np.ndarray, prev_cc: tuple | N
     matches = match_regions(prev_labels, prev_stats, labels, stats, shifts, MIN_RESPONSE)
 
     def remeasure(k, hidden=frozenset(), only=None):
-        """Region k's shift against frame t-1's outline without its `hidden` regions, or of
-        region `only` alone."""
         x, y, bw, bh, _ = (int(v) for v in stats[k])
         keep = prev_labels == only if only is not None else ~np.isin(prev_labels, list(hidden))
         return region_shift(prev_outline * keep, labels, (y, x, y + bh, x + bw), SEARCH_PX + max(bw, bh), label=k)
 
     matches = reclaim(prev_labels, prev_stats, labels, stats, matches, remeasure)
     matches = rematch_left(prev_labels, prev_stats, labels, stats, matches, remeasure, MIN_RESPONSE)
-    matches = unswap(matches, prev_labels, prev_stats, labels, stats, remeasure, prior)
-    for k, m in matches.items():
-        if m.prev_label and abs(m.growth - 1.0) > GROWTH_SHIFT and \
-                1.0 / CENTROID_GROWTH_MAX <= m.growth <= CENTROID_GROWTH_MAX:
-            matches[k] = replace(m, shift=tuple(float(v) for v in cents[k] - prev_cents[m.prev_label]))
-    return labels, stats, matches
+    return labels, stats, cents, prev_labels, prev_stats, prev_cents, matches, remeasure
 
 
 def region_translations(prev_sat: np.ndarray, cur_sat: np.ndarray, flow: np.ndarray) -> list[tuple]:

@@ -71,8 +71,8 @@ import cv2
 import numpy as np
 
 from poevp_optics.control.predictors.base import Predictor
-from poevp_optics.control.predictors.flow import (MIN_REGION_PX, SATURATED, forward_splat, log_8bit, region_matches,
-                                                  saturated_components)
+from poevp_optics.control.predictors.flow import (MIN_REGION_PX, SATURATED, forward_splat, log_8bit, measure_pair,
+                                                  region_matches, saturated_components)
 
 #: Longest chain of displacements followed back (four frames of history: the loop keeps four).
 MAX_CHAIN = 3
@@ -133,17 +133,58 @@ def global_chain(pairs) -> tuple[tuple[tuple[float, float], ...], tuple[float, .
     return tuple(shifts), tuple(resp)
 
 
-def region_tracks(history: list[np.ndarray], max_chain: int = MAX_CHAIN) -> tuple[list[RegionTrack], np.ndarray]:
+class MeasureCache:
+    """The last frames' `saturated_components` and frame pairs' `measure_pair`, keyed on the
+    saturated maps' bits (a BLAKE2b digest of the packed map), all they depend on. The loop calls
+    a tracker on a history that slides by one frame, so three of its four frames and two of its
+    three pairs were measured on the call before; results are the same objects, not recomputed
+    (the predictions bit-identical to an empty cache's: tests/unit/test_track.py), read and
+    never written. Holds the last `size` entries of each kind (a history's frames)."""
+
+    def __init__(self, size: int = MAX_CHAIN + 1):
+        self.size = size
+        self.components: dict = {}
+        self.pairs: dict = {}
+
+    @staticmethod
+    def key(sat: np.ndarray) -> tuple:
+        import hashlib
+
+        return sat.shape, hashlib.blake2b(np.packbits(sat).tobytes(), digest_size=16).digest()
+
+    def _keep(self, store: dict, key, make):
+        if key in store:
+            store[key] = store.pop(key)                  # most recent last
+        else:
+            store[key] = make()
+            while len(store) > self.size:
+                store.pop(next(iter(store)))
+        return store[key]
+
+    def saturated_components(self, sat: np.ndarray, key) -> tuple:
+        return self._keep(self.components, key, lambda: saturated_components(sat))
+
+    def region_matches(self, sats, ccs, keys, prior: dict | None):
+        """flow.py `region_matches` of two frames, their `measure_pair` kept."""
+        measured = self._keep(self.pairs, tuple(keys), lambda: measure_pair(*sats, *ccs))
+        return region_matches(*sats, *ccs, prior, measured=measured)
+
+
+def region_tracks(history: list[np.ndarray], max_chain: int = MAX_CHAIN,
+                  cache: MeasureCache | None = None) -> tuple[list[RegionTrack], np.ndarray]:
     """(tracks, labels): every saturated region of the last frame with its displacement chain
     (module docstring, step 1) and the frame's global chain (`global_chain`), and the last
-    frame's region labels (0 = none)."""
+    frame's region labels (0 = none). cache: the measurements of earlier calls (`MeasureCache`)."""
+    cache = cache or MeasureCache()
     sats = [np.asarray(f) >= SATURATED for f in history[-(max_chain + 1):]]
-    cc = [saturated_components(s) for s in sats]
+    keys = [cache.key(s) for s in sats]
+    cc = [cache.saturated_components(s, k) for s, k in zip(sats, keys)]
     # pairs[j]: frame t-j's regions, each with its shift from frame t-j-1 and its match there;
     # measured oldest first, each pair given the older pair's shifts (region_motion.py `unswap`)
     pairs, prior = [], None
     for j in reversed(range(min(max_chain, len(sats) - 1))):
-        pair = region_matches(sats[-2 - j], sats[-1 - j], cc[-2 - j], cc[-1 - j], prior)
+        a, b = len(sats) - 2 - j, len(sats) - 1 - j
+        pair = cache.region_matches((sats[a], sats[b]), (cc[a], cc[b]), (keys[a], keys[b]), prior)
         prior = {k: m.shift for k, m in pair[2].items() if m.prev_label}
         pairs.insert(0, pair)
     gshift, gresp = global_chain(pairs)
@@ -274,6 +315,7 @@ class RegionTracker(Predictor):
 
     def __init__(self, preset: int = cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST):
         self.dis = cv2.DISOpticalFlow_create(preset)
+        self.cache = MeasureCache()
 
     def own_motion(self, tracks: list[RegionTrack]) -> list[np.ndarray]:
         """Each region's own next displacement (px), relative to the frame's global motion: its
@@ -293,7 +335,7 @@ class RegionTracker(Predictor):
         frames = [np.asarray(f, dtype=np.float32) for f in history[-(MAX_CHAIN + 1):]]
         p8, c8 = log_8bit(frames[-2], frames[-1])
         flow = self.dis.calc(p8, c8, None)
-        tracks, labels = region_tracks(frames)
+        tracks, labels = region_tracks(frames, cache=self.cache)
         grown = []
         for tr, d in zip(tracks, self.next_displacement(tracks)):
             y0, x0, y1, x1 = tr.box
