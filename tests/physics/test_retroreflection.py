@@ -300,3 +300,35 @@ def test_printed_characters_blend(write_scene):
     diffuse_fix = ((w - 1) * RHO + (1 - w) * ink) * cos_i * cos_v / math.pi
     expected = w * ASTM_III[beta][alpha] + diffuse_fix
     assert abs(ra - expected) <= 5.4 * sigma_ra + 1e-3 * expected, (ra, expected)
+
+
+def test_the_tail_solved_once_is_kept_and_equals_a_fresh_solve(tmp_path, monkeypatch):
+    """The tail's roll-off (`_solve_tail`: a quadrature and bisection, 1-1.5 s a table) is kept
+    on disk: a second law of the same table reads it, bit for bit, without solving; a damaged
+    copy is solved again with one note; another efficiency is another answer."""
+    from poevp_optics.render.materials import retroreflective as rr
+
+    monkeypatch.setenv("POEVP_CACHE_DIR", str(tmp_path))
+    table = rr.SHEETINGS["astm_d4956:III"]
+    first = rr.RetroLaw(table)                                   # solved, kept
+    kept = list((tmp_path / "retro").glob("tail-*.npz"))
+    assert len(kept) == 1
+
+    def refuse(law):
+        raise AssertionError("solved again")
+
+    monkeypatch.setattr(rr, "_solve_tail", refuse)
+    again = rr.RetroLaw(table)
+    assert again.tail_sigma_deg == first.tail_sigma_deg
+    np.testing.assert_array_equal(again.eta_rows, first.eta_rows)
+    monkeypatch.undo()
+    monkeypatch.setenv("POEVP_CACHE_DIR", str(tmp_path))
+    fresh = rr._solve_tail(first)
+    assert fresh[0] == first.tail_sigma_deg
+    np.testing.assert_array_equal(fresh[1], first.eta_rows)
+
+    kept[0].write_bytes(kept[0].read_bytes()[:100])              # cut short
+    assert rr.RetroLaw(table).tail_sigma_deg == first.tail_sigma_deg
+    other = rr.parse_sheeting(f"astm_d4956:III;efficiency={min(0.99, 1.1 * table.efficiency):.4f}")
+    assert rr.RetroLaw(other).tail_sigma_deg != first.tail_sigma_deg
+    assert len(list((tmp_path / "retro").glob("tail-*.npz"))) == 2

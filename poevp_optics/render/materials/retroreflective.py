@@ -221,7 +221,7 @@ class RetroLaw:
         self.alpha_slopes = [(row[-1] - row[-2]) / (self.log_alpha[-1] - self.log_alpha[-2])
                              for row in self.log_ra]
         self.alpha_last_deg = float(table.alpha_deg[-1])
-        self.tail_sigma_deg, self.eta_rows = _solve_tail(self)
+        self.tail_sigma_deg, self.eta_rows = _kept_tail(self)
         self.alpha_end_deg = self.alpha_last_deg + TAIL_END_SIGMAS * self.tail_sigma_deg
 
     def log_ra_of(self, alpha_deg, beta_deg, ops):
@@ -302,9 +302,45 @@ def _solve_tail(law: RetroLaw) -> tuple[float, np.ndarray]:
     return sigma, _eta(_cone_rings(law, rows, alpha), alpha, law, sigma)
 
 
+#: Bump when `_solve_tail`'s answer for a table changes: the kept answers are then solved again.
+TAIL_CACHE_VERSION = 1
+
+
+def _kept_tail(law: RetroLaw) -> tuple[float, np.ndarray]:
+    """`_solve_tail(law)`, solved once per table and kept on disk (cache folder `retro/`;
+    core/cache.py: checksummed, rebuilt when damaged), keyed on the table's numbers and the
+    constants its answer depends on. The quadrature takes 1-1.5 s a table on the 2-core machine,
+    paid by every process that loads a scene with the sheeting (the night road's markings and
+    signs: 2.5 s of its 5.5 s load) and now by the first one only."""
+    from poevp_optics.core.cache import cache_file, cached, json_digest
+
+    t = law.table
+    key = json_digest([t.alpha_deg, t.beta_deg, t.ra_cd_per_lx_m2, t.efficiency, TAIL_SIGMA_MAX_DEG, TAIL_END_SIGMAS,
+                       PROPOSAL_ROWS, PROPOSAL_ROW_STEP_DEG, TAIL_CACHE_VERSION], algo="sha256", length=32)
+
+    def load(path):
+        with np.load(path) as z:
+            return float(z["sigma_deg"]), np.array(z["eta_rows"])
+
+    def problem(v):
+        sigma, eta = v
+        if not (math.isfinite(sigma) and 0 < sigma <= TAIL_SIGMA_MAX_DEG):
+            return f"sigma {sigma} deg outside (0, {TAIL_SIGMA_MAX_DEG}]"
+        if eta.shape != (PROPOSAL_ROWS,) or not np.all(np.isfinite(eta)) or np.any(eta < 0):
+            return f"eta rows {eta.shape}: not {PROPOSAL_ROWS} finite values >= 0"
+        return None
+
+    def save(tmp, v):
+        with open(tmp, "wb") as fh:
+            np.savez(fh, sigma_deg=np.float64(v[0]), eta_rows=np.asarray(v[1], np.float64))
+
+    return cached(cache_file("retro", f"tail-{key}.npz"), lambda: _solve_tail(law), load=load, save=save,
+                  check=problem)
+
+
 @functools.lru_cache(maxsize=32)
 def retro_law(table: SheetingTable) -> RetroLaw:
-    """Cached `RetroLaw` (the efficiency quadrature takes ~0.3 s)."""
+    """Cached `RetroLaw` (its tail's quadrature is kept on disk too: `_kept_tail`)."""
     return RetroLaw(table)
 
 
