@@ -15,7 +15,7 @@ on scenes/smoke (llvm_ad_mono, 2 cores, numpy 2, DrJit 1.x):
 | error target    | P x 16 K: each radiance sample's running mean and squared deviations (float64) while the frame renders to `render.target_rel_error` (render/progressive.py) | counted, not measured |
 | JIT kernels     | K x 200 KiB + K^2 x 600 B: DrJit traces one gather and one FMA per sub-frame into one kernel | +80 MB at K = 256, +780 MB at K = 1024 (8x8 px) |
 | registration    | P x 400 (area-weighted taps and their construction)    | 345 B/px at 1024^2           |
-| predictor       | `DMVFNConfig.activation_bytes` (upper bound), flow 100 B/px | dmvfn_lite 50 B/px     |
+| predictor       | `DMVFNConfig.activation_bytes` (upper bound), flow 100 B/px, track and track_net 160 B/px (they keep the last four frames' regions and outlines between calls) | dmvfn_lite 50 B/px; peak of one call at 368x640 (tracemalloc): flow 94, track_net 111, track 132 B/px |
 | chart captures  | chart only: repeats x P x 40 (stacked estimates, flags, electrons) | -                   |
 
 P = pixels of the rendered grid (the sensor plus the PSF's guard band), K = radiance samples per
@@ -42,6 +42,7 @@ PIPELINE_BYTES_PER_PX_SUBFRAME = 16
 TARGET_BYTES_PER_PX_SUBFRAME = 16       # Replicates.mean + .m2, float64
 REGISTRATION_BYTES_PER_PX = 400
 FLOW_BYTES_PER_PX = 100
+TRACK_BYTES_PER_PX = 160
 CHART_BYTES_PER_PX_REPEAT = 40
 DMD_TABLE_COPIES = 4
 JIT_BYTES_PER_SUBFRAME = 200 << 10
@@ -247,7 +248,8 @@ def _predictor_part(spec, job: str) -> Part | None:
 
         cfg = LITE if spec.predictor.name == "dmvfn_lite" else FULL
         return Part(cfg.activation_bytes(h, w), "predictor.resolution")
-    return Part(FLOW_BYTES_PER_PX * h * w, "predictor.resolution")
+    per_px = TRACK_BYTES_PER_PX if spec.predictor.name in ("track", "track_net") else FLOW_BYTES_PER_PX
+    return Part(per_px * h * w, "predictor.resolution")
 
 
 def estimate_run(spec, job: str = "render") -> MemoryEstimate:
