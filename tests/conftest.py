@@ -13,6 +13,14 @@ SCENES = ROOT / "scenes"
 
 os.environ.setdefault("POEVP_CACHE_DIR", str(ROOT / "out" / ".test-cache"))
 
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    # `make test` runs two workers on CI's two cores: each renders on one thread (DrJit, torch,
+    # OpenCV) instead of on every core, so the two do not fight over both (the commands they
+    # start still take every core, as a user's would).
+    from poevp_optics.core.runtime import set_threads
+
+    set_threads(1)
+
 
 @pytest.hookimpl(tryfirst=True)
 def pytest_collection_modifyitems(config, items):
