@@ -11,7 +11,8 @@ install:
 demo: install
 	$(POEVP) render scenes/night_road --out out/night_road
 
-# Two workers (pytest-xdist): CI's two cores; tests/conftest.py keeps each module on one worker.
+# Two workers (pytest-xdist): CI's two cores; tests/conftest.py keeps each module on one worker
+# and has each worker render on one thread.
 test: install
 	$(PYTEST) -q -ra -n 2 --dist loadgroup tests
 
