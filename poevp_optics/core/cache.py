@@ -6,6 +6,7 @@ verified load-or-build path for the package's caches:
 | objective/psf-*.npz | SHA-256 of sorted JSON (params, shape, versions, QE table) | name, image shape, node positions; odd square, finite, unit-sum kernels | camera/objective/psfs.py |
 | objective/ri-*.npz | the same recipe | angles 0 .. the image's corner field, rising; RI finite, > 0, 1 on axis | camera/objective/vignetting.py |
 | meshes/car_rear_*.ply | SHA-1 of the mesh's bytes and MESH_VERSION | PLY header and counts, every vertex and face | sources/road.py |
+| retro/tail-*.npz | SHA-256 of JSON (the sheeting table's angles, R_A and efficiency; the tail's constants; TAIL_CACHE_VERSION) | sigma in (0, TAIL_SIGMA_MAX_DEG]; PROPOSAL_ROWS eta values, finite, >= 0 | render/materials/retroreflective.py |
 | plates/plate_*.png | SHA-1 of text, width, height, format, band, the font file's SHA-256 (16 hex) and "v2", bar-separated | decodes to the plate's size and pixels | sources/plates.py |
 | predictor_data/seq_*.npz | SHA-1 of JSON (sequences, frames, seed, size) | frames uint8 (sequences, frames, H, W) | apps/train/training_data.py |
 | eval/*.npz | SHA-1 of JSON (sequence, node times, poses, shutter; the render's fingerprint: resolved scene, hashes of the files it reads, plate font, render code, versions, backend, guard band) | mean, var (frames, nodes, H, W) finite, var >= 0; roi boxes | apps/evaluate/eval_sequences.py |
@@ -67,6 +68,15 @@ def digest(data: bytes | str, *, algo: str = "sha1", length: int = 16) -> str:
 def json_digest(obj, *, algo: str = "sha1", length: int = 16, **dumps) -> str:
     """`digest` of json.dumps(obj, **dumps) (e.g. sort_keys=True, default=str)."""
     return digest(json.dumps(obj, **dumps), algo=algo, length=length)
+
+
+def save_npz(path: str | os.PathLike, arrays: dict) -> None:
+    """Write `arrays` as an uncompressed .npz to `path` (the name kept as given: NumPy would add
+    .npz to a temporary file's name)."""
+    import numpy as np
+
+    with open(path, "wb") as fh:
+        np.savez(fh, **arrays)
 
 
 def cache_file(kind: str, name: str) -> Path:

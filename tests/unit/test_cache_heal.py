@@ -208,7 +208,7 @@ def _other_grid(params):
 
 @pytest.mark.parametrize("damage", [*BYTE_DAMAGES, "other_arrays", "grid_of_another_image"])
 def test_psf_grid_heals(tmp_path, capsys, objective, damage):
-    from poevp_optics.camera.objective.cache import save_npz
+    from poevp_optics.core.cache import save_npz
 
     params, shape, builds = objective
     g0 = _psf(params, shape, tmp_path)
@@ -234,7 +234,7 @@ def test_an_intact_psf_grid_is_not_rebuilt(tmp_path, capsys, objective):
 @pytest.mark.parametrize("damage", [*BYTE_DAMAGES, "table_of_another_field"])
 def test_ri_table_heals(tmp_path, capsys, objective, damage):
     from poevp_optics.camera.objective import vignetting
-    from poevp_optics.camera.objective.cache import save_npz
+    from poevp_optics.core.cache import save_npz
 
     params, shape, builds = objective
     ri0 = vignetting._ri_prescription(params, shape, tmp_path)

@@ -39,9 +39,3 @@ def cache_key(kind: str, params: ObjectiveParams, image_shape, keys) -> str:
                         "params": {k: p[k] for k in keys},
                         "qe": digest(np.ascontiguousarray(qe).tobytes(), algo="sha256", length=64)},
                        algo="sha256", length=32, sort_keys=True)
-
-
-def save_npz(path: Path, arrays: dict) -> None:
-    """Write `arrays` as an uncompressed .npz to `path` (the name kept as given)."""
-    with open(path, "wb") as fh:
-        np.savez(fh, **arrays)

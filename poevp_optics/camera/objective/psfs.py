@@ -12,11 +12,11 @@ from typing import Callable
 import numpy as np
 
 from poevp_optics.camera.kernels import cap_note, max_radius_px, pixel_integrated_radial
-from poevp_optics.camera.objective.cache import cache_key, resolve_cache_dir, save_npz
+from poevp_optics.camera.objective.cache import cache_key, resolve_cache_dir
 from poevp_optics.camera.objective.params import (OBJECTIVE_PSFS, ObjectiveParamError, ObjectiveParams, band,
                                                   sensor_band)
 from poevp_optics.camera.objective.prescriptions import build_lens, check_field, corner_radius_m
-from poevp_optics.core.cache import cached
+from poevp_optics.core.cache import cached, save_npz
 
 @dataclass(frozen=True, eq=False)
 class PSFGrid:

@@ -10,10 +10,10 @@ from typing import Callable
 
 import numpy as np
 
-from poevp_optics.camera.objective.cache import cache_key, resolve_cache_dir, save_npz
+from poevp_optics.camera.objective.cache import cache_key, resolve_cache_dir
 from poevp_optics.camera.objective.params import VIGNETTING, ObjectiveParams, band
 from poevp_optics.camera.objective.prescriptions import build_lens, check_field
-from poevp_optics.core.cache import cached
+from poevp_optics.core.cache import cached, save_npz
 
 def field_angle_rad(params: ObjectiveParams, image_shape) -> np.ndarray:
     """Field angle of each pixel centre: tan(theta) = r / f, r its distance from the image centre

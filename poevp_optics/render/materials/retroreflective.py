@@ -312,7 +312,7 @@ def _kept_tail(law: RetroLaw) -> tuple[float, np.ndarray]:
     constants its answer depends on. The quadrature takes 1-1.5 s a table on the 2-core machine,
     paid by every process that loads a scene with the sheeting (the night road's markings and
     signs: 2.5 s of its 5.5 s load) and now by the first one only."""
-    from poevp_optics.core.cache import cache_file, cached, json_digest
+    from poevp_optics.core.cache import cache_file, cached, json_digest, save_npz
 
     t = law.table
     key = json_digest([t.alpha_deg, t.beta_deg, t.ra_cd_per_lx_m2, t.efficiency, TAIL_SIGMA_MAX_DEG, TAIL_END_SIGMAS,
@@ -331,8 +331,7 @@ def _kept_tail(law: RetroLaw) -> tuple[float, np.ndarray]:
         return None
 
     def save(tmp, v):
-        with open(tmp, "wb") as fh:
-            np.savez(fh, sigma_deg=np.float64(v[0]), eta_rows=np.asarray(v[1], np.float64))
+        save_npz(tmp, {"sigma_deg": np.float64(v[0]), "eta_rows": np.asarray(v[1], np.float64)})
 
     return cached(cache_file("retro", f"tail-{key}.npz"), lambda: _solve_tail(law), load=load, save=save,
                   check=problem)
