@@ -6,6 +6,7 @@ without a word, pytest-xdist issue #1386)."""
 
 from __future__ import annotations
 
+import os
 import shutil
 import subprocess
 import sys
@@ -50,7 +51,7 @@ def test_modules_and_pages_stay_on_one_worker(tmp_path):
     out.mkdir()
     r = subprocess.run([sys.executable, "-m", "pytest", "-q", "-n", "2", "--dist", "loadgroup", "-p",
                         "no:cacheprovider", str(tmp_path)], cwd=tmp_path, capture_output=True, text=True,
-                       env={**__import__("os").environ, "GROUPS_OUT": str(out)}, timeout=120)
+                       env={**os.environ, "GROUPS_OUT": str(out)}, timeout=120)
     assert r.returncode == 0, r.stdout + r.stderr
     ran: dict[str, set[str]] = {}
     for f in out.iterdir():
