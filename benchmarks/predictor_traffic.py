@@ -65,7 +65,7 @@ def true_chain_predictor():
                 out.append(near[self.t] - near[self.t - 1] if len(tr.displacements) == MAX_CHAIN else d)
             return out
 
-    return TrueChains(base.model, base.weights_path, base.meta)
+    return TrueChains(base.layers, base.weights_path, base.meta)
 
 
 def run(cases, predictors, log=print):

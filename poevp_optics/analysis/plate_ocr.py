@@ -31,6 +31,9 @@ from torch import nn
 
 from poevp_optics.core.paths import ASSETS_DIR
 from poevp_optics.core.weights import WeightsError, load_state, read_weights_file, write_weights_file
+from poevp_optics.core import runtime
+
+runtime.torch_threads()          # the run's thread count, where it was set before torch loaded
 
 #: The characters a plate may hold; CTC's blank is class 0.
 CHARSET = "0123456789ABCDEFGHIJKLMNOPQRSTUVWXYZ"

@@ -12,6 +12,7 @@ import errno
 import os
 import signal
 import re
+import sys
 import warnings
 from pathlib import Path
 
@@ -171,7 +172,8 @@ def max_threads() -> int:
 
 def set_threads(n: int | None) -> None:
     """Thread count for DrJit's LLVM backend, torch, OpenCV and SciPy's FFTs (`fft_workers`;
-    None: leave the defaults)."""
+    None: leave the defaults). torch is not imported for it (1.7-3 s a process): set here when
+    loaded, else by `torch_threads` in each module that computes with torch, once it loads."""
     global _THREADS
     if n is None:
         return
@@ -186,18 +188,21 @@ def set_threads(n: int | None) -> None:
         dr.set_thread_count(int(n))
     except RuntimeError as e:          # the OS refused the threads (EAGAIN)
         raise OSError(errno.EAGAIN, f"cannot start {n} threads ({e})", "--threads") from None
-    try:
-        import torch
-
-        torch.set_num_threads(int(n))
-    except ImportError:
-        pass
+    torch_threads()
     try:
         import cv2
 
         cv2.setNumThreads(int(n))
     except ImportError:
         pass
+
+
+def torch_threads() -> None:
+    """The run's thread count (`set_threads`) given to torch, where torch is loaded; called by
+    `set_threads` and by each module that computes with torch, after its import."""
+    torch = sys.modules.get("torch")
+    if _THREADS is not None and torch is not None:
+        torch.set_num_threads(_THREADS)
 
 
 def fft_workers() -> int:

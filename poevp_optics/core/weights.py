@@ -4,10 +4,14 @@ analysis/plate_ocr.py: the plate recogniser)."""
 
 from __future__ import annotations
 
+import hashlib
 import json
 from pathlib import Path
 
+import numpy as np
+
 from poevp_optics.core.exceptions import UserError
+from poevp_optics.core.paths import ASSETS_DIR
 
 
 class WeightsError(UserError):
@@ -30,27 +34,33 @@ def write_weights_file(path: Path, model, meta: dict, float_dtype=None) -> None:
         save_file(state, str(tmp), metadata=md)
 
 
-def read_weights_file(path: Path, what: str, model: str | None = None) -> tuple[dict, dict]:
+def read_weights_file(path: Path, what: str, model: str | None = None,
+                      framework: str = "pt") -> tuple[dict, dict]:
     """(tensors, metadata) of a safetensors file (never pickle); a one-line WeightsError naming
     the file when it is missing (`what` names the weights), unreadable, holds NaN or Inf, or
-    (with `model`) its metadata's 'model' is another."""
-    import torch
+    (with `model`) its metadata's 'model' is another. framework "pt": torch tensors; "numpy":
+    NumPy arrays, torch not imported (a network the loop runs in NumPy: track_net.py)."""
     from safetensors import SafetensorError, safe_open
-    from safetensors.torch import load_file
 
+    if framework == "pt":
+        from safetensors.torch import load_file
+    elif framework == "numpy":
+        from safetensors.numpy import load_file
+    else:
+        raise ValueError(f"framework must be 'pt' or 'numpy', got {framework!r}")
     path = Path(path)
     if not path.is_file():
         raise WeightsError(f"{path}: {what} not found")
     try:
-        with safe_open(str(path), framework="pt") as f:
+        with safe_open(str(path), framework="numpy") as f:
             meta = f.metadata() or {}
         tensors = load_file(str(path))
     except (SafetensorError, OSError, ValueError) as e:
         raise WeightsError(f"{path}: not a readable safetensors file ({e})") from None
     for key, t in tensors.items():
-        if t.is_floating_point() and not bool(torch.isfinite(t).all()):
-            n = int((~torch.isfinite(t)).sum())
-            raise WeightsError(f"{path}: weights hold NaN or Inf ({n} of {t.numel()} values of {key}): "
+        bad, total = _non_finite(t)
+        if bad:
+            raise WeightsError(f"{path}: weights hold NaN or Inf ({bad} of {total} values of {key}): "
                                "a corrupted or diverged training run")
     if model is not None:
         try:
@@ -60,6 +70,28 @@ def read_weights_file(path: Path, what: str, model: str | None = None) -> tuple[
         if found != model:
             raise WeightsError(f"{path}: not {what} (metadata 'model' is {meta.get('model')!r})")
     return tensors, meta
+
+
+def _non_finite(t) -> tuple[int, int]:
+    """(NaN and Inf values, all values) of a torch tensor or NumPy array (none in integers)."""
+    if isinstance(t, np.ndarray):
+        return (int((~np.isfinite(t)).sum()) if np.issubdtype(t.dtype, np.floating) else 0), int(t.size)
+    import torch
+
+    return (int((~torch.isfinite(t)).sum()) if t.is_floating_point() else 0), int(t.numel())
+
+
+def weights_identity(path: Path | None) -> dict:
+    """The weights file as the report names it: shipped weights relative to the assets folder
+    (the same on every clone), others absolute; plus the first 16 hex of its SHA-256."""
+    if path is None:
+        return {"weights": None}
+    path = Path(path).resolve()
+    try:
+        shown = f"assets/predictor/{path.relative_to((ASSETS_DIR / 'predictor').resolve())}"
+    except ValueError:
+        shown = str(path)
+    return {"weights": shown, "weights_sha256": hashlib.sha256(path.read_bytes()).hexdigest()[:16]}
 
 
 def load_state(model, tensors: dict, path: Path):

@@ -62,12 +62,12 @@ def test_scoring_a_square_moving_at_constant_speed():
 def test_library_scenes_are_not_in_any_shipped_predictors_training():
     """Every shipped predictor's record names where its training data came from, and no library
     scene is among them (the benchmark's claim that these scenes are unseen)."""
-    from poevp_optics.control.predictors.track_net import default_weights, load_track_net
+    from poevp_optics.control.predictors.track_net import default_weights, read_track_net
     from poevp_optics.core.paths import ASSETS_DIR
 
     sources = {n: json.loads((ASSETS_DIR / "predictor" / f"{n}.json").read_text())["dataset"]["source"]
                for n in ("dmvfn", "dmvfn_lite")}
-    _, meta = load_track_net(default_weights())
+    _, _, meta = read_track_net(default_weights())
     sources["track_net"] = meta["command"]
     assert "highbeam_plate" in sources["dmvfn"] and "highbeam_plate" in sources["dmvfn_lite"]
     assert "train_track" in sources["track_net"]                 # analysis/motion_paths.py's paths

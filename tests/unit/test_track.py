@@ -12,8 +12,8 @@ from poevp_optics.control.loop_step import CLIP_MARKER, resize_keeping_clip
 from poevp_optics.control.predictors import make_predictor
 from poevp_optics.control.predictors.dmvfn import WeightsError
 from poevp_optics.control.predictors.track import closed_form_displacement, region_tracks
-from poevp_optics.control.predictors.track_net import (TrackNet, TrackNetPredictor, default_weights, load_track_net,
-                                                       save_track_net)
+from poevp_optics.control.predictors.track_net import TrackNetPredictor, default_weights, read_track_net
+from poevp_optics.control.predictors.track_net_model import TrackNet, load_track_net, numpy_layers, save_track_net
 
 
 def test_closed_forms_of_the_extrapolation():
@@ -91,9 +91,64 @@ def test_track_net_weights_round_trip_and_errors(tmp_path):
 def test_shipped_track_net_weights_load_with_their_record():
     model, meta = load_track_net(default_weights())
     assert {"command", "data", "split", "budget", "test"} <= set(meta)
-    pred = TrackNetPredictor(model, default_weights(), meta)
+    layers, _, record = read_track_net(default_weights())
+    assert record == meta
+    for (w, b), (tw, tb) in zip(layers, numpy_layers(model)):
+        np.testing.assert_array_equal(w, tw)
+        np.testing.assert_array_equal(b, tb)
+    pred = TrackNetPredictor(layers, default_weights(), meta)
     d = pred.describe()
     assert d["weights"] == "assets/predictor/track_net.safetensors" and len(d["weights_sha256"]) == 16
+
+
+def test_track_net_weights_read_without_torch_refuse_a_wrong_shape(tmp_path):
+    """The loop's reader (NumPy) refuses weights of another shape, NaN weights and a cut file in
+    one line naming the file, like the torch reader."""
+    net = TrackNet()
+    path = tmp_path / "t.safetensors"
+    save_track_net(net, path, {"note": "x"})
+    layers, cfg, meta = read_track_net(path)
+    assert meta == {"note": "x"} and cfg == net.cfg and [w.shape for w, _ in layers] == [(64, 15), (64, 64), (3, 64)]
+    from poevp_optics.control.predictors.track_net import TrackNetConfig
+    from poevp_optics.control.predictors.track_net_model import TrackNet as Net
+
+    other = tmp_path / "other.safetensors"
+    save_track_net(Net(TrackNetConfig(hidden=32)), other, {})
+    raw = other.read_bytes().replace(b'\\"hidden\\": 32', b'\\"hidden\\": 64')
+    assert raw != other.read_bytes()
+    other.write_bytes(raw)
+    with pytest.raises(WeightsError, match=f"{other.name}: weights do not match the model: net.0.bias"):
+        read_track_net(other)
+    with torch.no_grad():
+        net.net[2].weight[3, 4] = float("nan")
+    save_track_net(net, path, {})
+    with pytest.raises(WeightsError, match="NaN or Inf \\(1 of 4096 values of net.2.weight\\)"):
+        read_track_net(path)
+    path.write_bytes(path.read_bytes()[:100])
+    with pytest.raises(WeightsError, match="not a readable safetensors"):
+        read_track_net(path)
+
+
+def test_the_loop_predicts_with_track_net_without_torch():
+    """A run with `track_net` (the default scene's predictor) loads its weights, predicts and
+    computes its mask without importing torch (1.7-3 s a process)."""
+    import subprocess
+    import sys
+
+    code = ("import sys, numpy as np\n"
+            "from poevp_optics.control.predictors import make_predictor\n"
+            "from poevp_optics.control.masks import target_levels\n"
+            "p = make_predictor('track_net')\n"
+            "f = [np.zeros((64, 96), np.float32) for _ in range(4)]\n"
+            "for i, x in enumerate(f): x[20:30, 10 + 5 * i:20 + 5 * i] = 255.0\n"
+            "out = p(f)\n"
+            "lv = target_levels(out * 40.0, 1e4, 0.5, np.linspace(0.01, 1.0, 8))\n"
+            "assert out[20:30, 30:40].min() == 255.0 and lv.shape == out.shape, (out.max(), lv.shape)\n"
+            "print(p.describe()['parameters'], 'torch' in sys.modules)\n")
+    got = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert got.returncode == 0, got.stderr
+    n_params = (15 * 64 + 64) + (64 * 64 + 64) + (64 * 3 + 3)        # MLP 15 -> 64 -> 64 -> 3
+    assert got.stdout.split() == [str(n_params), "False"], got.stdout
 
 
 def test_dmvfn_without_weights_refuses_in_one_line(monkeypatch, tmp_path):
@@ -239,8 +294,7 @@ def test_track_net_numpy_forward_equals_the_model():
     resp = torch.rand(200, 3)
     with torch.no_grad():
         want = net(disp, valid, resp).numpy()
-    layers = [(m.weight.detach().numpy(), m.bias.detach().numpy()) for m in net.net if isinstance(m, torch.nn.Linear)]
-    got = numpy_forward(layers, disp.numpy(), valid.numpy(), resp.numpy())
+    got = numpy_forward(numpy_layers(net), disp.numpy(), valid.numpy(), resp.numpy())
     np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-3)
     stopped = disp[:, 0].norm(dim=-1).numpy() < STOP_PX
     assert stopped.sum() == 20

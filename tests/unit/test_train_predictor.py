@@ -151,7 +151,7 @@ def _metadata(path: Path) -> dict:
 
 def test_scene_weights_metadata(cache, monkeypatch, tmp_path, capsys):
     from poevp_optics.control.predictors import make_predictor
-    from poevp_optics.control.predictors.track_net import load_track_net
+    from poevp_optics.control.predictors.track_net_model import load_track_net
 
     monkeypatch.setenv("POEVP_CACHE_DIR", str(cache))
     monkeypatch.setattr(td, "render_frames", _no_render)

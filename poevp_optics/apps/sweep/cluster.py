@@ -48,12 +48,13 @@ def software_versions() -> dict[str, str]:
     from poevp_optics import __version__
     from poevp_optics.core import runtime  # noqa: F401 - runtime first: it picks DrJit's libLLVM
 
+    from importlib.metadata import version
+
     import drjit
     import mitsuba
-    import torch
 
     return {"poevp_optics": __version__, "mitsuba": mitsuba.__version__, "drjit": drjit.__version__,
-            "torch": torch.__version__}
+            "torch": version("torch")}            # the installed package's; torch itself not imported
 
 
 def version_mismatch(client: dict[str, str], worker: dict[str, str]) -> str | None:

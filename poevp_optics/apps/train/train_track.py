@@ -45,8 +45,8 @@ import torch
 from poevp_optics.analysis.motion_paths import KINDS, TRAINING_SHAPES, PathSpec, render_sequence
 from poevp_optics.core.exceptions import UserError
 from poevp_optics.control.predictors.track import RegionTrack, closed_form_displacement, region_tracks
-from poevp_optics.control.predictors.track_net import (TrackNet, TrackNetConfig, chain_arrays,
-                                                        save_track_net)
+from poevp_optics.control.predictors.track_net import TrackNetConfig, chain_arrays
+from poevp_optics.control.predictors.track_net_model import TrackNet, save_track_net
 
 #: Seed offsets of the three splits (disjoint seed streams: texts, paths and noise all differ).
 SPLIT_SEEDS = {"train": 0, "val": 1_000_000, "test": 2_000_000}

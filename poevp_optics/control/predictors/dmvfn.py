@@ -19,7 +19,6 @@ A saturated region that stands still in both input frames is held where it is
 
 from __future__ import annotations
 
-import hashlib
 import json
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -29,10 +28,14 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from poevp_optics.core.weights import WeightsError, load_state, read_weights_file, write_weights_file
+from poevp_optics.core.weights import (WeightsError, load_state, read_weights_file, weights_identity,
+                                       write_weights_file)
 from poevp_optics.control.predictors.base import Predictor
 from poevp_optics.control.predictors.flow import SATURATED
 from poevp_optics.core.paths import ASSETS_DIR
+from poevp_optics.core import runtime
+
+runtime.torch_threads()          # the run's thread count, where it was set before torch loaded
 
 ASSETS = ASSETS_DIR / "predictor"
 
@@ -301,19 +304,6 @@ def standing_regions(prev_sat: np.ndarray, cur_sat: np.ndarray) -> list[tuple[sl
         if np.hypot(*(ca - cb)) < STANDING_SHIFT_PX:
             out.append(box)
     return out
-
-
-def weights_identity(path: Path | None) -> dict:
-    """The weights file as the report names it: shipped weights relative to the assets folder
-    (the same on every clone), others absolute; plus the first 16 hex of its SHA-256."""
-    if path is None:
-        return {"weights": None}
-    path = Path(path).resolve()
-    try:
-        shown = f"assets/predictor/{path.relative_to(ASSETS.resolve())}"
-    except ValueError:
-        shown = str(path)
-    return {"weights": shown, "weights_sha256": hashlib.sha256(path.read_bytes()).hexdigest()[:16]}
 
 
 def default_weights(name: str) -> Path:

@@ -36,27 +36,28 @@ motion is continued as `track` continues it (`closed_form_global`: a pitch oscil
 motion); the two are added. Where no global motion is found (one car alone, or no camera motion)
 the relative chain is the chain itself. The training paths (one car, no camera motion) hold no
 global motion, so their chains are the same either way.
-Weights: safetensors with the config and the training record in the metadata (never pickle).
+Weights: safetensors with the config and the training record in the metadata (never pickle),
+read into NumPy for the loop (torch is not imported to predict); the torch module that is
+trained and saved is track_net_model.py.
 """
 
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import torch
-from torch import nn
 
-from poevp_optics.control.predictors.dmvfn import weights_identity
-from poevp_optics.core.weights import WeightsError, load_state, read_weights_file, write_weights_file
 from poevp_optics.control.predictors.track import MAX_CHAIN, RegionTrack, RegionTracker
 from poevp_optics.core.paths import ASSETS_DIR
+from poevp_optics.core.weights import WeightsError, read_weights_file, weights_identity
 
 N_FEATURES = 15
 #: A newest displacement shorter than this (px) is a stop: predicted to stand (module docstring).
 STOP_PX = 1.0
+#: The state-dict keys of the network's three linear layers (track_net_model.py `TrackNet.net`).
+LINEAR_KEYS = ("net.0", "net.2", "net.4")
 
 
 @dataclass(frozen=True)
@@ -81,40 +82,6 @@ def chain_arrays(tracks, relative: bool = False) -> tuple[np.ndarray, np.ndarray
     return disp, valid, resp
 
 
-def invariant_features(disp: torch.Tensor, valid: torch.Tensor, resp: torch.Tensor) -> torch.Tensor:
-    """(N, 15) rotation- and mirror-invariant features of (N, 3, 2) displacement chains."""
-    d = disp * valid[..., None]
-    sq = (d * d).sum(-1)                                          # (N, 3) squared lengths
-    s2 = sq.max(-1, keepdim=True).values.clamp_min(1.0)           # scale: largest, at least 1 px^2
-    dots = torch.stack([(d[:, 0] * d[:, 1]).sum(-1), (d[:, 0] * d[:, 2]).sum(-1),
-                        (d[:, 1] * d[:, 2]).sum(-1)], -1)
-    cross = torch.stack([(d[:, 0, 0] * d[:, 1, 1] - d[:, 0, 1] * d[:, 1, 0]).abs(),
-                         (d[:, 1, 0] * d[:, 2, 1] - d[:, 1, 1] * d[:, 2, 0]).abs()], -1)
-    return torch.cat([sq / s2, dots / s2, cross / s2, 0.5 * torch.log(s2) / 4.0 - 0.5, valid, resp], -1)
-
-
-class TrackNet(nn.Module):
-    """Coefficients of the displacement chain (module docstring)."""
-
-    def __init__(self, cfg: TrackNetConfig = TrackNetConfig()):
-        super().__init__()
-        self.cfg = cfg
-        self.net = nn.Sequential(nn.Linear(N_FEATURES, cfg.hidden), nn.GELU(),
-                                 nn.Linear(cfg.hidden, cfg.hidden), nn.GELU(), nn.Linear(cfg.hidden, MAX_CHAIN))
-        nn.init.zeros_(self.net[-1].weight)
-        nn.init.zeros_(self.net[-1].bias)
-
-    def forward(self, disp: torch.Tensor, valid: torch.Tensor, resp: torch.Tensor) -> torch.Tensor:
-        """(N, 2) next displacement (px) from (N, 3, 2) chains; a stopped region's (newest
-        displacement under STOP_PX) is zero: it stands."""
-        base = torch.zeros_like(valid)
-        base[:, 0] = 1.0
-        coef = (base + self.net(invariant_features(disp, valid, resp))) * valid
-        out = (coef[..., None] * disp).sum(1)
-        stopped = (disp[:, 0].norm(dim=-1) < STOP_PX)[:, None]
-        return torch.where(stopped, torch.zeros_like(out), out)
-
-
 # ----------------------------------------------------------------------------- weights
 ASSETS = ASSETS_DIR / "predictor"
 
@@ -123,21 +90,26 @@ def default_weights() -> Path:
     return ASSETS / "track_net.safetensors"
 
 
-def save_track_net(model: TrackNet, path: Path, meta: dict) -> None:
-    write_weights_file(path, model, {"config": asdict(model.cfg), "model": "track_net", **meta})
-
-
-def load_track_net(path: Path) -> tuple[TrackNet, dict]:
-    """A TrackNet from safetensors (never pickle); one-line errors on a missing, corrupt,
-    non-finite or mismatched file."""
+def read_track_net(path: Path) -> tuple[list[tuple[np.ndarray, np.ndarray]], TrackNetConfig, dict]:
+    """(layers [(weight (out, in), bias)] float32, config, record) of a track_net safetensors file,
+    in NumPy (torch not imported); one-line errors on a missing, corrupt, non-finite or mismatched
+    file (the layers' shapes checked against the config)."""
     path = Path(path)
-    tensors, meta = read_weights_file(path, "track_net weights", model="track_net")
+    tensors, meta = read_weights_file(path, "track_net weights", model="track_net", framework="numpy")
     try:
         cfg = TrackNetConfig(**json.loads(meta["config"]))
     except (KeyError, TypeError, json.JSONDecodeError) as e:
         raise WeightsError(f"{path}: missing or bad 'config' metadata ({e})") from None
-    model = load_state(TrackNet(cfg), tensors, path)
-    return model, {k: json.loads(v) for k, v in meta.items() if k not in ("config", "model")}
+    shapes = [(cfg.hidden, N_FEATURES), (cfg.hidden, cfg.hidden), (MAX_CHAIN, cfg.hidden)]
+    want = {f"{k}.{p}": (s if p == "weight" else s[:1]) for k, s in zip(LINEAR_KEYS, shapes) for p in ("weight", "bias")}
+    got = {k: tuple(v.shape) for k, v in tensors.items()}
+    if got != want:
+        extra = sorted(set(got) ^ set(want)) or sorted(k for k in want if got[k] != want[k])
+        raise WeightsError(f"{path}: weights do not match the model: {extra[0]} "
+                           f"{got.get(extra[0], 'missing')} against {want.get(extra[0], 'none')}")
+    layers = [(tensors[f"{k}.weight"].astype(np.float32), tensors[f"{k}.bias"].astype(np.float32))
+              for k in LINEAR_KEYS]
+    return layers, cfg, {k: json.loads(v) for k, v in meta.items() if k not in ("config", "model")}
 
 
 def numpy_forward(layers: list[tuple[np.ndarray, np.ndarray]], disp: np.ndarray, valid: np.ndarray,
@@ -168,17 +140,18 @@ def numpy_forward(layers: list[tuple[np.ndarray, np.ndarray]], disp: np.ndarray,
 
 
 class TrackNetPredictor(RegionTracker):
-    """`track`'s measurement and move, `TrackNet`'s extrapolation (run by `numpy_forward`)."""
+    """`track`'s measurement and move, the trained network's extrapolation (`numpy_forward`).
+    layers: [(weight (out, in), bias)] of its three linear layers (`read_track_net`, or
+    track_net_model.py `numpy_layers` of a torch module)."""
 
     name = "track_net"
 
-    def __init__(self, model: TrackNet, weights_path: Path | None = None, meta: dict | None = None):
+    def __init__(self, layers: list[tuple[np.ndarray, np.ndarray]], weights_path: Path | None = None,
+                 meta: dict | None = None):
         super().__init__()
-        self.model = model.eval()
+        self.layers = [(np.asarray(w, np.float32), np.asarray(b, np.float32)) for w, b in layers]
         self.weights_path = weights_path
         self.meta = meta or {}
-        self.layers = [(m.weight.detach().numpy().astype(np.float32), m.bias.detach().numpy().astype(np.float32))
-                       for m in model.net if isinstance(m, nn.Linear)]
 
     def own_motion(self, tracks: list[RegionTrack]) -> list[np.ndarray]:
         """The model on each region's relative chain (its displacements less the frame's global
@@ -193,11 +166,11 @@ class TrackNetPredictor(RegionTracker):
     def describe(self) -> dict:
         held = {k: v["track_net"] for k, v in self.meta.get("test", {}).items() if "track_net" in v}
         return {"name": self.name, **weights_identity(self.weights_path),
-                "parameters": sum(p.numel() for p in self.model.parameters()), "context_frames": MAX_CHAIN + 1,
+                "parameters": sum(w.size + b.size for w, b in self.layers), "context_frames": MAX_CHAIN + 1,
                 **({"held_out_median_error_px": held} if held else {})}
 
 
 def load_predictor(weights: Path | None) -> TrackNetPredictor:
     path = Path(weights) if weights else default_weights()
-    model, meta = load_track_net(path)
-    return TrackNetPredictor(model, path, meta)
+    layers, _, meta = read_track_net(path)
+    return TrackNetPredictor(layers, path, meta)
