@@ -6,7 +6,7 @@ on scenes/smoke (llvm_ad_mono, 2 cores, numpy 2, DrJit 1.x):
 
 | part            | bytes                                                  | measured                     |
 |-----------------|--------------------------------------------------------|------------------------------|
-| libraries       | 800 MiB (Python, Mitsuba/DrJit LLVM, torch, colour, OpenCV) | 510 MB at 64x64 here; the CI runner (2 cores) peaked 140 MB above this machine on the same 512^2 run |
+| libraries       | 640 MiB (Python, Mitsuba/DrJit LLVM, colour, OpenCV), + 180 MiB where a torch network runs (`dmvfn`, `dmvfn_lite`) | 345 MiB at 64x64 here, 523 MiB with torch loaded; the CI runner (2 cores) peaked 140 MB above this machine on the same 512^2 run |
 | frame pipeline  | P (300 + 16 K): film, K sub-frames, MC splits, DMD weights, sensor draws, reconstruction, EXR/PNG/tone-map buffers | 280-300 B/px at K = 2 (256^2 ... 2048^2), +6.4 B/px per extra sub-frame; spp does not matter (one wavefront per pixel) |
 | held exposures  | compare only: frames x P (4 K + 8)                     | the exposures list it keeps  |
 | PSF             | kernel n^2 x 16 + build strips + FFT buffers (`relay.fft_bytes`) | +27 MB at 1024^2, sigma 20 |
@@ -36,7 +36,9 @@ from poevp_optics.core.exceptions import UserError
 
 MIB = 1 << 20
 GIB = 1 << 30
-LIBRARIES_BYTES = 800 * MIB
+LIBRARIES_BYTES = 640 * MIB
+#: What loading torch adds to a process's peak (measured: the same smoke run with torch imported).
+TORCH_BYTES = 180 * MIB
 PIPELINE_BYTES_PER_PX = 300
 PIPELINE_BYTES_PER_PX_SUBFRAME = 16
 TARGET_BYTES_PER_PX_SUBFRAME = 16       # Replicates.mean + .m2, float64
@@ -247,7 +249,7 @@ def _predictor_part(spec, job: str) -> Part | None:
         from poevp_optics.control.predictors.dmvfn import FULL, LITE
 
         cfg = LITE if spec.predictor.name == "dmvfn_lite" else FULL
-        return Part(cfg.activation_bytes(h, w), "predictor.resolution")
+        return Part(cfg.activation_bytes(h, w) + TORCH_BYTES, "predictor.resolution")
     per_px = TRACK_BYTES_PER_PX if spec.predictor.name in ("track", "track_net") else FLOW_BYTES_PER_PX
     return Part(per_px * h * w, "predictor.resolution")
 
