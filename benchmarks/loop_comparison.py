@@ -1,8 +1,9 @@
 """Closed-loop comparison on the default scene, two held-out sequences and the reversal case.
 
-Runs `poevp compare` (one render per scene; oracle, hold, flow, dmvfn_lite x open, raw, demodulated)
-at the scenes' default settings and collects one summary table (loop_comparison.md, and each
-scene's comparison in loop/<scene>/, under out/benchmarks/ or, with --results, benchmarks/results/).
+Runs `poevp compare` (one render per scene; oracle, hold, flow, track, track_net, dmvfn_lite x open,
+raw, demodulated) at the scenes' default settings and collects one summary table
+(loop_comparison.md, and each scene's comparison in loop/<scene>/, under out/benchmarks/ or, with
+--results, benchmarks/results/).
 
     .venv/bin/python -m benchmarks.loop_comparison [--scenes highbeam_plate,heldout_swerve,...] [--results]
 """
@@ -13,7 +14,7 @@ import argparse
 import csv
 from pathlib import Path
 
-from benchmarks.common import add_results_flag, machine_line, markdown_table, output_folder, save_text
+from benchmarks.common import ROOT, add_results_flag, machine_line, markdown_table, output_folder, save_text
 
 SCENES = ["highbeam_plate", "heldout_swerve", "heldout_receding", "reversal"]
 
@@ -22,10 +23,11 @@ def main(argv=None):
     from poevp_optics.core import runtime
     from poevp_optics.apps.run.compare import COLUMNS, compare
     from poevp_optics.core.io import staged_dir
+    from poevp_optics.scene.load import load_scene
 
     ap = argparse.ArgumentParser()
     ap.add_argument("--scenes", default=",".join(SCENES))
-    ap.add_argument("--predictors", default="oracle,hold,flow,dmvfn_lite")
+    ap.add_argument("--predictors", default="oracle,hold,flow,track,track_net,dmvfn_lite")
     ap.add_argument("--modes", default="open,raw,demodulated")
     add_results_flag(ap)
     args = ap.parse_args(argv)
@@ -35,7 +37,7 @@ def main(argv=None):
     for scene in args.scenes.split(","):
         out = dest / "loop" / scene
         with staged_dir(out, kind="compare") as stage:
-            for r in compare(f"scenes/{scene}", args.predictors.split(","), args.modes.split(","),
+            for r in compare(load_scene(ROOT / "scenes" / scene), args.predictors.split(","), args.modes.split(","),
                              stage, progress=False):
                 rows.append([scene] + [r[c] for c in COLUMNS])
         print(f"done {scene}", flush=True)

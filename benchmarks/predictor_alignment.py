@@ -165,7 +165,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser()
     ap.add_argument("--speeds", default="24,32")
     ap.add_argument("--E", default="9")
-    ap.add_argument("--predictors", default="hold,flow,dmvfn_lite,oracle")
+    ap.add_argument("--predictors", default="hold,flow,track_net,dmvfn_lite,oracle")
     ap.add_argument("--texts", default="KA 7391,MH 2046")
     ap.add_argument("--frames", type=int, default=6)
     ap.add_argument("--loop-modes", default="open,demodulated")
