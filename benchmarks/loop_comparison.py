@@ -11,8 +11,6 @@ raw, demodulated) at the scenes' default settings and collects one summary table
 from __future__ import annotations
 
 import argparse
-import csv
-from pathlib import Path
 
 from benchmarks.common import ROOT, add_results_flag, machine_line, markdown_table, output_folder, save_text
 
