@@ -142,6 +142,7 @@ class Camera:
         self.objective_guard_px = 0
         self._objective_parts = None
         self._objective_memo: dict = {}
+        self._kept_veil = None           # (radiance, its glare veil): `dmd_image(keep_veil=True)`
         if spec.is_identity:
             return
         pitch = image_plane_pitch_m(dmd, self.params)
@@ -176,18 +177,22 @@ class Camera:
         self._sensor_taps = None
 
     # ------------------------------------------------------------------ objective
-    def dmd_image(self, radiance: np.ndarray) -> np.ndarray:
+    def dmd_image(self, radiance: np.ndarray, keep_veil: bool = False) -> np.ndarray:
         """The image the objective forms on the DMD from a pinhole render (mirror grid, float32):
         (1 - g) B(V x) + g H * (V x) (objective/); the input itself when the stage is skipped.
-        The last few results are kept by the input's identity (captures of one frame reuse them)."""
+        The last few results are kept by the input's identity (captures of one frame reuse them);
+        keep_veil: its glare term g H * (V x) is kept too, for `glare_veil` of the same input
+        (one at a time: a frame's time-averaged radiance)."""
         if self.objective is None:
             return radiance
         hit = self._objective_memo.get(id(radiance))
-        if hit is not None and hit[0] is radiance:
+        if hit is not None and hit[0] is radiance and not (keep_veil and self._veil_of(radiance) is None):
             return hit[1]
         parts = self._objective_parts
-        out = obj.apply(np.asarray(radiance, dtype=np.float32), self.objective, grid=parts["grid"],
-                        glare=parts["glare"], ri=parts["ri"])
+        out, veil = obj.apply_with_veil(np.asarray(radiance, dtype=np.float32), self.objective, grid=parts["grid"],
+                                        glare=parts["glare"], ri=parts["ri"])
+        if keep_veil and veil is not None:
+            self._kept_veil = (radiance, veil)
         if len(self._objective_memo) >= 16:
             self._objective_memo.pop(next(iter(self._objective_memo)))
         self._objective_memo[id(radiance)] = (radiance, out)      # holds the input: ids stay unique
@@ -198,10 +203,17 @@ class Camera:
         without glare. No mask lowers it: it is in the image the mirrors see."""
         if self.objective is None or self._objective_parts["glare"] is None:
             return None
+        kept = self._veil_of(radiance)
+        if kept is not None:
+            return kept
         x = np.asarray(radiance, dtype=np.float64)
         ri = self._objective_parts["ri"]
         v = x * ri if ri is not None else x
         return self.objective.glare_fraction * obj.convolve_reflect(v, self._objective_parts["glare"].kernel)
+
+    def _veil_of(self, radiance) -> np.ndarray | None:
+        kept = self._kept_veil
+        return kept[1] if kept is not None and kept[0] is radiance else None
 
     def objective_summary(self) -> dict | None:
         """The objective stage for a report (objective.summary), or None when it is skipped."""

@@ -466,6 +466,29 @@ def test_glare_before_the_dmd_is_not_removed_by_a_mask():
     assert cap_d.signal_e[cy - g, cx - g] < 0.01 * cap_w.signal_e[cy - g, cx - g]
 
 
+def test_the_kept_glare_veil_is_the_one_computed_alone():
+    """The frame's glare veil g H * (V x) kept from forming its image (`dmd_image(keep_veil=True)`)
+    is, bit for bit, the veil computed on its own, and the image is `apply`'s; the image minus
+    (1 - g) times the glare-free image is the veil (the stage's sum, to float32 rounding)."""
+    cam = _objective_camera(*GLARE_KEYS)
+    rng = np.random.default_rng(5)
+    img = (rng.random(cam.mirror_shape) ** 8 * 1e6).astype(np.float32)
+    alone = cam.glare_veil(img)
+    formed = cam.dmd_image(img, keep_veil=True)
+    assert cam.glare_veil(img) is cam.glare_veil(img)                  # kept, not computed again
+    np.testing.assert_array_equal(cam.glare_veil(img), alone)
+    parts = cam._objective_parts
+    np.testing.assert_array_equal(formed, ob.apply(img, cam.objective, grid=parts["grid"], glare=parts["glare"],
+                                                   ri=parts["ri"]))
+    other = img.copy()                                   # another input: its veil is computed, not the kept one
+    other[0, 0] += 1e6
+    assert not np.array_equal(cam.glare_veil(other), alone)
+    no_glare = ob.apply(img, dataclasses.replace(cam.objective, glare_fraction=0.0), grid=parts["grid"], ri=parts["ri"])
+    g = cam.objective.glare_fraction
+    np.testing.assert_allclose(formed - (1 - g) * no_glare.astype(np.float64), alone,
+                               atol=1e-6 * float(formed.max()))
+
+
 def test_memory_estimate_counts_the_objective_and_its_guard():
     """apps/run/memory.py: the rendered grid it sizes is the camera's (the objective's guard band),
     and the objective's part holds at least its glare FFT (relay.fft_bytes of that grid)."""

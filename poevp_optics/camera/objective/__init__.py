@@ -82,7 +82,7 @@ camera/convolution.py, camera/glare.py and camera/kernels.py it uses):
 | cache.py         | the on-disk cache of PSF grids and RI tables (`cache_key`, `CACHE_VERSION`) |
 | vignetting.py    | `VIGNETTING` entries, `relative_illumination`, `ri_profile` |
 | glare.py         | the halo from camera/glare.py's `GLARE_MODELS`, `glare_kernel`, `glare_floor` (VGI) |
-| stage.py         | `apply`, `radius_px` (guard band), `is_identity`, `summary` |
+| stage.py         | `apply` (`apply_with_veil`: its glare term too), `radius_px` (guard band), `is_identity`, `summary` |
 | memory.py        | `radius_bound_px`, `memory_bytes` (apps/run/memory.py's estimate) |
 """
 
@@ -99,13 +99,13 @@ from poevp_optics.camera.glare import (GLARE_MODELS, GlareKernel, glare_radii_px
                                        power_law_halo)
 from poevp_optics.camera.objective.glare import glare_floor, glare_kernel
 from poevp_optics.camera.convolution import convolve_reflect, field_convolve
-from poevp_optics.camera.objective.stage import apply, is_identity, radius_px, summary
+from poevp_optics.camera.objective.stage import apply, apply_with_veil, is_identity, radius_px, summary
 from poevp_optics.camera.objective.memory import memory_bytes, radius_bound_px
 
 __all__ = [
     "ACCURACY_KEYS", "CACHE_VERSION", "DEFAULT_F_NUMBER", "GLARE_MODELS", "OBJECTIVE_PSFS", "PRESCRIPTIONS",
     "VIGNETTING", "GlareKernel", "ObjectiveParamError", "ObjectiveParams", "ObjectiveSpec", "PSFEntry", "PSFGrid",
-    "Prescription", "VignettingEntry", "airy_radius_px", "apply", "band", "build_lens", "cache_key", "check_field",
+    "Prescription", "VignettingEntry", "airy_radius_px", "apply", "apply_with_veil", "band", "build_lens", "cache_key", "check_field",
     "convolve_reflect", "corner_radius_m", "field_angle_rad", "field_convolve", "glare_floor", "glare_kernel",
     "glare_radii_px", "is_identity", "max_radius_px", "memory_bytes", "node_positions_px", "pixel_integrated_radial", "with_accuracy",
     "power_law_energy_beyond", "power_law_halo", "psf_grid", "radius_bound_px", "radius_px", "relative_illumination",

@@ -33,12 +33,14 @@ def radius_bound_px(params: ObjectiveParams, image_shape) -> int:
 def memory_bytes(params: ObjectiveParams, image_shape, subframes: int) -> int:
     """Peak bytes of the stage on an image of `image_shape` (upper bound, from `radius_bound_px`):
     the PSF grid, the reflected and accumulated float64 images of `field_convolve`, one full-size
-    FFT each for the PSF and the glare (convolution.fft_bytes), the relative illumination, and the
-    camera's float32 outputs of `subframes` images (kept for the frame's captures)."""
+    FFT each for the PSF and the glare (convolution.fft_bytes), the relative illumination, the
+    camera's float32 outputs of `subframes` images (kept for the frame's captures), and with glare
+    the frame's float64 glare veil (kept for its report record: camera.py `dmd_image`)."""
     h, w = int(image_shape[0]), int(image_shape[1])
     r = radius_bound_px(params, image_shape)
     nodes = (2 * params.field_samples - 1) ** 2 if params.psf == "prescription" else 1
     n = 2 * r + 1
     total = nodes * n * n * 8 + (h + 2 * r) * (w + 2 * r) * 8 + (h + 4 * r) * (w + 4 * r) * 8
     total += fft_bytes((h, w), n) * (2 if params.glare_fraction > 0 else 1) + 2 * h * w * 8
-    return int(total + subframes * h * w * 4)
+    veil = h * w * 8 if params.glare_fraction > 0 else 0
+    return int(total + subframes * h * w * 4 + veil)

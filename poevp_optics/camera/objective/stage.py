@@ -49,6 +49,14 @@ def apply(image: np.ndarray, params: ObjectiveParams, *, cache_dir=None, grid: P
     pinhole render, guard band included; the optical axis at its centre). grid, glare, ri:
     precomputed `psf_grid`, `glare_kernel`, `relative_illumination` for this shape (built when
     None). Returns a new array of the input's float dtype (float64 inside)."""
+    return apply_with_veil(image, params, cache_dir=cache_dir, grid=grid, glare=glare, ri=ri)[0]
+
+
+def apply_with_veil(image: np.ndarray, params: ObjectiveParams, *, cache_dir=None, grid: PSFGrid | None = None,
+                    glare: GlareKernel | None = None,
+                    ri: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+    """(`apply`'s image, its veiling-glare term g H * (V x) in float64, the same numbers that
+    image was summed from; None without glare)."""
     x = np.asarray(image)
     if x.ndim != 2:
         raise ValueError(f"objective.apply: image must be 2-D (H, W), got shape {x.shape}")
@@ -57,7 +65,7 @@ def apply(image: np.ndarray, params: ObjectiveParams, *, cache_dir=None, grid: P
     if not np.all(np.isfinite(x)) or (x.size and x.min() < 0):
         raise ValueError("objective.apply: image holds NaN, Inf or negative radiance")
     if is_identity(params):
-        return x.copy()
+        return x.copy(), None
     shape = x.shape
     v = x.astype(np.float64)
     if ri is None:
@@ -72,13 +80,15 @@ def apply(image: np.ndarray, params: ObjectiveParams, *, cache_dir=None, grid: P
         v = v * ri
     core = field_convolve(v, grid) if grid is not None else v
     g = params.glare_fraction
+    veil = None
     if g > 0:
         if glare is None:
             glare = glare_kernel(params, shape)
-        out = (1 - g) * core + g * convolve_reflect(v, glare.kernel)
+        veil = g * convolve_reflect(v, glare.kernel)
+        out = (1 - g) * core + veil
     else:
         out = core
-    return np.maximum(out, 0.0).astype(x.dtype)
+    return np.maximum(out, 0.0).astype(x.dtype), veil
 
 
 def summary(params: ObjectiveParams, image_shape, *, cache_dir=None) -> dict:
