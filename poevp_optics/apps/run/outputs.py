@@ -95,14 +95,17 @@ class OutputWriter:
         write_exr(self.out / "reconstruction" / f"{name}.exr", {"Y": fc.est, "flags": fc.flags},
                   {**attrs, "poevp_quantity": "radiance estimate; flags: 1 saturated, 2 SNR<1, 4 unexposed, "
                                               "8 PSF crosstalk"})
+        sheet = o.contact_sheet and fc.exposure.index % self.sheet_every == 0 and len(self.sheet_rows) < 4
+        if o.previews or sheet:                  # tone-mapped once for the previews and the sheet
+            scene_8, est_8 = tonemap(fc.truth_s, o.tonemap), tonemap(fc.est, o.tonemap)
         if o.previews:
-            write_png(self.out / "preview" / f"{name}.png", tonemap(fc.truth_s, o.tonemap))
-            write_png(self.out / "preview_reconstruction" / f"{name}.png", tonemap(fc.est, o.tonemap))
-        if o.contact_sheet and fc.exposure.index % self.sheet_every == 0 and len(self.sheet_rows) < 4:
-            row = [tonemap(fc.truth_s, o.tonemap), to_8bit(fc.ldr.dn, max_dn).astype(np.uint8)]
+            write_png(self.out / "preview" / f"{name}.png", scene_8)
+            write_png(self.out / "preview_reconstruction" / f"{name}.png", est_8)
+        if sheet:
+            row = [scene_8, to_8bit(fc.ldr.dn, max_dn).astype(np.uint8)]
             if cam.dmd:
                 row.append(mask_png(fc.mask, cam.top_level))
-            row += [to_8bit(fc.enc.dn, max_dn).astype(np.uint8), tonemap(fc.est, o.tonemap)]
+            row += [to_8bit(fc.enc.dn, max_dn).astype(np.uint8), est_8]
             self.sheet_rows.append(row)
 
     def finish(self) -> None:
