@@ -101,7 +101,8 @@ def read_track_net(path: Path) -> tuple[list[tuple[np.ndarray, np.ndarray]], Tra
     except (KeyError, TypeError, json.JSONDecodeError) as e:
         raise WeightsError(f"{path}: missing or bad 'config' metadata ({e})") from None
     shapes = [(cfg.hidden, N_FEATURES), (cfg.hidden, cfg.hidden), (MAX_CHAIN, cfg.hidden)]
-    want = {f"{k}.{p}": (s if p == "weight" else s[:1]) for k, s in zip(LINEAR_KEYS, shapes) for p in ("weight", "bias")}
+    want = {f"{k}.{p}": (s if p == "weight" else s[:1])
+            for k, s in zip(LINEAR_KEYS, shapes) for p in ("weight", "bias")}
     got = {k: tuple(v.shape) for k, v in tensors.items()}
     if got != want:
         extra = sorted(set(got) ^ set(want)) or sorted(k for k in want if got[k] != want[k])
@@ -114,8 +115,8 @@ def read_track_net(path: Path) -> tuple[list[tuple[np.ndarray, np.ndarray]], Tra
 
 def numpy_forward(layers: list[tuple[np.ndarray, np.ndarray]], disp: np.ndarray, valid: np.ndarray,
                   resp: np.ndarray) -> np.ndarray:
-    """`TrackNet.forward` in NumPy float32 (equal to float32 rounding; tests/unit/test_track.py):
-    layers [(weight (out, in), bias)] of its three linear layers. The loop calls the model on a
+    """track_net_model.py `TrackNet.forward` in NumPy float32 (equal to float32 rounding:
+    tests/unit/test_track.py); layers [(weight (out, in), bias)] of its three linear layers. The loop calls the model on a
     handful of chains per frame, where torch's thread pool costs 10-30 ms a call on a loaded
     2-core machine and NumPy a few microseconds."""
     from scipy.special import erf
