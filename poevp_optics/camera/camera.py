@@ -186,7 +186,8 @@ class Camera:
         if self.objective is None:
             return radiance
         hit = self._objective_memo.get(id(radiance))
-        if hit is not None and hit[0] is radiance and not (keep_veil and self._veil_of(radiance) is None):
+        want_veil = keep_veil and self._objective_parts["glare"] is not None and self._veil_of(radiance) is None
+        if hit is not None and hit[0] is radiance and not want_veil:
             return hit[1]
         parts = self._objective_parts
         out, veil = obj.apply_with_veil(np.asarray(radiance, dtype=np.float32), self.objective, grid=parts["grid"],

@@ -483,10 +483,21 @@ def test_the_kept_glare_veil_is_the_one_computed_alone():
     other = img.copy()                                   # another input: its veil is computed, not the kept one
     other[0, 0] += 1e6
     assert not np.array_equal(cam.glare_veil(other), alone)
+    assert cam.dmd_image(img, keep_veil=True) is formed                   # kept image and veil: no new work
     no_glare = ob.apply(img, dataclasses.replace(cam.objective, glare_fraction=0.0), grid=parts["grid"], ri=parts["ri"])
     g = cam.objective.glare_fraction
     np.testing.assert_allclose(formed - (1 - g) * no_glare.astype(np.float64), alone,
                                atol=1e-6 * float(formed.max()))
+
+
+def test_an_objective_without_glare_forms_a_kept_image_once():
+    """A static scene hands every frame the same radiance: asking for its veil where the
+    objective has no glare returns the image kept from the first frame, not a new one."""
+    cam = _objective_camera("objective.psf='gaussian'", "objective.sigma_px=1.5")
+    assert cam.objective is not None and cam._objective_parts["glare"] is None
+    img = np.ones(cam.mirror_shape, np.float32)
+    first = cam.dmd_image(img, keep_veil=True)
+    assert cam.dmd_image(img, keep_veil=True) is first and cam.glare_veil(img) is None
 
 
 def test_memory_estimate_counts_the_objective_and_its_guard():
