@@ -96,10 +96,7 @@ def read_track_net(path: Path) -> tuple[list[tuple[np.ndarray, np.ndarray]], Tra
     file (the layers' shapes checked against the config)."""
     path = Path(path)
     tensors, meta = read_weights_file(path, "track_net weights", model="track_net", framework="numpy")
-    try:
-        cfg = TrackNetConfig(**json.loads(meta["config"]))
-    except (KeyError, TypeError, json.JSONDecodeError) as e:
-        raise WeightsError(f"{path}: missing or bad 'config' metadata ({e})") from None
+    cfg, record = config_and_record(path, meta)
     shapes = [(cfg.hidden, N_FEATURES), (cfg.hidden, cfg.hidden), (MAX_CHAIN, cfg.hidden)]
     want = {f"{k}.{p}": (s if p == "weight" else s[:1])
             for k, s in zip(LINEAR_KEYS, shapes) for p in ("weight", "bias")}
@@ -110,7 +107,18 @@ def read_track_net(path: Path) -> tuple[list[tuple[np.ndarray, np.ndarray]], Tra
                            f"{got.get(extra[0], 'missing')} against {want.get(extra[0], 'none')}")
     layers = [(tensors[f"{k}.weight"].astype(np.float32), tensors[f"{k}.bias"].astype(np.float32))
               for k in LINEAR_KEYS]
-    return layers, cfg, {k: json.loads(v) for k, v in meta.items() if k not in ("config", "model")}
+    return layers, cfg, record
+
+
+def config_and_record(path: Path, meta: dict) -> tuple[TrackNetConfig, dict]:
+    """(config, training record) from a track_net file's metadata (JSON values); a one-line
+    WeightsError naming the file when the config is missing or bad. Used by both readers (this
+    module's NumPy one and track_net_model.py's torch one)."""
+    try:
+        cfg = TrackNetConfig(**json.loads(meta["config"]))
+    except (KeyError, TypeError, json.JSONDecodeError) as e:
+        raise WeightsError(f"{path}: missing or bad 'config' metadata ({e})") from None
+    return cfg, {k: json.loads(v) for k, v in meta.items() if k not in ("config", "model")}
 
 
 def numpy_forward(layers: list[tuple[np.ndarray, np.ndarray]], disp: np.ndarray, valid: np.ndarray,

@@ -5,7 +5,6 @@ are described in track_net.py's docstring."""
 
 from __future__ import annotations
 
-import json
 from dataclasses import asdict
 from pathlib import Path
 
@@ -13,8 +12,8 @@ import torch
 from torch import nn
 
 from poevp_optics.control.predictors.track import MAX_CHAIN
-from poevp_optics.control.predictors.track_net import N_FEATURES, STOP_PX, TrackNetConfig
-from poevp_optics.core.weights import WeightsError, load_state, read_weights_file, write_weights_file
+from poevp_optics.control.predictors.track_net import N_FEATURES, STOP_PX, TrackNetConfig, config_and_record
+from poevp_optics.core.weights import load_state, read_weights_file, write_weights_file
 from poevp_optics.core import runtime
 
 runtime.torch_threads()          # the run's thread count, where it was set before torch loaded
@@ -63,12 +62,8 @@ def load_track_net(path: Path) -> tuple[TrackNet, dict]:
     non-finite or mismatched file."""
     path = Path(path)
     tensors, meta = read_weights_file(path, "track_net weights", model="track_net")
-    try:
-        cfg = TrackNetConfig(**json.loads(meta["config"]))
-    except (KeyError, TypeError, json.JSONDecodeError) as e:
-        raise WeightsError(f"{path}: missing or bad 'config' metadata ({e})") from None
-    model = load_state(TrackNet(cfg), tensors, path)
-    return model, {k: json.loads(v) for k, v in meta.items() if k not in ("config", "model")}
+    cfg, record = config_and_record(path, meta)
+    return load_state(TrackNet(cfg), tensors, path), record
 
 
 def numpy_layers(model: TrackNet) -> list:
