@@ -17,6 +17,8 @@ if os.environ.get("PYTEST_XDIST_WORKER"):
     # `make test` runs two workers on CI's two cores: each renders on one thread (DrJit, torch,
     # OpenCV) instead of on every core, so the two do not fight over both (the commands they
     # start still take every core, as a user's would).
+    import torch  # noqa: F401 - loaded first, so that set_threads gives it one thread too
+
     from poevp_optics.core.runtime import set_threads
 
     set_threads(1)
