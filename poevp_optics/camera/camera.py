@@ -120,7 +120,7 @@ class Camera:
         self.sensor = Sensor(self.params, self.shape, switches)
         self.dmd = DMD(dmd, accuracy.dmd_full_table_max) if dmd.enabled else None
         self.psf = build_psf(relay, relay_psf_context(self.params, self.layout, self.shape, accuracy, base_dir))
-        self._init_objective(objective, dmd, base_dir)
+        self._init_objective(objective, dmd, self._relay_guards(dmd.registration if self.dmd else _IDENTITY)[1])
         self._init_grids(dmd.registration if self.dmd else _IDENTITY)
         self._build_objective()
         self.etendue_m2_sr = pixel_etendue_m2_sr(self.params)
@@ -134,9 +134,10 @@ class Camera:
         return cls(p.sensor, p.dmd, p.relay, p.objective, p.timing, p.shape, p.accuracy, base_dir=p.base_dir,
                    flicker=p.flicker, switches=switches)
 
-    def _init_objective(self, spec: ObjectiveSpec, dmd: DMDSpec, base_dir) -> None:
+    def _init_objective(self, spec: ObjectiveSpec, dmd: DMDSpec, relay_guard_px: int) -> None:
         """The objective's resolved params (None: identity, the stage is skipped) and its guard
-        band in mirrors (its widest kernel on the sensor's footprint, capped at guard_max_px)."""
+        band in mirrors (its widest kernel on the sensor's footprint, capped at guard_max_px;
+        relay_guard_px: the mirrors the relay's guard renders anyway, where its search starts)."""
         self.objective_spec = spec
         self.objective = None
         self.objective_guard_px = 0
@@ -148,7 +149,8 @@ class Camera:
         pitch = image_plane_pitch_m(dmd, self.params)
         self.objective = ObjectiveParams.resolve(spec, f_number=self.layout.objective_f_number,
                                                  pixel_pitch_m=pitch, qe=self.params.qe)
-        self.objective_guard_px = min(obj.radius_px(self.objective, self.shape), spec.guard_max_px)
+        self.objective_guard_px = min(obj.radius_px(self.objective, self.shape, rendered_px=relay_guard_px,
+                                                    cap_px=spec.guard_max_px), spec.guard_max_px)
 
     def _build_objective(self) -> None:
         """PSF grid, glare kernel and relative illumination for the mirror grid (built once)."""
@@ -158,18 +160,25 @@ class Camera:
         self._objective_parts = {"grid": obj.psf_grid(p, shape), "glare": obj.glare_kernel(p, shape),
                                  "ri": obj.relative_illumination(p, shape)}
 
+    def _relay_guards(self, reg) -> tuple[int, int]:
+        """(sensor pixels, mirrors) of the guard band the relay PSF needs (capped at guard_max_px):
+        the mirrors cover the sensor's guard ring through the affine map (+1 for sampling)."""
+        radius = self.psf.kernel.shape[0] // 2 if self.psf is not None else 0
+        sensor = min(radius, self.accuracy.guard_max_px)
+        if is_identity(reg):
+            return sensor, sensor
+        return sensor, int(math.ceil(sensor / reg.scale)) + (1 if sensor else 0)
+
     def _init_grids(self, reg) -> None:
         """Sensor grid, guard band, mirror grid and the registration taps between them."""
         self.registration = reg
-        radius = self.psf.kernel.shape[0] // 2 if self.psf is not None else 0
-        self.sensor_guard_px = min(radius, self.accuracy.guard_max_px)
+        self.sensor_guard_px, relay_mirrors = self._relay_guards(reg)
         h, w = self.shape
         if is_identity(reg):
             self.sensor_guard_px = max(self.sensor_guard_px, self.objective_guard_px)
             self.guard_px = self.sensor_guard_px
-        else:   # mirrors needed to cover the guard ring through the affine map (+1 for sampling)
-            self.guard_px = max(int(math.ceil(self.sensor_guard_px / reg.scale)) + (1 if self.sensor_guard_px else 0),
-                                self.objective_guard_px)
+        else:
+            self.guard_px = max(relay_mirrors, self.objective_guard_px)
         self.extended_shape = (h + 2 * self.sensor_guard_px, w + 2 * self.sensor_guard_px)
         self.mirror_shape = (h + 2 * self.guard_px, w + 2 * self.guard_px)
         o = self.accuracy.registration_oversample

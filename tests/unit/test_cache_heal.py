@@ -473,8 +473,8 @@ def _other_npz(path: Path) -> None:
         np.savez(fh, a=np.zeros(3), image_shape=np.array([0, 0]))
 
 
-E2E = {          # the cache files a night_road render reads (3 PSF grids: image, guard bands), each kind damaged
-    "psf_grids_truncated_empty_other_arrays": ("objective/psf-*.npz", [_truncate, _empty, _resigned(_other_npz)]),
+E2E = {          # the cache files a night_road render reads (its one PSF grid: the rendered field), each kind damaged
+    "psf_grid_other_arrays": ("objective/psf-*.npz", [_resigned(_other_npz)]),
     "ri_table_random_bytes": ("objective/ri-*.npz", [_random_bytes]),
     "mesh_of_another_car": ("meshes/vehicle_*.ply", [_resigned(_other_mesh)]),   # the scene's vehicles' parts
     "plate_of_another_size": ("plates/plate_*.png", [_resigned(lambda p: write_png(p, np.full((22, 104), 255, np.uint8)))]),

@@ -20,24 +20,31 @@ def is_identity(params: ObjectiveParams) -> bool:
     return params.psf == "delta" and params.vignetting == "none" and params.glare_fraction <= 0
 
 
-def radius_px(params: ObjectiveParams, image_shape, *, cache_dir=None) -> int:
+def radius_px(params: ObjectiveParams, image_shape, *, rendered_px: int = 0, cap_px: int | None = None,
+              cache_dir=None) -> int:
     """Guard band (px) the camera must render on each side of an image of `image_shape` (the
     sensor's footprint on the DMD) so that light from beyond it reaches it through the stage's
     widest kernel: max(PSF radius, glare radius). The prescription's kernels depend on the field
     the image spans, so the radius is iterated with the guard included (a fixed point within 3
-    steps). Callers cap it as they cap the relay's (e.g. relay.guard_max_px)."""
+    steps), starting from the guard rendered anyway: `rendered_px` (another stage's) or the glare
+    radius. When the kernels on that field fit inside it, their radius is returned after one grid
+    (the grid the camera then uses). The kernels only widen with the field, so once the radius
+    reaches `cap_px` (the caller's cap, e.g. objective.guard_max_px) no grid is needed beyond."""
     h, w = int(image_shape[0]), int(image_shape[1])
     g = glare_kernel(params, (h, w))
     rg = g.radius_px if g is not None else 0
-    if params.psf == "delta":
+    if params.psf == "delta" or (cap_px is not None and rg >= cap_px):
         return rg
-    r = 0
-    for _ in range(3):
-        grid = psf_grid(params, (h + 2 * r, w + 2 * r), cache_dir=cache_dir)
-        rn = grid.radius_px
+    r = max(0, int(rendered_px), rg)
+    for step in range(3):
+        rn = psf_grid(params, (h + 2 * r, w + 2 * r), cache_dir=cache_dir).radius_px
         if rn <= r:
+            if step == 0:
+                r = rn                   # fits inside the guard rendered anyway: its own need there
             break
         r = rn
+        if cap_px is not None and r >= cap_px:
+            break
     return max(r, rg)
 
 
