@@ -78,6 +78,46 @@ _D_SERIES = ("D50", "D55", "D60", "D65", "D75")
 
 @functools.lru_cache(maxsize=64)
 def _colour_sd(kind: str, name: str) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """(wavelengths nm, values) of a colour-science dataset (`_colour_sd_build`), kept in the
+    package cache keyed by colour-science's version (`_colour_dataset`)."""
+    wl, vals = _colour_dataset(kind, name, lambda: _colour_sd_build(kind, name))
+    return tuple(map(float, wl)), tuple(map(float, vals))
+
+
+def _colour_dataset(kind: str, name: str, build) -> tuple[np.ndarray, np.ndarray]:
+    """(wavelengths nm, values) that `build()` reads from colour-science, stored in the package
+    cache (spectra/, a SHA-256 of kind, name and colour-science's version): importing colour
+    costs 1.7 s a process (it imports its plotting, matplotlib and pandas), so a run that only
+    needs its tables reads them from there. Bit-identical: float64 arrays in an .npz."""
+    from importlib.metadata import version
+
+    from poevp_optics.core.cache import cache_file, cached, digest, save_npz
+
+    key = digest(f"{kind}\0{name}\0colour-science {version('colour-science')}", algo="sha256", length=32)
+
+    def load(path):
+        with np.load(path) as z:
+            return np.asarray(z["wavelengths_nm"], np.float64), np.asarray(z["values"], np.float64)
+
+    def problem(pair) -> str | None:
+        wl, vals = pair
+        if wl.ndim != 1 or wl.shape != vals.shape or wl.size < 2:
+            return f"tables of shapes {wl.shape} and {vals.shape}, not two equal 1-D tables"
+        if not (np.all(np.isfinite(wl)) and np.all(np.isfinite(vals))):
+            return "non-finite values"
+        return None
+
+    def save(path, pair):
+        save_npz(path, {"wavelengths_nm": pair[0], "values": pair[1]})
+
+    def made():
+        wl, vals = build()
+        return np.asarray(wl, np.float64), np.asarray(vals, np.float64)
+
+    return cached(cache_file("spectra", f"{kind}-{key}.npz"), made, load=load, save=save, check=problem)
+
+
+def _colour_sd_build(kind: str, name: str) -> tuple[tuple[float, ...], tuple[float, ...]]:
     """(wavelengths nm, values) of a colour-science dataset, over the full 360-830 nm range
     where a generating function exists: illuminant A is Planck's law at 2856 K
     (`colour.sd_CIE_standard_illuminant_A`, CIE 015:2018 Eq. 4.1), the D series as above. The
@@ -215,11 +255,18 @@ def integrate(values: np.ndarray) -> float:
 
 @functools.lru_cache(maxsize=1)
 def photopic_v() -> np.ndarray:
-    """CIE 1924 photopic luminous efficiency V(lambda) on the grid (colour-science dataset)."""
-    import colour
+    """CIE 1924 photopic luminous efficiency V(lambda) on the grid (colour-science dataset, kept
+    in the package cache: `_colour_dataset`)."""
+    name = "CIE 1924 Photopic Standard Observer"
 
-    sd = colour.colorimetry.SDS_LEFS_PHOTOPIC["CIE 1924 Photopic Standard Observer"]
-    return _on_grid(np.asarray(sd.wavelengths, float), np.asarray(sd.values, float), hold_edges=False)
+    def build():
+        import colour
+
+        sd = colour.colorimetry.SDS_LEFS_PHOTOPIC[name]
+        return np.asarray(sd.wavelengths, float), np.asarray(sd.values, float)
+
+    wl, vals = _colour_dataset("lef", name, build)
+    return _on_grid(wl, vals, hold_edges=False)
 
 
 def scale_to_photometric(shape: np.ndarray, photometric_value: float) -> np.ndarray:
