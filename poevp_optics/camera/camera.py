@@ -198,15 +198,55 @@ class Camera:
         want_veil = keep_veil and self._objective_parts["glare"] is not None and self._veil_of(radiance) is None
         if hit is not None and hit[0] is radiance and not want_veil:
             return hit[1]
+        out, veil = self._form(radiance)
+        if keep_veil and veil is not None:
+            self._kept_veil = (radiance, veil)
+        return out
+
+    def dmd_image_of_average(self, radiance: np.ndarray, samples, weights, keep_veil: bool = False) -> np.ndarray:
+        """`dmd_image(radiance)` for a radiance that is the weighted sum of `samples` (a moving
+        scene's time average: RenderedExposure.subframe_weights), formed as the same sum of the
+        samples' images: the stage is linear, and a capture forms those images anyway, so one
+        convolution pass a sample serves both (float32 rounding apart, the same image). The
+        result is kept by the identity of `radiance` as `dmd_image` keeps its own; keep_veil
+        keeps the sum of the samples' glare terms likewise."""
+        if self.objective is None:
+            return radiance
+        if len(samples) != len(weights) or not samples:
+            raise ValueError(f"dmd_image_of_average: {len(samples)} samples, {len(weights)} weights")
+        want_veil = keep_veil and self._objective_parts["glare"] is not None
+        hit = self._objective_memo.get(id(radiance))
+        if hit is not None and hit[0] is radiance and not (want_veil and self._veil_of(radiance) is None):
+            return hit[1]
+        total = veil_total = None
+        for s, w in zip(samples, weights):
+            kept = self._objective_memo.get(id(s))
+            if kept is not None and kept[0] is s and not want_veil:
+                img, veil = kept[1], None
+            else:
+                img, veil = self._form(s)
+            part = float(w) * img.astype(np.float64)
+            total = part if total is None else total + part
+            if want_veil:
+                veil_total = float(w) * veil if veil_total is None else veil_total + float(w) * veil
+        out = total.astype(np.float32)
+        self._remember(radiance, out)
+        if want_veil:
+            self._kept_veil = (radiance, veil_total)
+        return out
+
+    def _form(self, radiance: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """(the objective's image of `radiance`, its float64 glare term or None), the image kept."""
         parts = self._objective_parts
         out, veil = obj.apply_with_veil(np.asarray(radiance, dtype=np.float32), self.objective, grid=parts["grid"],
                                         glare=parts["glare"], ri=parts["ri"])
-        if keep_veil and veil is not None:
-            self._kept_veil = (radiance, veil)
+        self._remember(radiance, out)
+        return out, veil
+
+    def _remember(self, radiance, out) -> None:
         if len(self._objective_memo) >= 16:
             self._objective_memo.pop(next(iter(self._objective_memo)))
         self._objective_memo[id(radiance)] = (radiance, out)      # holds the input: ids stay unique
-        return out
 
     def glare_veil(self, radiance: np.ndarray) -> np.ndarray | None:
         """The objective's veiling-glare part of `dmd_image` (mirror grid): g H * (V x); None

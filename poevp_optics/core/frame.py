@@ -61,6 +61,7 @@ class RenderedExposure:
     rel_error_roi: float | None
     basis: tuple[str, ...] = ()         # subframes are emitter-group images (PWM lamps), not times
     subframe_variances: tuple[np.ndarray, ...] = ()   # MC variance of each sample (temporal error)
+    subframe_weights: tuple[float, ...] = ()  # radiance = sum of weight x sample (a moving scene's time average)
     ground_truth: dict | None = None    # from a frame source: plate text, frames read, plate velocity
     spp: tuple[int, ...] = ()           # spp each radiance sample (or basis image) actually used
     target_met: bool | None = None      # render.target_rel_error reached (None: no target)

@@ -230,7 +230,7 @@ def _moving_exposure(scene, renderer, i, t0, t1):
     met = None if not target > 0 else bool(frame_error(mean, var) is not None and frame_error(mean, var) <= target)
     return _exposure(i, t0, t1, times, tuple(s[0] for s in samples), mean.astype(np.float32), var, roi, track,
                      subframe_variances=tuple(s[1] for s in samples), spp=tuple(s[2] for s in samples),
-                     target_met=met)
+                     target_met=met, subframe_weights=tuple(float(w) for w in weights))
 
 
 def render_exposures(scene, renderer, progress: bool = True):

@@ -530,3 +530,29 @@ def test_scene_errors_name_the_objective_key():
                        (["objective.psf='bokeh'"], "objective.psf")):
         with pytest.raises(SceneError, match=f"smoke.*{key}"):
             load_scene(SCENES / "smoke", extra)
+
+
+def test_the_image_of_a_time_average_is_the_average_of_the_samples_images(monkeypatch):
+    """A moving frame's radiance is sum_k w_k x_k; its image formed as sum_k w_k O(x_k) (the
+    stage is linear) equals O(sum_k w_k x_k) computed directly, to float32 rounding (1e-6 of
+    each pixel, the PSF and glare kernels both non-negative), and its kept veil is the direct
+    veil to 1e-6 of its peak. The samples are formed once: the capture's later requests for
+    them, and for the average, are answered from what was kept."""
+    cam = _objective_camera(*GLARE_KEYS)
+    rng = np.random.default_rng(11)
+    xs = [(rng.random(cam.mirror_shape) ** 8 * 1e6).astype(np.float32) for _ in range(3)]
+    w = (0.25, 0.5, 0.25)
+    mean = sum(wk * x.astype(np.float64) for wk, x in zip(w, xs)).astype(np.float32)
+    calls = []
+    real = ob.apply_with_veil
+    monkeypatch.setattr(ob, "apply_with_veil", lambda *a, **k: calls.append(1) or real(*a, **k))
+    got = cam.dmd_image_of_average(mean, xs, w, keep_veil=True)
+    assert len(calls) == 3
+    assert all(cam.dmd_image(x) is not None for x in xs) and cam.dmd_image(mean) is got and len(calls) == 3
+    veil = cam.glare_veil(mean)
+    direct = _objective_camera(*GLARE_KEYS)
+    want = direct.dmd_image(mean, keep_veil=True).astype(np.float64)
+    np.testing.assert_allclose(got, want, rtol=1e-6, atol=0)
+    np.testing.assert_allclose(veil, direct.glare_veil(mean), rtol=0, atol=1e-6 * float(veil.max()))
+    with pytest.raises(ValueError, match="2 samples, 3 weights"):
+        cam.dmd_image_of_average(mean.copy(), xs[:2], w)

@@ -86,7 +86,9 @@ def capture_inputs(spec, ex: RenderedExposure) -> tuple[list, dict]:
 def capture_frame(spec, camera: Camera, step: LoopStep | None, ex: RenderedExposure, res: RunResult) -> FrameCapture:
     """LDR twin (DMD all white), the loop's mask, the encoded capture and its reconstruction."""
     i = ex.index
-    truth = camera.dmd_image(ex.radiance.data, keep_veil=True)   # mirror grid: the image the objective forms there
+    # mirror grid: the image the objective forms there (a moving scene's from its samples' images)
+    truth = (camera.dmd_image_of_average(ex.radiance.data, ex.subframes, ex.subframe_weights, keep_veil=True)
+             if ex.subframe_weights else camera.dmd_image(ex.radiance.data, keep_veil=True))
     subs, timing = capture_inputs(spec, ex)              # the camera applies the objective
     ldr = camera.capture(subs, camera.white_mask(), i, capture_seed(spec.sensor.seed, spec.render.seed, i, LDR_STREAM),
                          **timing)

@@ -4,6 +4,7 @@ dark spot (VGI, ISO 9358)."""
 
 from __future__ import annotations
 
+import functools
 import math
 
 from poevp_optics.camera.glare import GLARE_MODELS, GlareKernel, glare_radii_px
@@ -18,10 +19,18 @@ def glare_halo(params: ObjectiveParams):
 
 def glare_kernel(params: ObjectiveParams, image_shape) -> GlareKernel | None:
     """The glare spread function for an image of `image_shape` (support capped at its extent),
-    or None when glare_fraction = 0."""
+    or None when glare_fraction = 0. Kept for the last few (params, support) asked for (0.9 s at
+    1920x1080, asked for by the guard band, the camera and the report): read-only."""
     if params.glare_fraction <= 0:
         return None
-    return glare_halo(params).kernel(max_radius_px((int(image_shape[0]), int(image_shape[1]))))
+    return _kernel(params, max_radius_px((int(image_shape[0]), int(image_shape[1]))))
+
+
+@functools.lru_cache(maxsize=4)
+def _kernel(params: ObjectiveParams, cap_px: int) -> GlareKernel:
+    k = glare_halo(params).kernel(cap_px)
+    k.kernel.flags.writeable = False
+    return k
 
 
 def glare_floor(params: ObjectiveParams, image_shape, black_radius_px: float) -> dict:
