@@ -118,13 +118,30 @@ def convolve_reflect(image: np.ndarray, kernel: np.ndarray) -> np.ndarray:
     c = kernel.shape[0] // 2
     ry, rx = reach_px(img.shape, kernel.shape[0])
     k = kernel[c - ry:c + ry + 1, c - rx:c + rx + 1]
-    padded = np.pad(img, ((ry, ry), (rx, rx)), mode="symmetric")
     shape = fft_shape(img.shape, kernel.shape[0])
     workers = runtime.fft_workers()
-    spec = sfft.rfft2(padded, s=shape, workers=workers)
+    spec = sfft.rfft2(reflect_into(img, ry, rx, shape), workers=workers)
     spec *= _kernel_spectrum(kernel, k, shape, workers)
     full = sfft.irfft2(spec, s=shape, workers=workers)
     return full[2 * ry:2 * ry + h, 2 * rx:2 * rx + w]
+
+
+def reflect_into(img: np.ndarray, ry: int, rx: int, shape) -> np.ndarray:
+    """`np.pad(img, ((ry, ry), (rx, rx)), mode="symmetric")` written into the top-left corner of
+    a zero array of `shape` (the FFT's input: one copy, where padding and then zero-filling to the
+    FFT size made two of the largest array of a frame). ry < H and rx < W (`reach_px`), so one
+    mirror image of each edge covers the reach."""
+    h, w = img.shape
+    if not (0 <= ry < h and 0 <= rx < w):
+        raise ValueError(f"reflect_into: reach ({ry}, {rx}) beyond an image of {h} x {w}")
+    out = np.zeros(shape, np.float64)
+    out[ry:ry + h, rx:rx + w] = img
+    out[:ry, rx:rx + w] = img[ry - 1::-1][:ry]                       # rows ry-1 .. 0
+    out[ry + h:2 * ry + h, rx:rx + w] = img[h - 1:h - ry - 1:-1]     # rows h-1 .. h-ry
+    band = out[:2 * ry + h]
+    band[:, :rx] = band[:, 2 * rx - 1:rx - 1:-1]
+    band[:, rx + w:2 * rx + w] = band[:, rx + w - 1:w - 1:-1]
+    return out
 
 
 def hat_weights(nodes: np.ndarray, coords: np.ndarray) -> np.ndarray:

@@ -145,3 +145,23 @@ def test_each_glare_kernel_sums_to_one_and_its_tail_is_the_closed_form(name):
     capped = halo.kernel(8)
     assert capped.radius_px == 8 and "capped" in capped.note
     assert capped.truncation_error == pytest.approx(_tail(name, 8.5), rel=1e-12)
+
+
+def test_reflect_into_is_numpys_symmetric_pad_in_a_zero_fft_buffer():
+    """`reflect_into` writes exactly np.pad(..., mode="symmetric") into the top-left of a zero
+    array of the FFT's shape, for every reach up to the image's extent minus one (reach_px), and
+    refuses a reach the image cannot mirror."""
+    from poevp_optics.camera.convolution import reflect_into
+
+    rng = np.random.default_rng(3)
+    for h, w in ((1, 1), (2, 5), (7, 3), (9, 16)):
+        img = rng.random((h, w))
+        for ry in range(h):
+            for rx in range(w):
+                shape = (h + 2 * ry + int(rng.integers(0, 4)), w + 2 * rx + int(rng.integers(0, 4)))
+                want = np.zeros(shape)
+                pad = np.pad(img, ((ry, ry), (rx, rx)), mode="symmetric")
+                want[:pad.shape[0], :pad.shape[1]] = pad
+                np.testing.assert_array_equal(reflect_into(img, ry, rx, shape), want)
+    with pytest.raises(ValueError, match="beyond an image of 2 x 5"):
+        reflect_into(np.ones((2, 5)), 2, 0, (6, 5))

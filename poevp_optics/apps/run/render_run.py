@@ -87,8 +87,10 @@ def capture_frame(spec, camera: Camera, step: LoopStep | None, ex: RenderedExpos
     """LDR twin (DMD all white), the loop's mask, the encoded capture and its reconstruction."""
     i = ex.index
     # mirror grid: the image the objective forms there (a moving scene's from its samples' images)
+    t_obj = time.perf_counter()
     truth = (camera.dmd_image_of_average(ex.radiance.data, ex.subframes, ex.subframe_weights, keep_veil=True)
              if ex.subframe_weights else camera.dmd_image(ex.radiance.data, keep_veil=True))
+    t_obj = time.perf_counter() - t_obj
     subs, timing = capture_inputs(spec, ex)              # the camera applies the objective
     ldr = camera.capture(subs, camera.white_mask(), i, capture_seed(spec.sensor.seed, spec.render.seed, i, LDR_STREAM),
                          **timing)
@@ -112,8 +114,8 @@ def capture_frame(spec, camera: Camera, step: LoopStep | None, ex: RenderedExpos
                                      **timing)
     for k in ("dmd", "relay", "sensor"):
         res.stage_seconds[k] += enc.seconds[k]
-    if camera.objective is not None:         # the LDR twin formed the image; the encoded capture reuses it
-        res.stage_seconds["objective"] = (res.stage_seconds.get("objective", 0.0) + ldr.seconds["objective"]
+    if camera.objective is not None:         # formed with the truth; the captures reuse the images
+        res.stage_seconds["objective"] = (res.stage_seconds.get("objective", 0.0) + t_obj + ldr.seconds["objective"]
                                           + (enc.seconds["objective"] if enc is not ldr else 0.0))
     tr = time.perf_counter()
     est, flags, _ = camera.reconstruct(enc, i)
