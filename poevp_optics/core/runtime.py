@@ -205,11 +205,16 @@ def torch_threads() -> None:
         torch.set_num_threads(_THREADS)
 
 
-def fft_workers() -> int:
-    """Threads for SciPy's FFTs (scipy.fft.set_workers): the run's thread count, else the CPUs.
-    pocketfft splits the independent 1-D transforms of an axis between threads, so the result is
-    the same for any count."""
+def run_threads() -> int:
+    """The run's thread count (`set_threads`), else the CPUs."""
     return _THREADS or os.cpu_count() or 1
+
+
+def fft_workers() -> int:
+    """Threads for SciPy's FFTs (scipy.fft.set_workers): `run_threads`. pocketfft splits the
+    independent 1-D transforms of an axis between threads, so the result is the same for any
+    count."""
+    return run_threads()
 
 
 def backend_available(name: str) -> bool:
