@@ -463,6 +463,8 @@ def main(argv: list[str] | None = None) -> int:
     from poevp_optics.core.failures import debug_requested
 
     from_shell = argv is None
+    if from_shell:                     # a process of its own: its large arrays reuse freed blocks
+        runtime.keep_large_blocks()
     argv = list(sys.argv[1:] if argv is None else argv)
     debug = debug_requested(argv)
     argv = [a for i, a in enumerate(argv) if not (a == "--debug" and "--" not in argv[:i])]
