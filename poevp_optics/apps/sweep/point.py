@@ -98,7 +98,6 @@ def run_point(task: PointTask, bundle: bytes | None = None, renders: list = ()) 
         if problem:
             return {"refused": f"{worker_name()}: {problem}; install the same software on every worker"}
         runtime.set_threads(task.threads)
-        runtime.keep_large_blocks()
         with point_workdir() as work:
             try:
                 inputs = materialize(task.plan, list(task.refs), bundle, work)
