@@ -120,8 +120,9 @@ class Camera:
         self.sensor = Sensor(self.params, self.shape, switches)
         self.dmd = DMD(dmd, accuracy.dmd_full_table_max) if dmd.enabled else None
         self.psf = build_psf(relay, relay_psf_context(self.params, self.layout, self.shape, accuracy, base_dir))
-        self._init_objective(objective, dmd, self._relay_guards(dmd.registration if self.dmd else _IDENTITY)[1])
-        self._init_grids(dmd.registration if self.dmd else _IDENTITY)
+        reg = dmd.registration if self.dmd else _IDENTITY
+        self._init_objective(objective, dmd, self._relay_guards(reg)[1])
+        self._init_grids(reg)
         self._build_objective()
         self.etendue_m2_sr = pixel_etendue_m2_sr(self.params)
         # lens transmission (objective) x relay transmission; DMD throughput is in the exposure
@@ -194,10 +195,10 @@ class Camera:
         (one at a time: a frame's time-averaged radiance)."""
         if self.objective is None:
             return radiance
-        hit = self._objective_memo.get(id(radiance))
+        kept = self._kept_image(radiance)
         want_veil = keep_veil and self._objective_parts["glare"] is not None and self._veil_of(radiance) is None
-        if hit is not None and hit[0] is radiance and not want_veil:
-            return hit[1]
+        if kept is not None and not want_veil:
+            return kept
         out, veil = self._form(radiance)
         if keep_veil and veil is not None:
             self._kept_veil = (radiance, veil)
@@ -215,15 +216,13 @@ class Camera:
         if len(samples) != len(weights) or not samples:
             raise ValueError(f"dmd_image_of_average: {len(samples)} samples, {len(weights)} weights")
         want_veil = keep_veil and self._objective_parts["glare"] is not None
-        hit = self._objective_memo.get(id(radiance))
-        if hit is not None and hit[0] is radiance and not (want_veil and self._veil_of(radiance) is None):
-            return hit[1]
+        kept = self._kept_image(radiance)
+        if kept is not None and not (want_veil and self._veil_of(radiance) is None):
+            return kept
         total = veil_total = None
         for s, w in zip(samples, weights):
-            kept = self._objective_memo.get(id(s))
-            if kept is not None and kept[0] is s and not want_veil:
-                img, veil = kept[1], None
-            else:
+            img, veil = self._kept_image(s), None
+            if img is None or want_veil:
                 img, veil = self._form(s)
             part = float(w) * img.astype(np.float64)
             total = part if total is None else total + part
@@ -242,6 +241,11 @@ class Camera:
                                         glare=parts["glare"], ri=parts["ri"])
         self._remember(radiance, out)
         return out, veil
+
+    def _kept_image(self, radiance) -> np.ndarray | None:
+        """The image kept for this very input (`_remember`), or None."""
+        hit = self._objective_memo.get(id(radiance))
+        return hit[1] if hit is not None and hit[0] is radiance else None
 
     def _remember(self, radiance, out) -> None:
         if len(self._objective_memo) >= 16:

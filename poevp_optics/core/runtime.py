@@ -216,10 +216,10 @@ def keep_large_blocks() -> bool:
     and zeroed: 3.2 s of system time in 8 objective passes, 0.1 s with this (wall 7.3-8.7 ->
     5.5-6.7 s, 2-core VM). Freed blocks stay with the process: the default scene's 21 frames
     at 1920x1080 peaked at 3.06 GB resident, 2.57 GB without (system time 50 -> 8 s, wall 188
-    -> 167 s), inside the run's memory estimate (4.6 GB, apps/run/memory.py). Returns whether it applies (glibc only: elsewhere
-    nothing changes); once per process, before the run's arrays. Set by the command line's own
-    process only: a long-lived process that runs many jobs (a Dask worker, the tests' workers)
-    would hold its largest job's memory for the rest."""
+    -> 167 s), inside the run's memory estimate (4.6 GB, apps/run/memory.py). Returns whether
+    it applies (glibc only: elsewhere nothing changes); once per process, before the run's
+    arrays. Set by the command line's own process only: a long-lived process that runs many
+    jobs (a Dask worker, the tests' workers) would hold its largest job's memory for the rest."""
     global _BLOCKS_KEPT
     if _BLOCKS_KEPT is None:
         _BLOCKS_KEPT = False

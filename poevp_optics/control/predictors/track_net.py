@@ -124,9 +124,9 @@ def config_and_record(path: Path, meta: dict) -> tuple[TrackNetConfig, dict]:
 def numpy_forward(layers: list[tuple[np.ndarray, np.ndarray]], disp: np.ndarray, valid: np.ndarray,
                   resp: np.ndarray) -> np.ndarray:
     """track_net_model.py `TrackNet.forward` in NumPy float32 (equal to float32 rounding:
-    tests/unit/test_track.py); layers [(weight (out, in), bias)] of its three linear layers. The loop calls the model on a
-    handful of chains per frame, where torch's thread pool costs 10-30 ms a call on a loaded
-    2-core machine and NumPy a few microseconds."""
+    tests/unit/test_track.py); layers [(weight (out, in), bias)] of its three linear layers. The
+    loop calls the model on a handful of chains per frame, where torch's thread pool costs
+    10-30 ms a call on a loaded 2-core machine and NumPy a few microseconds."""
     from scipy.special import erf
 
     d = disp * valid[..., None]
