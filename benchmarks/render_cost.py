@@ -78,6 +78,9 @@ def stages(h: int, w: int, frames: int, extra: list[str]) -> dict:
     import tempfile
 
     time.perf_counter = time.process_time                 # every stage timer reads process CPU
+    from poevp_optics.apps.run.render_run import BackgroundWriter
+
+    BackgroundWriter.in_line = True                       # so the writing's CPU clock is its own
     from poevp_optics.cli import main
 
     with tempfile.TemporaryDirectory() as d:

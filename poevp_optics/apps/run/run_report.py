@@ -294,6 +294,7 @@ def build_report(spec, renderer, camera, step, res, *, setup_s: float, t_run: fl
         "physics_noise": physics_noise(signal_dn, signal_dn / p.gain_dn_per_e if signal_dn else None, p.bits),
         "notes": run_notes(spec, renderer, camera, step, per_frame, metrics, floor),
         "skipped_stages": skipped_stages(spec, camera, causal),
-        "io_seconds": res.write_seconds, "total_seconds": time.perf_counter() - t_run,
+        "io_seconds": res.write_seconds, "io_wait_seconds": res.write_wait_seconds,
+        "total_seconds": time.perf_counter() - t_run,
         "per_frame": per_frame,
     }
