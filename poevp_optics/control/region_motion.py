@@ -398,13 +398,13 @@ def extrapolate(prev: np.ndarray, cur: np.ndarray, level: float) -> np.ndarray:
     elsewhere; same units as `cur` (e-). prev, cur: demand maps of two consecutive frames."""
     import cv2
 
+    cur = np.asarray(cur)
     out = np.zeros(cur.shape, np.float32)
     lp, sp = components(np.asarray(prev) >= level)
-    lc, sc = components(np.asarray(cur) >= level)
+    lc, sc = components(cur >= level)
     h, w = cur.shape
     matches = match_regions(lp, sp, lc, sc, {k: (0.0, 0.0, 1.0) for k in range(1, len(sc))})
     for k in range(1, len(sc)):
-        region = lc == k
         if not matches[k].prev_label:
             continue
         px, py, pw, ph = sp[matches[k].prev_label, :4].astype(np.float64)
@@ -415,7 +415,7 @@ def extrapolate(prev: np.ndarray, cur: np.ndarray, level: float) -> np.ndarray:
         nx = int(round(ax * (cx + cw / 2.0) + bx - nw / 2.0))
         ny = int(round(ay * (cy + ch / 2.0) + by - nh / 2.0))
         box = (slice(int(cy), int(cy + ch)), slice(int(cx), int(cx + cw)))
-        crop = np.where(region[box], np.asarray(cur)[box], 0.0).astype(np.float32)
+        crop = np.where(lc[box] == k, cur[box], 0.0).astype(np.float32)      # region k within its box
         moved = cv2.resize(crop, (nw, nh), interpolation=cv2.INTER_NEAREST)
         y0, x0, y1, x1 = max(ny, 0), max(nx, 0), min(ny + nh, h), min(nx + nw, w)
         if y1 <= y0 or x1 <= x0:
