@@ -97,3 +97,37 @@ def test_render_whose_writer_fails_on_a_later_frame_leaves_earlier_output(tmp_pa
     assert any(n.startswith("frame_0000") for n in calls) and not any(n.startswith("frame_0003") for n in calls)
     assert tree(out) == kept and debris(out) == []
     assert not any(t.name.startswith("poevp-writer") for t in threading.enumerate())
+
+
+
+def test_the_loops_own_error_is_the_one_reported(tmp_path, monkeypatch, capsys):
+    """Frame 0's files fail (a disk full) and the loop fails on frame 1 before it hands that frame
+    over: the loop's error is the line reported, the writer's thread is ended, nothing is left."""
+    out = tmp_path / "out"
+    kept = earlier_output(out, "render")
+    import poevp_optics.apps.run.outputs as outputs
+    from poevp_optics.apps.run import render_run
+
+    def disk_full(path, *a, **k):
+        raise OSError("disk full")
+
+    real_metrics = render_run._metrics
+
+    def metrics(spec, camera, fc):
+        if fc.exposure.index == 1:
+            raise FloatingPointError("capture of frame 1 holds NaN")
+        return real_metrics(spec, camera, fc)
+
+    monkeypatch.setattr(outputs, "write_exr", disk_full)
+    monkeypatch.setattr(render_run, "_metrics", metrics)
+    capsys.readouterr()
+    args = [a for a in QUICK_RENDER if a not in ("--frames", "1")] + ["--frames", "3"]
+    assert main(["render", str(SCENES / "smoke"), "--out", str(out), *args]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "capture of frame 1 holds NaN" in err[0], err
+    assert tree(out) == kept and debris(out) == []
+    assert not any(t.name.startswith("poevp-writer") for t in threading.enumerate())
+    writer = RecordingWriter(fail_at=0)
+    bw = BackgroundWriter(writer, RunResult())
+    bw.submit(Frame(0))
+    bw.close(quiet=True)                    # the loop's error is being raised: the writer's is not
