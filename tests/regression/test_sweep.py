@@ -39,6 +39,17 @@ def test_grid_syntax():
             parse_grid(bad)
 
 
+def test_a_results_tables_numpy_values_rerun_as_overrides():
+    """A point re-run from its row of results.parquet: NumPy scalars become the TOML literals of
+    the values they hold, and the scene loads with them."""
+    values = [np.float64(0.02), np.float64(0.7), np.int64(3)]
+    ov = point_overrides(["timing.exposure_s", "mask.a", "timing.frames"], values, 0)
+    assert ov[:3] == ["timing.exposure_s=0.02", "mask.a=0.7", "timing.frames=3"]
+    spec = load_scene(SCENES / "highbeam_plate", SMALL + ov)
+    assert (spec.timing.exposure_s, spec.mask.a, spec.timing.frames) == (0.02, 0.7, 3)
+    assert point_overrides(["outputs.previews"], [np.bool_(False)], 0)[0] == "outputs.previews=false"
+
+
 def test_unknown_key_or_bad_value_stops_before_anything_is_written(tmp_path):
     out = tmp_path / "sw"
     with pytest.raises(SceneError, match="mask.nope"):

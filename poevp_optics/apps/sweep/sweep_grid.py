@@ -80,6 +80,11 @@ def parse_grid(text: str) -> tuple[str, list]:
 
 
 def toml_literal(v) -> str:
+    """A value as a TOML literal for `--set key=...`. NumPy scalars (a results table's cells) are
+    written as the Python values they hold: NumPy 2 writes repr(np.float64(0.02)) as
+    'np.float64(0.02)', which is no TOML."""
+    if isinstance(v, np.generic):
+        v = v.item()
     if isinstance(v, bool):
         return "true" if v else "false"
     if isinstance(v, str):
