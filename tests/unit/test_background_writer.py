@@ -89,15 +89,20 @@ def test_render_whose_writer_fails_on_a_later_frame_leaves_earlier_output(tmp_pa
         return real(path, *a, **k)
 
     monkeypatch.setattr(outputs, "write_exr", fails_on_frame_1)
+    render_fails_leaving(out, kept, 4, "RuntimeError: disk on fire", capsys)
+    assert any(n.startswith("frame_0000") for n in calls) and not any(n.startswith("frame_0003") for n in calls)
+
+
+def render_fails_leaving(out, kept: dict, frames: int, message: str, capsys) -> None:
+    """A small render of `frames` frames into `out` fails with one line holding `message`, and
+    leaves the earlier output `kept`, no staging folder and no writer thread."""
     capsys.readouterr()
-    args = [a for a in QUICK_RENDER if a not in ("--frames", "1")] + ["--frames", "4"]
+    args = [a for a in QUICK_RENDER if a not in ("--frames", "1")] + ["--frames", str(frames)]
     assert main(["render", str(SCENES / "smoke"), "--out", str(out), *args]) == 1
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "RuntimeError: disk on fire" in err[0], err
-    assert any(n.startswith("frame_0000") for n in calls) and not any(n.startswith("frame_0003") for n in calls)
+    assert len(err) == 1 and message in err[0], err
     assert tree(out) == kept and debris(out) == []
     assert not any(t.name.startswith("poevp-writer") for t in threading.enumerate())
-
 
 
 def test_the_loops_own_error_is_the_one_reported(tmp_path, monkeypatch, capsys):
@@ -120,13 +125,7 @@ def test_the_loops_own_error_is_the_one_reported(tmp_path, monkeypatch, capsys):
 
     monkeypatch.setattr(outputs, "write_exr", disk_full)
     monkeypatch.setattr(render_run, "_metrics", metrics)
-    capsys.readouterr()
-    args = [a for a in QUICK_RENDER if a not in ("--frames", "1")] + ["--frames", "3"]
-    assert main(["render", str(SCENES / "smoke"), "--out", str(out), *args]) == 1
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "capture of frame 1 holds NaN" in err[0], err
-    assert tree(out) == kept and debris(out) == []
-    assert not any(t.name.startswith("poevp-writer") for t in threading.enumerate())
+    render_fails_leaving(out, kept, 3, "capture of frame 1 holds NaN", capsys)
     writer = RecordingWriter(fail_at=0)
     bw = BackgroundWriter(writer, RunResult())
     bw.submit(Frame(0))
