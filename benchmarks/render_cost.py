@@ -1,9 +1,10 @@
 """Render cost of the default scene: where the CPU time of a frame goes, how it grows
 with the resolution, what each region's Monte Carlo error costs, and the ROI box render.
 
-Scene `scenes/night_road`, at resolutions from its own 184x320 to the DLP6500's 1080x1920, each
-with the objective's focal length, the mask's smoothing and the attenuator's size in mirrors
-scaled by k = columns / 320 (the field of view kept: `scaled_sets`). All times are process CPU
+Scene `scenes/night_road`, at resolutions from 184x320 to its own (the DLP6500's) 1080x1920, each
+with the objective's focal length, its guard cap, the mask's smoothing and the attenuator's size in
+mirrors scaled by k = columns / the scene's columns, as `poevp render --resolution HxW` scales them
+(scene/scale.py `scaling_for`: the field of view kept; `scaled_sets`). All times are process CPU
 seconds (all threads; less sensitive to other jobs on a shared machine than wall time):
 
 1. Stages per frame: a `poevp render` run of `--frames` frames (the first two are the loop's
@@ -42,7 +43,6 @@ import numpy as np
 from benchmarks.common import add_results_flag, machine_line, markdown_table, output_folder, save_figure, save_text
 
 SCENE = "scenes/night_road"
-BASE_COLUMNS = 320
 TARGETS = (0.03, 0.01)
 NODES_PER_FRAME = 2
 LIGHT_NOTE = """## Light sampling (why the plate's error is not light-selection noise)
@@ -63,14 +63,12 @@ built: with the selection already stratified it would add 4 shadow rays per samp
 
 
 def scaled_sets(h: int, w: int) -> list[str]:
-    """--set overrides for night_road at h x w mirrors, the field of view kept (module docstring)."""
+    """--set overrides for night_road at h x w mirrors, the field of view kept (module docstring);
+    none at the scene's own resolution."""
     from poevp_optics.scene.load import load_scene
+    from poevp_optics.scene.scale import scaling_for
 
-    spec = load_scene(SCENE)
-    k = w / BASE_COLUMNS
-    return [f"render.resolution=[{h},{w}]", f"objective.focal_length_m={spec.objective.focal_length_m * k:.6g}",
-            f"mask.smooth_px={spec.mask.smooth_px * k:.4g}",
-            f"attenuator.serve_min_mirrors={round(spec.attenuator.serve_min_mirrors * k * k)}"]
+    return list(scaling_for(load_scene(SCENE), (h, w), f"--resolution {h}x{w}").sets)
 
 
 def stages(h: int, w: int, frames: int, extra: list[str]) -> dict:
