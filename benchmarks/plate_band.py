@@ -3,12 +3,12 @@ white per frame (90th percentile of the plate box in the raw 8-bit capture / 255
 40-90 % band, and whole-frame PP-OCRv4 detection + recognition (no crop from the known box).
 
     .venv/bin/python -m benchmarks.plate_band [--texts "JN F9H28,..."] [--gains 1,10] [--frames 16]
-    .venv/bin/python -m benchmarks.plate_band --scene scenes/night_road --scale 4 --frames 21 \
-        --set render.spp=8 --out plate_band_night_road.md
+    .venv/bin/python -m benchmarks.plate_band --scene scenes/night_road --frames 21 \
+        --set "render.resolution=[736,1280]" --set objective.focal_length_m=0.04604 \
+        --set mask.smooth_px=16 --set attenuator.serve_min_mirrors=384 --set render.spp=8 \
+        --out plate_band_night_road.md      # the overrides that page records: 2/3 of the mirrors
     .venv/bin/python -m benchmarks.plate_band --scene scenes/night_road --frames 21 --gains 1,10 \
-        --set "render.resolution=[1080,1920]" --set objective.focal_length_m=0.06906 \
-        --set mask.smooth_px=24 --set attenuator.serve_min_mirrors=864 --set render.spp=4 \
-        --set render.roi_spp=28 --out plate_band_night_road_1920.md   # night_road's own default
+        --out plate_band_night_road_1920.md                     # night_road as it is: 1920x1080
 
 Writes plate_band.md (or --out NAME) into out/benchmarks/ (benchmarks/results/ with --results). One render per (gain, text). On a road scene (night_road)
 a beam gain g renders with our high beams' intensity_cd x g (the oncoming car's lamps and the tail
