@@ -242,8 +242,9 @@ def main(argv=None):
     lines = [f"# Render cost of {SCENE}", "", f"Machine: {machine_line()}. Process CPU seconds "
              "(all threads; the machine is shared, so wall time is not the measure). "
              f"`.venv/bin/python -m benchmarks.render_cost{' --quick' if args.quick else ''}`: {frames} frames per run, "
-             f"benchmark {time.time() - t_all:.0f} s wall. Resolutions scale the objective's focal length and guard cap, "
-             "mask.smooth_px and attenuator.serve_min_mirrors with the columns, as `--resolution` does (the field kept).", ""]
+             f"benchmark {time.time() - t_all:.0f} s wall. Resolutions scale the objective's focal length and "
+             "guard cap, mask.smooth_px and attenuator.serve_min_mirrors with the columns, as `--resolution` does "
+             "(the field kept).", ""]
     names = list(next(iter(st.values()))["cpu"])
     lines += ["## CPU s per frame by stage (render.spp = 8, 2 radiance nodes per frame)", "",
               markdown_table(["resolution", *names, "total / frame", "plate error"],
