@@ -78,10 +78,31 @@ def test_an_oscillating_global_motion_is_continued_as_a_sinusoid(period, phase):
         pytest.skip("middle sample near a zero crossing")
     # the ridge (0.05 px^2 against a middle sample of >= 2 px) moves c by <= 1.3 %
     np.testing.assert_allclose(closed_form_global(chain), d[3], atol=0.1 * abs(chain[0, 1]) + 0.05)
-    np.testing.assert_allclose(closed_form_global([[0.5, 0.0], [4.0, 0.0], [8.0, 0.0]]),
-                               closed_form_displacement([[0.5, 0.0], [4.0, 0.0], [8.0, 0.0]]))
+    np.testing.assert_allclose(closed_form_global([[0.0, 0.5], [0.0, 4.0], [0.0, 8.0]]),
+                               closed_form_displacement([[0.0, 0.5], [0.0, 4.0], [0.0, 8.0]]))
     np.testing.assert_allclose(closed_form_global([[3.0, -1.0], [3.0, -1.0], [3.0, -1.0]]), [3.0, -1.0])
     np.testing.assert_allclose(closed_form_global([[3.0, -1.0]]), [3.0, -1.0])
+
+
+@pytest.mark.parametrize("drift, sigma", [(0.0, 1.5), (0.0, 0.5), (3.0, 0.3)])
+def test_the_yaw_is_continued_by_its_drift_not_by_its_corrections(drift, sigma):
+    """The heading a random walk: yaw shifts g_k = drift + e_k with e_k independent N(0, sigma^2).
+    Nothing forecasts g_{t+1} from the past better than the drift itself (mean square error
+    sigma^2); the mean of the three past shifts errs by sigma^2 (1 + 1/3); the rule (the mean, or
+    0 where it does not stand out) lies between the two, within four Monte Carlo standard errors
+    (the squared error of a normal variate of variance v has standard deviation v sqrt 2), and
+    below half the least-squares extrapolation's sigma^2 (1 + 21/9) (track.py's table)."""
+    rng = np.random.default_rng(11)
+    n = 4000
+    g = drift + sigma * rng.normal(size=(n, 4))                  # column 0 next; 1..3 newest first
+    pitch = np.zeros(3)
+    pred = np.array([closed_form_global(np.c_[row[1:], pitch])[0] for row in g])
+    mse = float(np.mean((pred - g[:, 0]) ** 2))
+    se = 4.0 / 3.0 * sigma ** 2 * np.sqrt(2.0 / n)
+    assert sigma ** 2 - 4 * se <= mse <= 4.0 / 3.0 * sigma ** 2 + 4 * se
+    assert mse < (1.0 + 21.0 / 9.0) * sigma ** 2 / 2.0
+    if drift:                                                    # a bend: its drift is always seen
+        np.testing.assert_allclose(mse, 4.0 / 3.0 * sigma ** 2, atol=4 * se)
 
 
 @pytest.mark.parametrize("name", ["track", "track_net"])

@@ -27,8 +27,8 @@ Per frame t (history oldest first, up to four frames):
    of the same pair, r = d - g (`RegionTrack.relative`), whatever its chain's length; the
    global chain g_t, g_{t-1}, g_{t-2} is the frame's, from all its regions.
 2. **Extrapolate.** d_{t+1} = the region's own motion extrapolated + the global motion
-   extrapolated (`closed_form_global`: a pitch bounce is continued as a sinusoid, steady motion
-   by the table below). A new region, or one whose own chain is short, thus still moves with
+   extrapolated (`closed_form_global`: a pitch bounce is continued as a sinusoid, steady pitch
+   by the table below, the yaw by its drift). A new region, or one whose own chain is short, thus still moves with
    the camera. The own motion's next step is a combination of the measured ones,
    r_{t+1} = c_0 r_t + c_1 r_{t-1} + c_2 r_{t-2}: `track` uses the closed forms below; `track_net`
    takes the coefficients from a small trained network (track_net.py) fed only with quantities
@@ -251,24 +251,43 @@ HARMONIC_MAX_C = 2.0 * float(np.cos(2.0 * np.pi / 12.0))
 HARMONIC_RIDGE_PX2 = 0.05
 
 
+#: Student's t of the yaw chain's mean above which it is read as a steady yaw (a bend) rather
+#: than steering corrections about none (`closed_form_global`): 2 (two-sided p 0.18 with 2 degrees
+#: of freedom, three shifts).
+YAW_DRIFT_T = 2.0
+
+
 def closed_form_global(shifts) -> np.ndarray:
     """Next global shift (px, x and y) from the frame's global chain g_t, g_{t-1}, g_{t-2} (newest
-    first). Per image axis (the camera pitches about its horizontal axis and yaws about its vertical
-    one): harmonic linear prediction, g_{t+1} = c g_t - g_{t-1}, exact for a sampled sinusoid of any
-    phase with c = 2 cos(2 pi / period) (the second-order recurrence of a sinusoid; Prony's method
-    with one mode), c fitted to the three displacements by least squares, c = (g_t + g_{t-2})
-    g_{t-1} / (g_{t-1}^2 + HARMONIC_RIDGE_PX2), and limited to [-2, 2]. Where c exceeds
-    HARMONIC_MAX_C the axis is not oscillating and takes `closed_form_displacement`'s row (its
-    acceleration gate included); shorter chains too."""
+    first); shorter chains take `closed_form_displacement`'s row.
+
+    Vertical (the camera pitching about its horizontal axis: a body bounce over road bumps, the
+    suspension's ride mode): harmonic linear prediction, g_{t+1} = c g_t - g_{t-1}, exact for a
+    sampled sinusoid of any phase with c = 2 cos(2 pi / period) (the second-order recurrence of a
+    sinusoid; Prony's method with one mode), c fitted to the three displacements by least squares,
+    c = (g_t + g_{t-2}) g_{t-1} / (g_{t-1}^2 + HARMONIC_RIDGE_PX2), and limited to [-2, 2]. Where
+    c exceeds HARMONIC_MAX_C the axis is not oscillating and takes `closed_form_displacement`'s
+    row (its acceleration gate included).
+
+    Horizontal (the camera yawing as we steer): no spring mode holds the yaw, so it does not
+    bounce; the heading is a random walk (the driver's corrections, which the past frames do not
+    show) about a steady turn rate (a bend). The best forecast of a random walk's next step is its
+    drift (Box, Jenkins & Reinsel, Time Series Analysis, 4th ed., 2008, sec. 4.3: the random walk
+    with drift); the drift is the chain's mean where it stands out of the corrections' spread
+    (Student's t = |mean| / (s / sqrt 3) > YAW_DRIFT_T), else none: 0. A harmonic or linear
+    extrapolation of corrections amplifies them (its error is 1.5-3 times theirs).
+    """
     g = np.asarray(shifts, dtype=np.float64).reshape(-1, 2)
-    steady = closed_form_displacement(g)
+    out = closed_form_displacement(g)
     if len(g) < 3:
-        return steady
-    out = steady.copy()
-    for a in range(2):
-        c = float(np.clip((g[0, a] + g[2, a]) * g[1, a] / (g[1, a] ** 2 + HARMONIC_RIDGE_PX2), -2.0, 2.0))
-        if c <= HARMONIC_MAX_C:
-            out[a] = c * g[0, a] - g[1, a]
+        return out
+    y = g[:, 1]
+    c = float(np.clip((y[0] + y[2]) * y[1] / (y[1] ** 2 + HARMONIC_RIDGE_PX2), -2.0, 2.0))
+    if c <= HARMONIC_MAX_C:
+        out[1] = c * y[0] - y[1]
+    x = g[:3, 0]
+    mean, spread = float(x.mean()), float(x.std(ddof=1)) / np.sqrt(3.0)
+    out[0] = mean if abs(mean) > YAW_DRIFT_T * spread else 0.0
     return out
 
 
