@@ -44,8 +44,11 @@ Per frame t (history oldest first, up to four frames):
    pixels are forward-splatted by its extrapolated displacement (plus (g - 1) times their offset
    from its centroid when it grows by g), brightest wins, values moved exactly (a clipped pixel
    lands clipped: the clip marker survives the prediction); a growing region's spread pixels
-   are joined by pasting it scaled (`grow_region`). A new region moves by the global motion
-   alone (where there is none: it stays where it is).
+   are joined by pasting it scaled (`grow_region`). A region that holds lights followed to
+   frame t-1 and lost there (two lights' outlines run into one, a light split, an outline
+   changed past a match: region_merges.py) moves with them, each pixel with the nearest one's
+   extrapolated motion. Any other new region moves by the global motion alone (where there is
+   none: it stays where it is).
 
 Closed-form extrapolation (`track`) with the chain length available:
 
@@ -71,6 +74,7 @@ import cv2
 import numpy as np
 
 from poevp_optics.control.predictors.base import Predictor
+from poevp_optics.control.predictors.region_merges import lost_parts, part_flow
 from poevp_optics.control.predictors.flow import (MIN_REGION_PX, SATURATED, forward_splat, log_8bit, measure_pair,
                                                   region_matches, saturated_components)
 
@@ -104,6 +108,8 @@ class RegionTrack:
     #: and its response: `global_chain`; the same for every region of a frame
     global_shifts: tuple[tuple[float, float], ...] = ()
     global_responses: tuple[float, ...] = ()
+    #: the frame t-1 region this one is the same light as (0: none, a new region)
+    prev_label: int = 0
 
     def relative(self) -> np.ndarray:
         """(len(displacements), 2) px: the region's own displacements less the frame's global
@@ -194,7 +200,7 @@ def region_tracks(history: list[np.ndarray], max_chain: int = MAX_CHAIN,
         x, y, bw, bh, area = (int(v) for v in stats[k])
         if area < MIN_REGION_PX:
             continue
-        disp, resp, grow, label = [], [], [], k
+        disp, resp, grow, label, prev = [], [], [], k, []
         for _, _, matches in pairs:
             m = matches.get(label)
             if m is None or not m.prev_label:
@@ -203,8 +209,9 @@ def region_tracks(history: list[np.ndarray], max_chain: int = MAX_CHAIN,
             resp.append(m.response)
             grow.append(m.growth)
             label = m.prev_label
+            prev.append(label)
         tracks.append(RegionTrack(k, (y, x, y + bh, x + bw), area, tuple(disp), tuple(resp), tuple(grow),
-                                  gshift, gresp))
+                                  gshift, gresp, prev[0] if prev else 0))
     return tracks, labels
 
 
@@ -355,12 +362,16 @@ class RegionTracker(Predictor):
         p8, c8 = log_8bit(frames[-2], frames[-1])
         flow = self.dis.calc(p8, c8, None)
         tracks, labels = region_tracks(frames, cache=self.cache)
+        parts, part_steps = self.merged_parts(frames, tracks, labels)
         grown = []
         for tr, d in zip(tracks, self.next_displacement(tracks)):
             y0, x0, y1, x1 = tr.box
             inside = labels[y0:y1, x0:x1] == tr.label
             g = closed_form_growth(tr.growths)
-            if g != 1.0:                               # each pixel moves by d + (g - 1)(p - centroid)
+            if tr.label in parts:                      # a region holding a light followed to t-1 and lost
+                flow[y0:y1, x0:x1, 0][inside], flow[y0:y1, x0:x1, 1][inside] = \
+                    part_flow(inside, tr.box, parts[tr.label], part_steps[tr.label])
+            elif g != 1.0:                               # each pixel moves by d + (g - 1)(p - centroid)
                 ys, xs = np.nonzero(inside)
                 flow[y0:y1, x0:x1, 0][inside] = d[0] + (g - 1) * (xs - xs.mean())
                 flow[y0:y1, x0:x1, 1][inside] = d[1] + (g - 1) * (ys - ys.mean())
@@ -373,6 +384,23 @@ class RegionTracker(Predictor):
             if g > 1.0:
                 grow_region(out, frames[-1], inside, box, d, g)
         return out
+
+    def merged_parts(self, frames, tracks, labels) -> tuple[dict, dict]:
+        """({region label: its parts}, {label: each part's next step (px)}): the lights
+        followed to frame t-1 and lost there that a region of frame t holds (region_merges.py)."""
+        if len(frames) < 3 or not tracks:
+            return {}, {}
+        before, before_labels = region_tracks(frames[:-1], cache=self.cache)
+        g_t = np.asarray(tracks[0].global_shifts[0] if tracks[0].global_shifts else (0.0, 0.0), np.float64)
+        parts = lost_parts(tracks, labels, before, before_labels, lambda followed: self.step_to_last(followed, g_t))
+        steps = {k: self.next_displacement([p.track for p in ps]) for k, ps in parts.items()}
+        return parts, steps
+
+    def step_to_last(self, followed: list[RegionTrack], g_t) -> list[np.ndarray]:
+        """Each frame t-1 track's step to frame t (px): its own motion extrapolated (`own_motion`;
+        none where its chain wavers) plus the global shift g_t measured between the two frames."""
+        return [(np.zeros(2) if wavering(b.relative()) else np.asarray(d, np.float64)) + g_t
+                for b, d in zip(followed, self.own_motion(followed))]
 
     def describe(self) -> dict:
         return {"name": self.name, "context_frames": MAX_CHAIN + 1}
