@@ -47,9 +47,9 @@ MERGE_AREA_GAIN = 1.3
 
 @dataclass(frozen=True)
 class Part:
-    """A lost frame t-1 light inside a new frame t region: its predicted centroid at frame t
-    (px, x and y) and its chain at frame t (track.py `RegionTrack`, newest first: the predicted
-    step, then its measured displacements)."""
+    """A light followed to frame t-1 inside a frame t region that holds a lost one: its
+    predicted centroid at frame t (px, x and y) and its chain at frame t (track.py `RegionTrack`,
+    newest first: the predicted step, then its measured displacements)."""
 
     centre: np.ndarray
     track: object
@@ -88,8 +88,9 @@ def lost_parts(tracks, labels: np.ndarray, before, before_labels: np.ndarray, st
 
 
 def part_flow(inside: np.ndarray, box, parts: list[Part], steps: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-    """(x, y) displacement (px) of each pixel of a new region (`inside`: bool in `box` (y0, x0,
-    y1, x1)): the next step of the part whose predicted centre is nearest (module docstring)."""
+    """(x, y) displacement (px) of each pixel of a region that holds parts (`inside`: bool in
+    `box` (y0, x0, y1, x1)): the next step of the part whose predicted centre is nearest (module
+    docstring)."""
     y0, x0 = box[0], box[1]
     ys, xs = np.nonzero(inside)
     centres = np.array([p.centre for p in parts])

@@ -28,8 +28,8 @@ Per frame t (history oldest first, up to four frames):
    global chain g_t, g_{t-1}, g_{t-2} is the frame's, from all its regions.
 2. **Extrapolate.** d_{t+1} = the region's own motion extrapolated + the global motion
    extrapolated (`closed_form_global`: a pitch bounce is continued as a sinusoid, steady pitch
-   by the table below, the yaw by its drift). A new region, or one whose own chain is short, thus still moves with
-   the camera. The own motion's next step is a combination of the measured ones,
+   by the table below, the yaw by its drift). A new region, or one whose own chain is short,
+   thus still moves with the camera. The own motion's next step is a combination of the measured ones,
    r_{t+1} = c_0 r_t + c_1 r_{t-1} + c_2 r_{t-2}: `track` uses the closed forms below; `track_net`
    takes the coefficients from a small trained network (track_net.py) fed only with quantities
    that do not change under rotation or mirroring of the image (lengths and dot products of the
@@ -371,7 +371,7 @@ class RegionTracker(Predictor):
             if tr.label in parts:                      # a region holding a light followed to t-1 and lost
                 flow[y0:y1, x0:x1, 0][inside], flow[y0:y1, x0:x1, 1][inside] = \
                     part_flow(inside, tr.box, parts[tr.label], part_steps[tr.label])
-            elif g != 1.0:                               # each pixel moves by d + (g - 1)(p - centroid)
+            elif g != 1.0:                             # each pixel moves by d + (g - 1)(p - centroid)
                 ys, xs = np.nonzero(inside)
                 flow[y0:y1, x0:x1, 0][inside] = d[0] + (g - 1) * (xs - xs.mean())
                 flow[y0:y1, x0:x1, 1][inside] = d[1] + (g - 1) * (ys - ys.mean())

@@ -33,8 +33,8 @@ centroid error (not pixel PSNR). The growth of a region (track.py) is `track`'s 
 In the loop the network extrapolates each region's motion relative to the frame's global motion
 (its chain less the global shifts: our camera's pitch and yaw, track.py step 1), and the global
 motion is continued as `track` continues it (`closed_form_global`: a pitch oscillation or steady
-pitch, the yaw's drift); the two are added. Where no global motion is found (one car alone, or no camera motion)
-the relative chain is the chain itself. The training paths (one car, no camera motion) hold no
+pitch, the yaw's drift); the two are added. Where no global motion is found (one car alone, or no
+camera motion) the relative chain is the chain itself. The training paths (one car, no camera motion) hold no
 global motion, so their chains are the same either way.
 Weights: safetensors with the config and the training record in the metadata (never pickle),
 read into NumPy for the loop (torch is not imported to predict); the torch module that is
