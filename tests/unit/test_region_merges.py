@@ -95,3 +95,19 @@ def test_a_small_light_touching_a_standing_one_does_not_move_it():
     assert len(before) == 2 and len(tracks) == 1 and tracks[0].prev_label
     assert tracks[0].growths[0] ** 2 < MERGE_AREA_GAIN
     assert lost_parts(tracks, labels, before, before_labels, steps(tracks)) == {}
+
+
+def test_one_light_that_lost_its_match_alone_is_not_carried_on():
+    """A light moving 10 px a frame whose clipped outline more than doubles in the last frame (its
+    sigma 4 -> 6.5 px) loses its match: the new region holds that one light only, and is left
+    as a new region (its failed chain is not carried on: region_merges.py)."""
+    def light(k, sigma):
+        yy, xx = np.mgrid[0:SHAPE[0], 0:SHAPE[1]].astype(np.float64)
+        img = 10.0 + OVER * 255.0 * np.exp(-((xx - 60.0 - 10.0 * k) ** 2 + (yy - 60.0) ** 2) / (2 * sigma ** 2))
+        return np.clip(np.rint(img), 0, 255).astype(np.float32)
+
+    hist = [light(k, 4.0) for k in range(3)] + [light(3, 6.5)]
+    tracks, labels = region_tracks(hist)
+    before, before_labels = region_tracks(hist[:-1])
+    assert len(tracks) == 1 and not tracks[0].displacements and len(before) == 1 and before[0].displacements
+    assert lost_parts(tracks, labels, before, before_labels, steps(tracks)) == {}

@@ -1,28 +1,31 @@
-"""Regions the trackers could not follow back one frame, moved with the lights they came from.
+"""Regions where two or more lights' outlines ran into one, moved with the lights they came from.
 
 A region of frame t with no match in frame t-1 (track.py step 1: the match must be mutual and the
-areas alike) is new. Most new regions are not new lights: two lights whose outlines ran into one
-(the lamps of two cars passing each other, a turning car's lamp pair closing up as it
-foreshortens), a light split into pieces (the same lamps parting), or a light whose outline
-changed more than a match allows (a lamp coming in past the frame's edge). Each such region
-covers frame t-1 regions that lost their match: lights the trackers followed up to frame t-1 and
-that are nowhere in frame t on their own. Where two lights of like size merge, the merged
-outline may still match one of them (its area under twice that light's): a matched region whose
-area grew by `MERGE_AREA_GAIN` or more holds the other, lost, light as well, and its one measured
-shift is the merged outline's, neither light's.
+areas alike) is new. Where two lights' clipped outlines run into one (the lamps of two cars
+passing each other, a turning car's lamp pair closing up as it foreshortens), the merged region
+is new, and the lights the trackers followed up to frame t-1 are nowhere in frame t on their own:
+they lost their match. Where the two are of like size, the merged outline may still match one of
+them (its area under twice that light's): a matched region whose area grew by `MERGE_AREA_GAIN`
+or more is taken as a merge too, and its one measured shift is the merged outline's, neither
+light's.
 
-Per lost frame t-1 region with a chain (its displacements to t-1): its step to frame t is its own
+Per frame t-1 region with a chain (its displacements to t-1): its step to frame t is its own
 motion extrapolated as the predictor extrapolates any region's (`RegionTracker.own_motion`,
 standing where its chain wavers) plus the frame's measured global shift g_t. Its pixels moved by
-that step land on frame t's regions; a new region (or a matched one that grew as above) on which
-at least `PART_OVERLAP` of them land holds it as a part. Every frame t region that holds a lost
-light is moved by its parts (the lost ones and any followed light that lands on it too), not by
-its own shift. A part's chain at frame t is (its predicted step, its measured ones), and the
-predictor extrapolates that chain one frame on like any other (`RegionTracker.next_displacement`).
-The region's pixels each move with the part whose predicted centroid at frame t is nearest (a
-merged pair parts as its lights move on; a split light's pieces each move as the light did). A
-new region that holds no part is a light switched on, or one the trackers had not followed: it
-moves with the global motion alone.
+that step land on frame t's regions; a region on which at least `PART_OVERLAP` of them land holds
+it as a part. A new region (or a matched one that grew as above) that holds two parts or more, at
+least one of them lost, and whose parts' areas sum to `PARTS_AREA_FRAC` of its own or more, is
+moved by its parts, not by its own shift: each pixel with the part whose predicted centroid at
+frame t is nearest (the merged pair parts as its lights move on). A part's chain at frame t is
+(its predicted step, its measured ones), and the predictor extrapolates that chain one frame on
+like any other (`RegionTracker.next_displacement`).
+
+A region that holds one lost light only is left as it was (new: it moves with the global motion
+alone). Its light lost its match on its own, and the chain that failed is not one to carry on: a
+lit road surface clipped under 10x beams (160 000 px at 640x368) lost its match and read 35 px a
+frame from its outline's correlation, and carried on by that chain it moved 82 px in one frame
+and took the mask off the plate. A light split in two, each piece holding that one light, stays
+where it is too.
 
 A track with no detection of its own carried on by its prediction is the missed-detection case
 of track association (Bar-Shalom, Daum & Huang, "The probabilistic data association filter",
@@ -36,13 +39,17 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-#: Fraction of a lost region's moved pixels that must land on a region for it to be a part.
+#: Fraction of a followed region's moved pixels that must land on a region for it to be a part.
 PART_OVERLAP = 0.25
 #: Least area ratio (frame t over t-1) of a region that kept its match for it to hold a lost light:
 #: a merge adds the other light's area; a light's outline alone changes its area by a few per cent
 #: (track.py GROWTH_DEADBAND), and a wet road's standing glints, touching and parting, by less
 #: than this (a region held for less moved them with lights that were not theirs).
 MERGE_AREA_GAIN = 1.3
+#: Least share of a region's area that its parts' areas (frame t-1) must sum to for it to move with
+#: them: merged lights overlap, so their outline is smaller than their areas' sum; a region far
+#: larger than its parts is a glow or a lit surface that took lights in, not lights that met.
+PARTS_AREA_FRAC = 0.5
 
 
 @dataclass(frozen=True)
@@ -83,8 +90,11 @@ def lost_parts(tracks, labels: np.ndarray, before, before_labels: np.ndarray, st
         for k in np.nonzero(hits[1:] >= PART_OVERLAP * len(ys))[0] + 1:
             if int(k) in ours:
                 found.setdefault(int(k), []).append((Part(centre, chain), b.label not in claimed))
+    area = {t.label: t.area_px for t in tracks}
     held = {t.label for t in tracks if not t.displacements or (t.growths and t.growths[0] ** 2 >= MERGE_AREA_GAIN)}
-    return {k: [p for p, _ in got] for k, got in found.items() if k in held and any(lost for _, lost in got)}
+    return {k: [p for p, _ in got] for k, got in found.items()
+            if k in held and any(lost for _, lost in got)
+            and len(got) >= 2 and sum(p.track.area_px for p, _ in got) >= PARTS_AREA_FRAC * area[k]}
 
 
 def part_flow(inside: np.ndarray, box, parts: list[Part], steps: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:

@@ -44,11 +44,10 @@ Per frame t (history oldest first, up to four frames):
    pixels are forward-splatted by its extrapolated displacement (plus (g - 1) times their offset
    from its centroid when it grows by g), brightest wins, values moved exactly (a clipped pixel
    lands clipped: the clip marker survives the prediction); a growing region's spread pixels
-   are joined by pasting it scaled (`grow_region`). A region that holds lights followed to
-   frame t-1 and lost there (two lights' outlines run into one, a light split, an outline
-   changed past a match: region_merges.py) moves with them, each pixel with the nearest one's
-   extrapolated motion. Any other new region moves by the global motion alone (where there is
-   none: it stays where it is).
+   are joined by pasting it scaled (`grow_region`). A region where two or more lights followed
+   to frame t-1 ran into one (region_merges.py) moves with them, each pixel with the nearest
+   one's extrapolated motion. Any other new region moves by the global motion alone (where
+   there is none: it stays where it is).
 
 Closed-form extrapolation (`track`) with the chain length available:
 
@@ -368,7 +367,7 @@ class RegionTracker(Predictor):
             y0, x0, y1, x1 = tr.box
             inside = labels[y0:y1, x0:x1] == tr.label
             g = closed_form_growth(tr.growths)
-            if tr.label in parts:                      # a region holding a light followed to t-1 and lost
+            if tr.label in parts:                      # two or more lights that ran into one
                 flow[y0:y1, x0:x1, 0][inside], flow[y0:y1, x0:x1, 1][inside] = \
                     part_flow(inside, tr.box, parts[tr.label], part_steps[tr.label])
             elif g != 1.0:                             # each pixel moves by d + (g - 1)(p - centroid)
@@ -386,8 +385,8 @@ class RegionTracker(Predictor):
         return out
 
     def merged_parts(self, frames, tracks, labels) -> tuple[dict, dict]:
-        """({region label: its parts}, {label: each part's next step (px)}): the lights
-        followed to frame t-1 and lost there that a region of frame t holds (region_merges.py)."""
+        """({region label: its parts}, {label: each part's next step (px)}): the lights followed
+        to frame t-1 that ran into one region of frame t (region_merges.py)."""
         if len(frames) < 3 or not tracks:
             return {}, {}
         before, before_labels = region_tracks(frames[:-1], cache=self.cache)
