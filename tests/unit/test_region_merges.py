@@ -37,8 +37,7 @@ HISTORY = [frame(positions(k)) for k in range(4)]
 
 def steps(tracks):
     """`track`'s predicted step of each frame t-1 track to frame t (region_merges.py `lost_parts`)."""
-    g_t = np.asarray(tracks[0].global_shifts[0] if tracks[0].global_shifts else (0.0, 0.0))
-    return lambda followed: RegionTracker().step_to_last(followed, g_t)
+    return lambda followed: RegionTracker().step_to_last(followed, tracks[0].global_shifts)
 TRUTH = frame(positions(4))
 
 

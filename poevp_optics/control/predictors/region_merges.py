@@ -62,6 +62,12 @@ class Part:
     track: object
 
 
+def holders(tracks) -> set[int]:
+    """Labels of the frame t regions that may hold parts (module docstring): the new ones, and the
+    matched ones whose area grew by `MERGE_AREA_GAIN` or more (empty: no region can hold parts)."""
+    return {t.label for t in tracks if not t.displacements or (t.growths and t.growths[0] ** 2 >= MERGE_AREA_GAIN)}
+
+
 def lost_parts(tracks, labels: np.ndarray, before, before_labels: np.ndarray, steps) -> dict[int, list[Part]]:
     """{label of a frame t region that holds a lost light: its parts} (module docstring). tracks,
     labels: frame t's `region_tracks`; before, before_labels: frame t-1's (the history less its
@@ -69,9 +75,9 @@ def lost_parts(tracks, labels: np.ndarray, before, before_labels: np.ndarray, st
     track.py `RegionTracker.step_to_last`)."""
     claimed = {t.prev_label for t in tracks if t.prev_label}
     followed = [b for b in before if b.displacements]
-    if not any(b.label not in claimed for b in followed):
+    held = holders(tracks)
+    if not held or not any(b.label not in claimed for b in followed):
         return {}
-    ours = {t.label for t in tracks}
     h, w = labels.shape
     found: dict[int, list[tuple[Part, bool]]] = {}
     for b, step in zip(followed, steps(followed)):
@@ -88,13 +94,12 @@ def lost_parts(tracks, labels: np.ndarray, before, before_labels: np.ndarray, st
                         responses=(b.responses[0], *b.responses[:2]), growths=(),
                         global_shifts=tracks[0].global_shifts, global_responses=tracks[0].global_responses)
         for k in np.nonzero(hits[1:] >= PART_OVERLAP * len(ys))[0] + 1:
-            if int(k) in ours:
+            if int(k) in held:
                 found.setdefault(int(k), []).append((Part(centre, chain), b.label not in claimed))
     area = {t.label: t.area_px for t in tracks}
-    held = {t.label for t in tracks if not t.displacements or (t.growths and t.growths[0] ** 2 >= MERGE_AREA_GAIN)}
     return {k: [p for p, _ in got] for k, got in found.items()
-            if k in held and any(lost for _, lost in got)
-            and len(got) >= 2 and sum(p.track.area_px for p, _ in got) >= PARTS_AREA_FRAC * area[k]}
+            if any(lost for _, lost in got) and len(got) >= 2
+            and sum(p.track.area_px for p, _ in got) >= PARTS_AREA_FRAC * area[k]}
 
 
 def part_flow(inside: np.ndarray, box, parts: list[Part], steps: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:

@@ -73,7 +73,7 @@ import cv2
 import numpy as np
 
 from poevp_optics.control.predictors.base import Predictor
-from poevp_optics.control.predictors.region_merges import lost_parts, part_flow
+from poevp_optics.control.predictors.region_merges import holders, lost_parts, part_flow
 from poevp_optics.control.predictors.flow import (MIN_REGION_PX, SATURATED, forward_splat, log_8bit, measure_pair,
                                                   region_matches, saturated_components)
 
@@ -387,17 +387,19 @@ class RegionTracker(Predictor):
     def merged_parts(self, frames, tracks, labels) -> tuple[dict, dict]:
         """({region label: its parts}, {label: each part's next step (px)}): the lights followed
         to frame t-1 that ran into one region of frame t (region_merges.py)."""
-        if len(frames) < 3 or not tracks:
-            return {}, {}
+        if len(frames) < 3 or not holders(tracks):
+            return {}, {}                              # no region can hold parts: frame t-1 is not read again
         before, before_labels = region_tracks(frames[:-1], cache=self.cache)
-        g_t = np.asarray(tracks[0].global_shifts[0] if tracks[0].global_shifts else (0.0, 0.0), np.float64)
-        parts = lost_parts(tracks, labels, before, before_labels, lambda followed: self.step_to_last(followed, g_t))
+        shifts = tracks[0].global_shifts
+        parts = lost_parts(tracks, labels, before, before_labels, lambda followed: self.step_to_last(followed, shifts))
         steps = {k: self.next_displacement([p.track for p in ps]) for k, ps in parts.items()}
         return parts, steps
 
-    def step_to_last(self, followed: list[RegionTrack], g_t) -> list[np.ndarray]:
+    def step_to_last(self, followed: list[RegionTrack], global_shifts) -> list[np.ndarray]:
         """Each frame t-1 track's step to frame t (px): its own motion extrapolated (`own_motion`;
-        none where its chain wavers) plus the global shift g_t measured between the two frames."""
+        none where its chain wavers) plus the global shift g_t measured between the two frames
+        (the newest of frame t's `global_shifts`; none where there is no chain)."""
+        g_t = np.asarray(global_shifts[0] if global_shifts else (0.0, 0.0), np.float64)
         return [(np.zeros(2) if wavering(b.relative()) else np.asarray(d, np.float64)) + g_t
                 for b, d in zip(followed, self.own_motion(followed))]
 
