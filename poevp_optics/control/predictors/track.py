@@ -199,7 +199,7 @@ def region_tracks(history: list[np.ndarray], max_chain: int = MAX_CHAIN,
         x, y, bw, bh, area = (int(v) for v in stats[k])
         if area < MIN_REGION_PX:
             continue
-        disp, resp, grow, label, prev = [], [], [], k, []
+        disp, resp, grow, label = [], [], [], k
         for _, _, matches in pairs:
             m = matches.get(label)
             if m is None or not m.prev_label:
@@ -208,9 +208,9 @@ def region_tracks(history: list[np.ndarray], max_chain: int = MAX_CHAIN,
             resp.append(m.response)
             grow.append(m.growth)
             label = m.prev_label
-            prev.append(label)
+        first = pairs[0][2].get(k) if pairs else None
         tracks.append(RegionTrack(k, (y, x, y + bh, x + bw), area, tuple(disp), tuple(resp), tuple(grow),
-                                  gshift, gresp, prev[0] if prev else 0))
+                                  gshift, gresp, first.prev_label if first else 0))
     return tracks, labels
 
 
