@@ -37,6 +37,10 @@ Per frame t (history oldest first, up to four frames):
    swings back and forth (its displacement changes by more than the acceleration gate twice
    running, `wavering`: the clipped outline of a standing glow, a fog halo or a lamp's wet-road
    reflection, not a vehicle) stands: it moves with the global motion alone, in both predictors.
+   A region whose own chain looms (three displacements along one line, each longer, or each
+   shorter, than the one before by the pinhole law of a steady closing speed: an oncoming car's
+   lamps, or the road's lights as we drive at them) is continued by that law in both predictors
+   (`closed_form_looming`).
    A region's growth (linear size ratio frame to frame, from the matched regions' areas) is
    continued when the last two agree (`closed_form_growth`): an approaching light grows about
    its centroid (the shift of a growing region is its centroid's: flow.py `region_matches`).
@@ -229,6 +233,60 @@ def wavering(displacements) -> bool:
                 and np.hypot(*(d[1] - d[2])) > ACCEL_GATE * max(float(np.hypot(*d[1])), 1.0))
 
 
+#: Looming (`closed_form_looming`): the shortest displacement (px) of a chain read as looming, the
+#: smallest ratio of consecutive lengths (and its inverse, receding), the largest (time to contact
+#: (3 - r) / (r - 1) frames: 1/3 frame at r = 2.5), the least cosine between consecutive directions
+#: (5.7 deg), and the largest next ratio extrapolated.
+LOOM_MIN_PX = 2.0
+LOOM_MIN_RATIO = 1.1
+LOOM_MAX_RATIO = 2.5
+LOOM_MIN_COS = 0.995
+LOOM_NEXT_MAX_RATIO = 2.0
+#: The newest ratio agrees with the law's when |ln(r_t / law(r_{t-1}))| <= LOOM_TOL[0] |ln r_t| +
+#: LOOM_TOL[1]: the outline correlation's ~0.3 px per displacement moves the ratio of two 10 px
+#: displacements by ~4 %, and a constant acceleration departs from the law by more at large ratios.
+LOOM_TOL = (0.15, 0.03)
+
+
+def looming_ratio(r: float) -> float:
+    """Next length ratio |d_{t+1}| / |d_t| of a looming light from the newest one, r = |d_t| / |d_{t-1}|.
+
+    A light at a fixed offset from the camera's axis, closing at a steady speed V (Z_t = Z_0 - V t),
+    images at x_t = x_F + k / Z_t (pinhole camera; x_F the focus of expansion), so its displacements
+    d_t = k V / (Z_t Z_{t-1}) keep one direction and |d_{t+1}| / |d_t| = Z_{t-1} / Z_{t+1} =
+    (Z_t + V) / (Z_t - V). With r = |d_t| / |d_{t-1}| = 1 + 2 V / Z_t, that is (r + 1) / (3 - r):
+    exact for any k, V and Z_0, receding too (V < 0, r < 1). Hartley & Zisserman, Multiple View
+    Geometry, 2nd ed., 2004, sec. 6.1 (the projection); the ratio is ours."""
+    return (r + 1.0) / (3.0 - r)
+
+
+def closed_form_looming(displacements) -> np.ndarray | None:
+    """d_{t+1} (px) of a chain d_t, d_{t-1}, d_{t-2} (newest first) that looms, continued by
+    `looming_ratio`; None when it does not: fewer than three displacements, one shorter than
+    LOOM_MIN_PX, directions apart by more than LOOM_MIN_COS, ratios not both beyond
+    LOOM_MIN_RATIO (or both below its inverse) and below LOOM_MAX_RATIO, or a newest ratio off the
+    law by more than LOOM_TOL. A constant velocity, a start from standing, a stop, a turn or a
+    swerve does not loom; a constant acceleration at a ratio near the law's is continued within
+    a few per cent of its own extrapolation."""
+    d = np.asarray(displacements, dtype=np.float64).reshape(-1, 2)
+    if len(d) < 3:
+        return None
+    n = np.hypot(d[:3, 0], d[:3, 1])
+    if n.min() < LOOM_MIN_PX:
+        return None
+    u = d[:3] / n[:, None]
+    if min(float(u[0] @ u[1]), float(u[1] @ u[2])) < LOOM_MIN_COS:
+        return None
+    r_t, r_before = n[0] / n[1], n[1] / n[2]
+    closing = min(r_t, r_before) > LOOM_MIN_RATIO and max(r_t, r_before) < LOOM_MAX_RATIO
+    opening = max(r_t, r_before) < 1.0 / LOOM_MIN_RATIO
+    if not (closing or opening):
+        return None
+    if abs(np.log(r_t / looming_ratio(r_before))) > LOOM_TOL[0] * abs(np.log(r_t)) + LOOM_TOL[1]:
+        return None
+    return d[0] * min(looming_ratio(r_t), LOOM_NEXT_MAX_RATIO)
+
+
 def closed_form_displacement(displacements) -> np.ndarray:
     """d_{t+1} (px, x and y) from d_t, d_{t-1}, d_{t-2} (newest first) by the table's rows."""
     d = np.asarray(displacements, dtype=np.float64).reshape(-1, 2)
@@ -347,14 +405,23 @@ class RegionTracker(Predictor):
         relative chain extrapolated by the closed forms (module docstring, step 2)."""
         return [closed_form_displacement(t.relative()) for t in tracks]
 
+    def own_steps(self, tracks: list[RegionTrack]) -> list[np.ndarray]:
+        """Each region's own next displacement (px, relative to the global motion): the looming
+        law where its relative chain looms (`closed_form_looming`), else `own_motion`."""
+        out = []
+        for t, d in zip(tracks, self.own_motion(tracks)):
+            loom = closed_form_looming(t.relative())
+            out.append(d if loom is None else loom)
+        return out
+
     def next_displacement(self, tracks: list[RegionTrack]) -> list[np.ndarray]:
-        """d_{t+1} (px) per track: its own motion (`own_motion`) plus the global motion
+        """d_{t+1} (px) per track: its own motion (`own_steps`) plus the global motion
         extrapolated (module docstring, step 2); a new region (no chain) or a wavering one
         (`wavering`) moves with the global motion alone."""
         if not tracks:
             return []
         g = closed_form_global(tracks[0].global_shifts)
-        return [g if wavering(t.relative()) else d + g for t, d in zip(tracks, self.own_motion(tracks))]
+        return [g if wavering(t.relative()) else d + g for t, d in zip(tracks, self.own_steps(tracks))]
 
     def __call__(self, history):
         frames = [np.asarray(f, dtype=np.float32) for f in history[-(MAX_CHAIN + 1):]]
@@ -396,12 +463,12 @@ class RegionTracker(Predictor):
         return parts, steps
 
     def step_to_last(self, followed: list[RegionTrack], global_shifts) -> list[np.ndarray]:
-        """Each frame t-1 track's step to frame t (px): its own motion extrapolated (`own_motion`;
+        """Each frame t-1 track's step to frame t (px): its own motion extrapolated (`own_steps`;
         none where its chain wavers) plus the global shift g_t measured between the two frames
         (the newest of frame t's `global_shifts`; none where there is no chain)."""
         g_t = np.asarray(global_shifts[0] if global_shifts else (0.0, 0.0), np.float64)
         return [(np.zeros(2) if wavering(b.relative()) else np.asarray(d, np.float64)) + g_t
-                for b, d in zip(followed, self.own_motion(followed))]
+                for b, d in zip(followed, self.own_steps(followed))]
 
     def describe(self) -> dict:
         return {"name": self.name, "context_frames": MAX_CHAIN + 1}
