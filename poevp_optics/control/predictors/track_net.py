@@ -33,7 +33,10 @@ centroid error (not pixel PSNR). The growth of a region (track.py) is `track`'s 
 In the loop the network extrapolates each region's motion relative to the frame's global motion
 (its chain less the global shifts: our camera's pitch and yaw, track.py step 1), and the global
 motion is continued as `track` continues it (`closed_form_global`: a pitch oscillation or steady
-pitch, the yaw's drift); the two are added. Where no global motion is found (one car alone, or no
+pitch, the yaw's drift); the two are added. A region whose relative chain looms (a light closing
+on the camera, or pulling away, at a steady speed: track.py `closed_form_looming`) is continued
+by the pinhole law in both predictors: the training paths hold no perspective approach, and the
+law is exact there. Where no global motion is found (one car alone, or no
 camera motion) the relative chain is the chain itself. The training paths (one car, no camera motion) hold no
 global motion, so their chains are the same either way.
 Weights: safetensors with the config and the training record in the metadata (never pickle),
