@@ -234,9 +234,9 @@ def wavering(displacements) -> bool:
 
 
 #: Looming (`closed_form_looming`): the shortest displacement (px) of a chain read as looming, the
-#: smallest ratio of consecutive lengths (and its inverse, receding), the largest (time to contact
-#: (3 - r) / (r - 1) frames: 1/3 frame at r = 2.5), the least cosine between consecutive directions
-#: (5.7 deg), and the largest next ratio extrapolated.
+#: smallest ratio of consecutive lengths (and its inverse, receding), the largest (the light then
+#: reaches the camera 2 / (r - 1) frames on: 1.3 frames at r = 2.5), the least cosine between
+#: consecutive directions (5.7 deg), and the largest next ratio extrapolated.
 LOOM_MIN_PX = 2.0
 LOOM_MIN_RATIO = 1.1
 LOOM_MAX_RATIO = 2.5
