@@ -57,6 +57,8 @@ def test_a_steadily_closing_light_is_continued_exactly(x_m, y_m, z0_m, v_m):
     ("sub-pixel", [[1.5, 0.0], [1.2, 0.0], [1.0, 0.0]]),
     ("two displacements", [[20.0, 0.0], [15.0, 0.0]]),
     ("looming too slowly", [[10.6, 0.0], [10.0, 0.0], [9.5, 0.0]]),
+    ("speeding up at a steady rate", [[14.0, 7.0], [12.0, 6.0], [10.0, 5.0]]),
+    ("braking at a steady rate", [[20.0, 0.0], [24.0, 0.0], [28.0, 0.0]]),
 ])
 def test_chains_that_do_not_loom_are_left_to_the_other_models(name, chain):
     assert closed_form_looming(chain) is None, name

@@ -264,10 +264,12 @@ def closed_form_looming(displacements) -> np.ndarray | None:
     """d_{t+1} (px) of a chain d_t, d_{t-1}, d_{t-2} (newest first) that looms, continued by
     `looming_ratio`; None when it does not: fewer than three displacements, one shorter than
     LOOM_MIN_PX, directions apart by more than LOOM_MIN_COS, ratios not both beyond
-    LOOM_MIN_RATIO (or both below its inverse) and below LOOM_MAX_RATIO, or a newest ratio off the
-    law by more than LOOM_TOL. A constant velocity, a start from standing, a stop, a turn or a
-    swerve does not loom; a constant acceleration at a ratio near the law's is continued within
-    a few per cent of its own extrapolation."""
+    LOOM_MIN_RATIO (or both below its inverse) and below LOOM_MAX_RATIO, a newest ratio not above
+    the one before, or a newest ratio off the law by more than LOOM_TOL. The law's ratio grows
+    frame to frame, law(r) - r = (r - 1)^2 / (3 - r) >= 0, where a constant acceleration's or
+    braking's moves down (d_t = v + a t: r_t = 1 + a / (v + a (t - 1))), so a car speeding up or
+    braking at a steady rate does not loom, nor does a constant velocity, a start from standing,
+    a stop, a turn or a swerve."""
     d = np.asarray(displacements, dtype=np.float64).reshape(-1, 2)
     if len(d) < 3:
         return None
@@ -280,8 +282,8 @@ def closed_form_looming(displacements) -> np.ndarray | None:
     r_t, r_before = n[0] / n[1], n[1] / n[2]
     closing = min(r_t, r_before) > LOOM_MIN_RATIO and max(r_t, r_before) < LOOM_MAX_RATIO
     opening = max(r_t, r_before) < 1.0 / LOOM_MIN_RATIO
-    if not (closing or opening):
-        return None
+    if not (closing or opening) or r_t <= r_before:
+        return None                                    # the law's ratio only grows: law(r) - r = (r - 1)^2 / (3 - r)
     if abs(np.log(r_t / looming_ratio(r_before))) > LOOM_TOL[0] * abs(np.log(r_t)) + LOOM_TOL[1]:
         return None
     return d[0] * min(looming_ratio(r_t), LOOM_NEXT_MAX_RATIO)
