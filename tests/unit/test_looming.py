@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from poevp_optics.analysis.motion_paths import saturated_centroid
 from poevp_optics.control.predictors import make_predictor
 from poevp_optics.control.predictors.track import closed_form_displacement, closed_form_looming
 
@@ -105,12 +106,7 @@ def test_both_trackers_put_an_approaching_lamp_where_the_projection_puts_it(name
     frames = _frames(pos, 3.0, scale)
     pred = make_predictor(name)(frames[:4])
     truth = frames[4]
-
-    def centroid(img):
-        ys, xs = np.nonzero(img >= 254.5)
-        return np.array([xs.mean(), ys.mean()])
-
-    assert np.hypot(*(centroid(pred) - centroid(truth))) < 1.0
+    assert np.hypot(*(saturated_centroid(pred) - saturated_centroid(truth))) < 1.0
     chain, _ = chain_and_next(pos)
     lag = pos[3] + closed_form_displacement(chain)
     assert np.hypot(*(lag - pos[4])) > 4.0
