@@ -40,14 +40,20 @@ Per frame t (history oldest first, up to four frames):
    A region whose own chain looms (three displacements along one line, each longer, or each
    shorter, than the one before by the pinhole law of a steady closing speed: an oncoming car's
    lamps, or the road's lights as we drive at them) is continued by that law in both predictors
-   (`closed_form_looming`).
+   (`closed_form_looming`). A region whose own chain turns at a steady speed (two turns of one
+   sign between its three displacements: a vehicle on a bend or turning at a junction) is
+   continued on its arc (`closed_form_turning`): in `track` from 0.05 rad a frame, in `track_net`
+   only beyond the fastest turn of its training paths (slower turns, swerves and lane changes
+   are the network's).
    A region's growth (linear size ratio frame to frame, from the matched regions' areas) is
    continued when the last two agree (`closed_form_growth`): an approaching light grows about
    its centroid (the shift of a growing region is its centroid's: flow.py `region_matches`).
 3. **Move.** Dense DIS flow (flow.py) moves the rest of the frame as `flow` does; each region's
    pixels are forward-splatted by its extrapolated displacement (plus (g - 1) times their offset
    from its centroid when it grows by g), brightest wins, values moved exactly (a clipped pixel
-   lands clipped: the clip marker survives the prediction); a growing region's spread pixels
+   lands clipped: the clip marker survives the prediction). A region moved whole is placed to a
+   fraction of a pixel where the halo around its clip shows where its outline lies
+   (subpixel_outline.py), else to the nearest pixel; a growing region's spread pixels
    are joined by pasting it scaled (`grow_region`). A region where two or more lights followed
    to frame t-1 ran into one (region_merges.py) moves with them, each pixel with the nearest
    one's extrapolated motion. Any other new region moves by the global motion alone (where
@@ -78,6 +84,7 @@ import numpy as np
 
 from poevp_optics.control.predictors.base import Predictor
 from poevp_optics.control.predictors.region_merges import holders, lost_parts, part_flow
+from poevp_optics.control.predictors.subpixel_outline import moved_outline, paint
 from poevp_optics.control.predictors.flow import (MIN_REGION_PX, SATURATED, forward_splat, log_8bit, measure_pair,
                                                   region_matches, saturated_components)
 
@@ -85,6 +92,9 @@ from poevp_optics.control.predictors.flow import (MIN_REGION_PX, SATURATED, forw
 MAX_CHAIN = 3
 #: Largest change of displacement between frames, relative to |d_t|, still read as acceleration.
 ACCEL_GATE = 1.0
+#: Shortest displacement (px) whose region's outline is placed to a fraction of a pixel
+#: (subpixel_outline.py); a region standing (under forward_splat's 0.5 px) is not moved at all.
+SUBPIXEL_MIN_PX = 0.5
 
 
 #: Per-frame growth ratios within this of 1 are read as no growth (the outline's pixel noise on a
@@ -289,6 +299,40 @@ def closed_form_looming(displacements) -> np.ndarray | None:
     return d[0] * min(looming_ratio(r_t), LOOM_NEXT_MAX_RATIO)
 
 
+#: Turning (`closed_form_turning`): the shortest displacement (px) read, the largest change of
+#: length between consecutive displacements (|ln ratio|: a steady speed), and the smallest and
+#: largest turn (rad) between consecutive directions: 0.05 rad is the direction noise of a 6 px
+#: displacement measured to 0.3 px; above 0.9 rad a frame the chain reads as a reversal or a bad match.
+TURN_MIN_PX = 2.0
+TURN_MAX_LOG_RATIO = 0.25
+TURN_MIN_RAD = 0.05
+TURN_MAX_RAD = 0.9
+
+
+def closed_form_turning(displacements, min_rad: float = TURN_MIN_RAD) -> np.ndarray | None:
+    """d_{t+1} (px) of a chain d_t, d_{t-1}, d_{t-2} (newest first) that turns at a steady speed:
+    d_t turned on by the newest turn angle (d_{t-1} to d_t), the constant turn rate and velocity
+    model (CTRV: a vehicle on an arc images its displacements turning by the yaw rate each frame;
+    Schubert, Richter & Wanielik, Comparison and evaluation of advanced motion models for vehicle
+    tracking, FUSION 2008). The three-displacement constant-acceleration fit it replaces misses
+    the arc by about 5/3 |d| w^2 (w the turn per frame: 4 px at 28 px and 0.35 rad a frame). None when the chain does not
+    turn: fewer than three displacements, one shorter than TURN_MIN_PX, lengths changing by more
+    than TURN_MAX_LOG_RATIO, or the two turn angles not both of one sign and within
+    [min_rad, TURN_MAX_RAD]."""
+    d = np.asarray(displacements, dtype=np.float64).reshape(-1, 2)
+    if len(d) < 3:
+        return None
+    n = np.hypot(d[:3, 0], d[:3, 1])
+    if n.min() < TURN_MIN_PX or max(abs(np.log(n[0] / n[1])), abs(np.log(n[1] / n[2]))) > TURN_MAX_LOG_RATIO:
+        return None
+    a = np.arctan2(d[:3, 1], d[:3, 0])
+    w_t, w_before = (np.array([a[0] - a[1], a[1] - a[2]]) + np.pi) % (2 * np.pi) - np.pi
+    if w_t * w_before <= 0 or min(abs(w_t), abs(w_before)) < min_rad or max(abs(w_t), abs(w_before)) > TURN_MAX_RAD:
+        return None
+    c, s = np.cos(w_t), np.sin(w_t)
+    return np.array([c * d[0, 0] - s * d[0, 1], s * d[0, 0] + c * d[0, 1]])
+
+
 def closed_form_displacement(displacements) -> np.ndarray:
     """d_{t+1} (px, x and y) from d_t, d_{t-1}, d_{t-2} (newest first) by the table's rows."""
     d = np.asarray(displacements, dtype=np.float64).reshape(-1, 2)
@@ -395,6 +439,8 @@ class RegionTracker(Predictor):
     region (module docstring). Subclasses replace `own_motion`."""
 
     name = "track"
+    #: Smallest turn per frame (rad) continued on its arc (`closed_form_turning`).
+    turn_min_rad = TURN_MIN_RAD
     needs_frames = 2              # works from two frames (constant velocity), better with four
     min_input_px = 12             # OpenCV's DIS refuses frames narrower or lower than 12 px
 
@@ -409,11 +455,15 @@ class RegionTracker(Predictor):
 
     def own_steps(self, tracks: list[RegionTrack]) -> list[np.ndarray]:
         """Each region's own next displacement (px, relative to the global motion): the looming
-        law where its relative chain looms (`closed_form_looming`), else `own_motion`."""
+        law where its relative chain looms (`closed_form_looming`), the steady turn where it
+        turns (`closed_form_turning`), else `own_motion`."""
         out = []
         for t, d in zip(tracks, self.own_motion(tracks)):
-            loom = closed_form_looming(t.relative())
-            out.append(d if loom is None else loom)
+            rel = t.relative()
+            law = closed_form_looming(rel)
+            if law is None:
+                law = closed_form_turning(rel, self.turn_min_rad)
+            out.append(d if law is None else law)
         return out
 
     def next_displacement(self, tracks: list[RegionTrack]) -> list[np.ndarray]:
@@ -431,7 +481,8 @@ class RegionTracker(Predictor):
         flow = self.dis.calc(p8, c8, None)
         tracks, labels = region_tracks(frames, cache=self.cache)
         parts, part_steps = self.merged_parts(frames, tracks, labels)
-        grown = []
+        grown, moved = [], []
+        carried = np.zeros(frames[-1].shape, bool)
         for tr, d in zip(tracks, self.next_displacement(tracks)):
             y0, x0, y1, x1 = tr.box
             inside = labels[y0:y1, x0:x1] == tr.label
@@ -439,15 +490,22 @@ class RegionTracker(Predictor):
             if tr.label in parts:                      # two or more lights that ran into one
                 flow[y0:y1, x0:x1, 0][inside], flow[y0:y1, x0:x1, 1][inside] = \
                     part_flow(inside, tr.box, parts[tr.label], part_steps[tr.label])
-            elif g != 1.0:                             # each pixel moves by d + (g - 1)(p - centroid)
+                continue
+            if g != 1.0:                               # each pixel moves by d + (g - 1)(p - centroid)
                 ys, xs = np.nonzero(inside)
                 flow[y0:y1, x0:x1, 0][inside] = d[0] + (g - 1) * (xs - xs.mean())
                 flow[y0:y1, x0:x1, 1][inside] = d[1] + (g - 1) * (ys - ys.mean())
                 grown.append((inside, tr.box, d, g))
-            else:
-                flow[y0:y1, x0:x1, 0][inside] = d[0]
-                flow[y0:y1, x0:x1, 1][inside] = d[1]
-        out = forward_splat(frames[-1], flow)
+                continue
+            flow[y0:y1, x0:x1, 0][inside] = d[0]
+            flow[y0:y1, x0:x1, 1][inside] = d[1]
+            outline = moved_outline(frames[-1], inside, tr.box, d) if np.hypot(*d) >= SUBPIXEL_MIN_PX else None
+            if outline is not None:                    # its outline placed to a fraction of a pixel
+                carried[y0:y1, x0:x1] |= inside
+                moved.append(outline)
+        out = forward_splat(frames[-1], flow, carried=carried)
+        for outline in moved:
+            paint(out, outline)
         for inside, box, d, g in grown:
             if g > 1.0:
                 grow_region(out, frames[-1], inside, box, d, g)

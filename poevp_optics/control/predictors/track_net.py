@@ -36,7 +36,12 @@ motion is continued as `track` continues it (`closed_form_global`: a pitch oscil
 pitch, the yaw's drift); the two are added. A region whose relative chain looms (a light closing
 on the camera, or pulling away, at a steady speed: track.py `closed_form_looming`) is continued
 by the pinhole law in both predictors: the training paths hold no perspective approach, and the
-law is exact there. Where no global motion is found (one car alone, or no
+law is exact there. A region whose relative chain turns faster than the training paths' fastest
+turn (0.25 rad a frame) is continued on its arc (track.py `closed_form_turning`, which `track`
+applies from 0.05 rad): the constant-turn-rate model is exact at any rate, and the network has
+seen none so sharp. Slower turns stay the network's, which learned them with the swerves and
+lane changes beside them (where a steady-turn law, applied from 0.05 rad, costs the training
+kinds' swerves 0.02 and lane changes 0.04 of mean IoU). Where no global motion is found (one car alone, or no
 camera motion) the relative chain is the chain itself. The training paths (one car, no camera motion) hold no
 global motion, so their chains are the same either way.
 Weights: safetensors with the config and the training record in the metadata (never pickle),
@@ -57,6 +62,8 @@ from poevp_optics.core.paths import ASSETS_DIR
 from poevp_optics.core.weights import WeightsError, read_weights_file, weights_identity
 
 N_FEATURES = 15
+#: Fastest turn (rad a frame) of the training paths (analysis/motion_paths.py TRAINING_SHAPES).
+TRAINED_TURN_MAX_RAD = 0.25
 #: A newest displacement shorter than this (px) is a stop: predicted to stand (module docstring).
 STOP_PX = 1.0
 #: The state-dict keys of the network's three linear layers (track_net_model.py `TrackNet.net`).
@@ -157,6 +164,10 @@ class TrackNetPredictor(RegionTracker):
     track_net_model.py `numpy_layers` of a torch module)."""
 
     name = "track_net"
+    #: Turns up to the training paths' fastest (analysis/motion_paths.py TRAINING_SHAPES
+    #: turn_rad: 0.25 rad a frame) are the network's, with the swerves and lane changes it learned
+    #: beside them; only sharper ones are continued on their arc (track.py `closed_form_turning`).
+    turn_min_rad = TRAINED_TURN_MAX_RAD
 
     def __init__(self, layers: list[tuple[np.ndarray, np.ndarray]], weights_path: Path | None = None,
                  meta: dict | None = None):
