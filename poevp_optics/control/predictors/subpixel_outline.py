@@ -31,8 +31,10 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-#: The clip level (8-bit DN) the outline is taken at: the mask laws' clip marker (flow.py SATURATED).
-CLIP_LEVEL = 254.5
+from poevp_optics.control.predictors.flow import SATURATED
+
+#: The clip level (8-bit DN) the outline is taken at: the mask laws' clip marker.
+CLIP_LEVEL = SATURATED
 #: Values up to this (DN) are the 8-bit clip marker, not a measured brightness.
 CLIP_MARKER_MAX = 255.5
 #: Halo read around the region: unclipped pixels within this distance (px) of it and at least
@@ -82,8 +84,8 @@ def extrapolated_log(log_crop: np.ndarray, region: np.ndarray, marker: np.ndarra
     level would lie beyond p: a sharp edge, like a plate's border or a character's stroke, not a
     fall-off), p mirrors q about the clip level, which puts the crossing halfway between them, as
     rounding would."""
-    dist, lab = cv2.distanceTransformWithLabels(region.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_5,
-                                                labelType=cv2.DIST_LABEL_PIXEL)
+    _, lab = cv2.distanceTransformWithLabels(region.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_5,
+                                             labelType=cv2.DIST_LABEL_PIXEL)
     zy, zx = np.nonzero(~region)
     index = np.zeros(int(lab.max()) + 1, np.int64)
     index[lab[~region]] = np.arange(zy.size)     # OpenCV labels the zero pixels in scan order
