@@ -114,15 +114,29 @@ def test_values_above_the_clip_are_carried_as_brightness():
     assert out[peak] > 100 * 255.0
 
 
-def test_carried_pixels_leave_their_place_and_land_nowhere():
-    """forward_splat's `carried` pixels show the background where they stood and are not splatted."""
-    frame = np.array([[10.0, 255.0, 255.0, 12.0, 11.0, 10.0]], np.float32)
-    flow = np.zeros((1, 6, 2), np.float32)
-    flow[0, 1:3, 0] = 2.0
-    carried = np.zeros((1, 6), bool)
-    carried[0, 1:3] = True
-    out = forward_splat(frame, flow, carried=carried)
-    assert out.max() < SATURATED
+def test_the_inside_keeps_the_whole_pixel_move_and_only_the_outline_changes():
+    """Over the whole-pixel move forward_splat makes, `paint` changes only the pixels where the
+    two outlines differ: the outline's pixels the move left unclipped are clipped, the move's
+    pixels beyond the outline are unclipped, and every pixel clipped by both keeps the
+    brightness the move carried (the demodulated loop's values above the clip, uninterpolated)."""
+    d = (5.5, 2.5)
+    before = lamp(100.3, 70.2, clip=False)
+    after = lamp(100.3 + d[0], 70.2 + d[1], clip=False)
+    inside, box = region_of(before)
+    flow = np.zeros(SHAPE + (2,), np.float32)
+    flow[box[0]:box[2], box[1]:box[3], 0][inside] = d[0]
+    flow[box[0]:box[2], box[1]:box[3], 1][inside] = d[1]
+    whole = forward_splat(before, flow)
+    out = whole.copy()
+    paint(out, moved_outline(before, inside, box, d))
+    sub, rounded = out >= SATURATED, whole >= SATURATED
+    assert (sub & ~rounded).any() and (rounded & ~sub).any()
+    np.testing.assert_array_equal(out[sub & rounded], whole[sub & rounded])
+    np.testing.assert_array_equal(out[~sub & ~rounded], whole[~sub & ~rounded])
+    assert out[rounded & ~sub].max() < SATURATED
+    assert out[sub & ~rounded].min() >= 255.0
+    truth = after >= SATURATED
+    assert iou(sub, truth) > iou(rounded, truth) + 0.015
 
 
 @pytest.mark.parametrize("name", ["track", "track_net"])

@@ -207,18 +207,14 @@ def region_translations(prev_sat: np.ndarray, cur_sat: np.ndarray, flow: np.ndar
 
 
 def forward_splat(frame: np.ndarray, flow: np.ndarray, min_value: float = 128.0,
-                  min_motion_px: float = 0.5, carried: np.ndarray | None = None) -> np.ndarray:
+                  min_motion_px: float = 0.5) -> np.ndarray:
     """Move bright (>= min_value) moving (|flow| >= min_motion_px) pixels by `flow` (px, (H, W,
     2) as x, y); every other pixel keeps its value (hold). Brightest wins where pixels land
     together and where one lands on a pixel that stays: a standing clipped light is not eaten
     by its own halo's pixels carried in by the dense flow (a fog glow whose clipped region
-    stands while the flow reads its wavering edge as motion), nor by a dimmer light passing.
-    `carried` (bool, (H, W)): pixels the caller moves itself (subpixel_outline.py); they leave
-    their place as moving pixels do but land nowhere here."""
+    stands while the flow reads its wavering edge as motion), nor by a dimmer light passing."""
     h, w = frame.shape
     moving = (frame >= min_value) & ((flow[..., 0] ** 2 + flow[..., 1] ** 2) >= min_motion_px ** 2)
-    if carried is not None:
-        moving |= carried
     ys, xs = np.nonzero(moving)
     out = np.array(frame, dtype=np.float32, copy=True)
     if ys.size == 0:
@@ -226,8 +222,6 @@ def forward_splat(frame: np.ndarray, flow: np.ndarray, min_value: float = 128.0,
     tx = np.rint(xs + flow[ys, xs, 0]).astype(np.int64)
     ty = np.rint(ys + flow[ys, xs, 1]).astype(np.int64)
     inside = (tx >= 0) & (tx < w) & (ty >= 0) & (ty < h)
-    if carried is not None:
-        inside &= ~carried[ys, xs]
     vals = frame[ys, xs][inside]
     dest = (ty * w + tx)[inside]
     # pixels the highlight leaves and nothing lands on show background: estimate it by a grey

@@ -13,11 +13,20 @@ distance to the region, least squares), carries each clipped pixel's log brightn
 nearest unclipped neighbour at that slope (above the clip; pixels already above the 8-bit clip,
 as in the demodulated loop, keep their own; where that neighbour is too dark for the slope, a
 sharp edge such as a plate's border or a character's stroke, the crossing is put halfway, as
-rounding puts it), shifts that log image by d with bilinear
-interpolation, and takes the pixels at or above the clip level as the moved outline. For a
-log-linear edge this places the clip crossing exactly for any fractional d; bilinear
-interpolation of a linear function is exact. Where the halo cannot tell (fewer than
-`MIN_HALO_PX` lamp-dominated pixels, or no fall-off) it returns None and the caller rounds.
+rounding puts it), shifts that log image by d with bilinear interpolation, and takes the pixels
+at or above the clip level as the moved outline. For a log-linear edge this places the clip
+crossing exactly for any fractional d; bilinear interpolation of a linear function is exact.
+Where the halo cannot tell (fewer than `MIN_HALO_PX` lamp-dominated pixels, or no fall-off) it
+returns None and the caller rounds.
+
+Only the outline moves by the fraction. `paint` corrects the whole-pixel move the caller has
+already made (forward_splat): it clips the outline's pixels that move left unclipped and
+unclips the move's pixels beyond the outline; every pixel both clip keeps the value the
+whole-pixel move carried. In the demodulated loop those values are the measured brightness
+above the clip, which the pixel-wise mask law follows character by character over a plate:
+interpolating them as well blurs that brightness over a pixel, and on a plate under 10x our
+beams it cost the closed loop three of fourteen reads (a plate's characters are sharp edges,
+not the smooth fall-off the outline rule reads).
 
 The approach is ours; the clip-crossing reading is edge localisation from the intensity profile,
 as in sub-pixel edge detectors (Devernay, A non-maxima suppression method for edge detection
@@ -53,13 +62,15 @@ MARGIN_PX = 4
 
 @dataclass(frozen=True)
 class MovedOutline:
-    """The moved region in a window (y0, x0) of the frame: its clipped pixels (bool) and their
-    values (DN: the clip marker 255, or the interpolated brightness where the source held values
-    above it)."""
+    """The moved region in a window (y0, x0) of the frame: its clipped pixels placed to a fraction
+    of a pixel (bool), where the whole-pixel move puts the region (bool), and the interpolated
+    brightness (DN: at least the clip marker 255 on the clipped pixels, where the source held
+    values above it their interpolation; below the clip level elsewhere)."""
 
     y0: int
     x0: int
     clipped: np.ndarray
+    rounded: np.ndarray
     values: np.ndarray
 
 
@@ -127,18 +138,36 @@ def moved_outline(frame: np.ndarray, inside: np.ndarray, box, d) -> MovedOutline
     near = cv2.warpAffine(region.astype(np.uint8), shift, size, flags=cv2.INTER_LINEAR) > 0
     near = cv2.dilate(near.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
     clipped = near & (moved >= np.log(CLIP_LEVEL))
-    return MovedOutline(a0 + iy, b0 + ix, clipped, np.maximum(np.exp(own), 255.0).astype(np.float32))
+    values = np.where(clipped, np.maximum(np.exp(own), 255.0), np.minimum(np.exp(moved), CLIP_LEVEL - 0.5))
+    return MovedOutline(a0 + iy, b0 + ix, clipped, rounded_footprint(region, (a0, b0), (a0 + iy, b0 + ix), d),
+                        values.astype(np.float32))
+
+
+def rounded_footprint(region: np.ndarray, origin, window, d) -> np.ndarray:
+    """Where forward_splat's whole-pixel move puts `region` (bool over a crop at `origin` (y, x)
+    of the frame), in the same-sized crop at `window`: each pixel p lands at rint(p + d)."""
+    ry, rx = np.nonzero(region)
+    ty = np.rint(ry + origin[0] + d[1]).astype(np.int64) - window[0]
+    tx = np.rint(rx + origin[1] + d[0]).astype(np.int64) - window[1]
+    ok = (ty >= 0) & (ty < region.shape[0]) & (tx >= 0) & (tx < region.shape[1])
+    out = np.zeros(region.shape, bool)
+    out[ty[ok], tx[ok]] = True
+    return out
 
 
 def paint(out: np.ndarray, moved: MovedOutline) -> None:
-    """Lay `moved`'s clipped pixels into `out` (in place), brightest wins, cut at the frame's edges."""
+    """Correct the whole-pixel move already in `out` (in place) to `moved`'s outline, cut at the
+    frame's edges: the outline's pixels the move left under the clip take their interpolated
+    brightness, the move's clipped pixels beyond the outline take theirs (under the clip), and
+    every other pixel keeps the value the move carried."""
     h, w = out.shape
     ch, cw = moved.clipped.shape
     c0, d0 = max(moved.y0, 0), max(moved.x0, 0)
     c1, d1 = min(moved.y0 + ch, h), min(moved.x0 + cw, w)
     if c1 <= c0 or d1 <= d0:
         return
-    sel = moved.clipped[c0 - moved.y0:c1 - moved.y0, d0 - moved.x0:d1 - moved.x0]
-    vals = moved.values[c0 - moved.y0:c1 - moved.y0, d0 - moved.x0:d1 - moved.x0]
+    window = np.s_[c0 - moved.y0:c1 - moved.y0, d0 - moved.x0:d1 - moved.x0]
+    sel, foot, vals = moved.clipped[window], moved.rounded[window], moved.values[window]
     view = out[c0:c1, d0:d1]
-    view[sel] = np.maximum(view[sel], vals[sel])
+    change = (sel & (view < CLIP_LEVEL)) | (foot & ~sel & (view >= CLIP_LEVEL))
+    view[change] = vals[change]

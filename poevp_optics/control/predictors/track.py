@@ -51,9 +51,10 @@ Per frame t (history oldest first, up to four frames):
 3. **Move.** Dense DIS flow (flow.py) moves the rest of the frame as `flow` does; each region's
    pixels are forward-splatted by its extrapolated displacement (plus (g - 1) times their offset
    from its centroid when it grows by g), brightest wins, values moved exactly (a clipped pixel
-   lands clipped: the clip marker survives the prediction). A region moved whole is placed to a
-   fraction of a pixel where the halo around its clip shows where its outline lies
-   (subpixel_outline.py), else to the nearest pixel; a growing region's spread pixels
+   lands clipped: the clip marker survives the prediction). A region moved whole has its outline
+   placed to a fraction of a pixel where the halo around its clip shows where it lies
+   (subpixel_outline.py; the values inside are the whole-pixel move's), else moves to the
+   nearest pixel; a growing region's spread pixels
    are joined by pasting it scaled (`grow_region`). A region where two or more lights followed
    to frame t-1 ran into one (region_merges.py) moves with them, each pixel with the nearest
    one's extrapolated motion. Any other new region moves by the global motion alone (where
@@ -482,7 +483,6 @@ class RegionTracker(Predictor):
         tracks, labels = region_tracks(frames, cache=self.cache)
         parts, part_steps = self.merged_parts(frames, tracks, labels)
         grown, moved = [], []
-        carried = np.zeros(frames[-1].shape, bool)
         for tr, d in zip(tracks, self.next_displacement(tracks)):
             y0, x0, y1, x1 = tr.box
             inside = labels[y0:y1, x0:x1] == tr.label
@@ -501,9 +501,8 @@ class RegionTracker(Predictor):
             flow[y0:y1, x0:x1, 1][inside] = d[1]
             outline = moved_outline(frames[-1], inside, tr.box, d) if np.hypot(*d) >= SUBPIXEL_MIN_PX else None
             if outline is not None:                    # its outline placed to a fraction of a pixel
-                carried[y0:y1, x0:x1] |= inside
                 moved.append(outline)
-        out = forward_splat(frames[-1], flow, carried=carried)
+        out = forward_splat(frames[-1], flow)
         for outline in moved:
             paint(out, outline)
         for inside, box, d, g in grown:
