@@ -21,12 +21,13 @@ returns None and the caller rounds.
 
 Only the outline moves by the fraction. `paint` corrects the whole-pixel move the caller has
 already made (forward_splat): it clips the outline's pixels that move left unclipped and
-unclips the move's pixels beyond the outline; every pixel both clip keeps the value the
+unclips the move's pixels beyond the outline; every pixel clipped by both keeps the value the
 whole-pixel move carried. In the demodulated loop those values are the measured brightness
-above the clip, which the pixel-wise mask law follows character by character over a plate:
-interpolating them as well blurs that brightness over a pixel, and on a plate under 10x our
-beams it cost the closed loop three of fourteen reads (a plate's characters are sharp edges,
-not the smooth fall-off the outline rule reads).
+above the clip, which the pixel-wise mask law follows mirror by mirror over a plate's
+characters. A character's stroke is a sharp edge, not the smooth fall-off the outline rule
+reads, and interpolating it by a fraction of a pixel spreads it over two mirrors: on a plate
+under 10x our beams (benchmarks/loop_alpr.py, heldout_receding) that cost the closed loop two
+of fourteen reads.
 
 The approach is ours; the clip-crossing reading is edge localisation from the intensity profile,
 as in sub-pixel edge detectors (Devernay, A non-maxima suppression method for edge detection
