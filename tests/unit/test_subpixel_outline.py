@@ -11,7 +11,7 @@ import pytest
 
 from poevp_optics.control.predictors import make_predictor, track
 from poevp_optics.control.predictors.flow import SATURATED, forward_splat
-from poevp_optics.control.predictors.subpixel_outline import moved_outline, paint
+from poevp_optics.control.predictors.subpixel_outline import moved_outline, paint, rounded_footprint
 
 SHAPE = (160, 240)
 
@@ -137,6 +137,20 @@ def test_the_inside_keeps_the_whole_pixel_move_and_only_the_outline_changes():
     assert out[sub & ~rounded].min() >= 255.0
     truth = after >= SATURATED
     assert iou(sub, truth) > iou(rounded, truth) + 0.015
+
+
+@pytest.mark.parametrize("d", [(2.5000000001, -1.4999999999), (3.25, 0.75), (-0.5, 4.5)])
+def test_the_whole_pixel_footprint_is_where_the_splat_puts_the_region(d):
+    """`rounded_footprint` marks exactly the pixels forward_splat's move clips, also for a
+    fraction within float32 rounding of a half (the splat's flow field is float32)."""
+    region = np.zeros((16, 16), bool)
+    region[5:10, 4:9] = True
+    frame = np.where(region, 255.0, 10.0).astype(np.float32)
+    flow = np.zeros((16, 16, 2), np.float32)
+    flow[region] = d
+    moved = np.zeros((16, 16), bool)
+    moved[np.nonzero(forward_splat(frame, flow) >= SATURATED)] = True
+    np.testing.assert_array_equal(rounded_footprint(region, (0, 0), (0, 0), d), moved)
 
 
 @pytest.mark.parametrize("name", ["track", "track_net"])
