@@ -206,6 +206,12 @@ def region_translations(prev_sat: np.ndarray, cur_sat: np.ndarray, flow: np.ndar
     return out
 
 
+def landing_px(pos: np.ndarray, shift) -> np.ndarray:
+    """The whole pixel (int64) a pixel at `pos` (px, integer) lands on when moved by `shift` (px,
+    taken at float32, as a flow field holds it; rounded to the nearest pixel, halves to even)."""
+    return np.rint(pos + np.asarray(shift, np.float32)).astype(np.int64)
+
+
 def forward_splat(frame: np.ndarray, flow: np.ndarray, min_value: float = 128.0,
                   min_motion_px: float = 0.5) -> np.ndarray:
     """Move bright (>= min_value) moving (|flow| >= min_motion_px) pixels by `flow` (px, (H, W,
@@ -219,8 +225,7 @@ def forward_splat(frame: np.ndarray, flow: np.ndarray, min_value: float = 128.0,
     out = np.array(frame, dtype=np.float32, copy=True)
     if ys.size == 0:
         return out
-    tx = np.rint(xs + flow[ys, xs, 0]).astype(np.int64)
-    ty = np.rint(ys + flow[ys, xs, 1]).astype(np.int64)
+    tx, ty = landing_px(xs, flow[ys, xs, 0]), landing_px(ys, flow[ys, xs, 1])
     inside = (tx >= 0) & (tx < w) & (ty >= 0) & (ty < h)
     vals = frame[ys, xs][inside]
     dest = (ty * w + tx)[inside]

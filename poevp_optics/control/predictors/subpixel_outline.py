@@ -41,7 +41,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from poevp_optics.control.predictors.flow import SATURATED
+from poevp_optics.control.predictors.flow import SATURATED, landing_px
 
 #: The clip level (8-bit DN) the outline is taken at: the mask laws' clip marker.
 CLIP_LEVEL = SATURATED
@@ -146,13 +146,11 @@ def moved_outline(frame: np.ndarray, inside: np.ndarray, box, d) -> MovedOutline
 
 def rounded_footprint(region: np.ndarray, origin, window, d) -> np.ndarray:
     """Where forward_splat's whole-pixel move puts `region` (bool over a crop at `origin` (y, x)
-    of the frame), in the same-sized crop at `window`: each pixel p lands at rint(p + d), d taken
-    at the float32 of forward_splat's flow field so that a fraction within rounding of a half
-    lands where the splat put it."""
+    of the frame), in the same-sized crop at `window`: each pixel lands where the splat's own
+    rounding puts it (flow.py `landing_px`)."""
     ry, rx = np.nonzero(region)
-    dx, dy = (float(v) for v in np.float32(d))
-    ty = np.rint(ry + origin[0] + dy).astype(np.int64) - window[0]
-    tx = np.rint(rx + origin[1] + dx).astype(np.int64) - window[1]
+    ty = landing_px(ry + origin[0], d[1]) - window[0]
+    tx = landing_px(rx + origin[1], d[0]) - window[1]
     ok = (ty >= 0) & (ty < region.shape[0]) & (tx >= 0) & (tx < region.shape[1])
     out = np.zeros(region.shape, bool)
     out[ty[ok], tx[ok]] = True
