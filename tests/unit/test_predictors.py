@@ -54,6 +54,21 @@ def test_forward_splat_keeps_a_standing_clipped_pixel_under_a_dimmer_landing():
     np.testing.assert_array_equal(out[0], [10.0, 10.0, 255.0, 30.0, 200.0])
 
 
+@pytest.mark.parametrize("d", [(2.5, -1.5), (-0.5, 3.5), (1.5, 0.0)])
+def test_forward_splat_moves_a_region_by_a_half_pixel_whole(d):
+    """A clipped 5 x 5 region moved by a shift with half-pixel parts lands as one 5 x 5 block,
+    shifted by the shift rounded half up, with no stripes of its old pixels left inside."""
+    frame = np.full((20, 20), 10.0, np.float32)
+    frame[6:11, 6:11] = 255.0
+    flow = np.zeros((20, 20, 2), np.float32)
+    flow[6:11, 6:11] = d
+    out = forward_splat(frame, flow)
+    dx, dy = (int(np.floor(v + 0.5)) for v in d)
+    expect = np.zeros((20, 20), bool)
+    expect[6 + dy:11 + dy, 6 + dx:11 + dx] = True
+    np.testing.assert_array_equal(out >= 254.5, expect)
+
+
 def test_dmvfn_shapes_params_and_deterministic_inference():
     full, lite = DMVFN(FULL).eval(), DMVFN(LITE).eval()
     assert 3.0e6 < count_parameters(full) < 5.0e6          # paper: about 3.56 M

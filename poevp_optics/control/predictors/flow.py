@@ -208,8 +208,10 @@ def region_translations(prev_sat: np.ndarray, cur_sat: np.ndarray, flow: np.ndar
 
 def landing_px(pos: np.ndarray, shift) -> np.ndarray:
     """The whole pixel (int64) a pixel at `pos` (px, integer) lands on when moved by `shift` (px,
-    taken at float32, as a flow field holds it; rounded to the nearest pixel, halves to even)."""
-    return np.rint(pos + np.asarray(shift, np.float32)).astype(np.int64)
+    taken at float32, as a flow field holds it; rounded to the nearest pixel, halves up). Halves
+    round one way for every pixel: rounding them to even would land a region moved by 2.5 px
+    striped, its columns 4, 5, 6, 7 on 6, 8, 8, 10."""
+    return np.floor(pos + np.asarray(shift, np.float32) + 0.5).astype(np.int64)
 
 
 def forward_splat(frame: np.ndarray, flow: np.ndarray, min_value: float = 128.0,
