@@ -148,8 +148,7 @@ def test_the_whole_pixel_footprint_is_where_the_splat_puts_the_region(d):
     frame = np.where(region, 255.0, 10.0).astype(np.float32)
     flow = np.zeros((16, 16, 2), np.float32)
     flow[region] = d
-    moved = np.zeros((16, 16), bool)
-    moved[np.nonzero(forward_splat(frame, flow) >= SATURATED)] = True
+    moved = forward_splat(frame, flow) >= SATURATED
     np.testing.assert_array_equal(rounded_footprint(region, (0, 0), (0, 0), d), moved)
 
 
