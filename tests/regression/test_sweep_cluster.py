@@ -80,9 +80,11 @@ class DaskProcesses:
     def wait_workers(self, n: int, timeout_s: float = 120) -> None:
         from distributed import Client
 
+        # running, not only registered: a worker registers first, then reports that it runs, and
+        # the scheduler sends scattered data (the scene bundle) only to running workers
         with Client(scheduler_file=str(self.scheduler_file), timeout=30) as c:
             t0 = time.time()
-            while len(c.scheduler_info(n_workers=-1)["workers"]) != n:
+            while sum(w["status"] == "running" for w in c.scheduler_info(n_workers=-1)["workers"].values()) != n:
                 assert time.time() - t0 < timeout_s, f"{n} workers did not connect"
                 time.sleep(0.2)
 
@@ -241,3 +243,35 @@ def test_a_worker_with_another_poevp_version_is_refused(tmp_path, monkeypatch, c
                         rf"\+other there, {re.escape(__version__)} here; install the same software on every "
                         r"worker", err), err
     assert not out.exists()
+
+
+@pytest.mark.slow
+def test_a_sweep_sends_its_scene_bundle_again_when_every_worker_holding_it_is_lost(
+        tmp_path, monkeypatch, capsys, dask_processes):
+    """The only worker that holds the scene bundle dies in the middle of a point, and another
+    joins afterwards: the scheduler forgets the bundle (scattered data has no recipe) and with
+    it every point that needs it. The sweep sends the bundle again and runs those points; the
+    points the dead worker held count one worker loss each, the others none."""
+    procs = dask_processes
+    sf = procs.start_scheduler()
+    procs.start_worker("w0")
+    procs.wait_workers(1)
+    monkeypatch.chdir(ROOT)
+
+    class KillThenJoin(KillFirstBusyWorker):
+        def run(self):
+            super().run()
+            if self.killed:
+                procs.start_worker("w1")
+
+    killer = KillThenJoin(procs)
+    killer.start()
+    rc, text = _sweep(capsys, "--out", str(tmp_path / "lost"), "--scheduler-file", str(sf))
+    killer.stop.set()
+    killer.join(timeout=10)
+    assert killer.killed == "w0"
+    assert rc == 0, text
+    assert "poevp sweep: the scene bundle was lost with every worker that held it; sending it again" in text, text
+    df = pd.read_parquet(tmp_path / "lost" / "results.parquet")
+    assert len(df) == 4 and (df["status"] == "ok").all(), df
+    assert len(_points(tmp_path / "lost")) == 4

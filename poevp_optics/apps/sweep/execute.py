@@ -60,7 +60,8 @@ class DaskSession:
         self.versions: dict[str, str] = {}
         self.threads = 1
         self.workers_now = 0
-        self._bundles: dict = {}           # scene -> (bundled files, plan, Dask future of the bytes, refs)
+        self._bundles: dict = {}           # scene -> (bundled files, plan, Dask future of the bytes, refs, bytes)
+        self.bundle_sends = 0              # times a bundle was sent again after its holders were lost
         self.told_shared = False
 
     def open(self):
@@ -102,7 +103,31 @@ class DaskSession:
             f"{len(b.data) / 1e6:.2f} MB (sha256 {b.sha256[:12]}), sent to the workers once")
         fut = self.client.scatter(b.data, broadcast=True, hash=True)
         self._bundles[plan.scene] = ({(r.source, r.sha256) for r in every if r.kind in ("scene", "assets")},
-                                     plan, fut, every)
+                                     plan, fut, every, b.data)
+        return plan, fut
+
+    def bundle_lost(self, scene: str) -> bool:
+        """Whether the scheduler no longer holds `scene`'s bundle: every worker that held it left
+        (scattered data has no recipe to compute it again, so Dask forgets it and every point that
+        needs it). False for a plan that reads the client's paths."""
+        have = self._bundles.get(scene)
+        if have is None:
+            return False
+        fut = have[2]
+        return fut.status != "finished" or not self.client.who_has([fut]).get(fut.key)
+
+    def send_bundle_again(self, scene: str, log) -> tuple[InputPlan, object]:
+        """`scene`'s bundle, the same bytes, sent under a new key (the lost one may still be known
+        to this client) to the workers now present, once there is one; (plan, future) as
+        `bundle_for`."""
+        names, plan, _fut, every, data = self._bundles[scene]
+        self.bundle_sends += 1
+        log("poevp sweep: the scene bundle was lost with every worker that held it; sending it again")
+        if not self.client.scheduler_info(n_workers=-1)["workers"]:
+            log("poevp sweep: no worker is left; waiting for one")
+            self.client.wait_for_workers(1)
+        fut = self.client.scatter(data, broadcast=True, hash=False)
+        self._bundles[scene] = (names, plan, fut, every, data)
         return plan, fut
 
     def close(self) -> None:
@@ -139,6 +164,15 @@ def write_point(folder: Path, archive: bytes, job: str) -> None:
         unpack_archive(archive, stage, skip=(MARKER,))
 
 
+#: How often a sweep sends a scene bundle again after the scheduler lost it with every worker
+#: that held it, before it stops (each loss means the cluster lost every such worker at once).
+MAX_BUNDLE_SENDS = 3
+#: Why the scheduler cancels a task whose input it lost (distributed.scheduler: a submitted
+#: task whose dependency it no longer knows; a waiting task whose dependency it forgot). A
+#: restart or a lost connection cancels for other reasons, and stops the sweep.
+LOST_INPUT_REASONS = ("lost dependencies", "already forgotten")
+
+
 def lost_worker_errors() -> tuple[type, ...]:
     """What a future raises when the worker running it died or dropped off."""
     from distributed import KilledWorker
@@ -151,6 +185,62 @@ def _name(row: dict, folder: Path) -> str:
     return f"point {row['point']} seed {row['seed']}" if "point" in row and "seed" in row else f"point {folder.name}"
 
 
+class PointSubmitter:
+    """execute_points' submissions to Dask: each point with its scene's input plan and bundle,
+    under a key of its own per send, remembering which bundle each send depends on."""
+
+    def __init__(self, todo: list, job: str, plan_of: Callable, dask: DaskSession, reuse, log, resume_hint: str):
+        self.job, self.plan_of, self.dask, self.reuse, self.log = job, plan_of, dask, reuse, log
+        self.resume_hint = resume_hint
+        self.client = dask.client
+        self.plans: dict[str, tuple] = {}               # scene -> (plan with its bundle, bundle future)
+        for t in todo:
+            pl = plan_of(t)
+            if pl.scene not in self.plans:
+                refs = [r for u in todo if plan_of(u).scene == pl.scene for r in u[2]]
+                self.plans[pl.scene] = dask.bundle_for(pl, refs, log)
+        self.run_id = uuid.uuid4().hex[:8]
+        self.sends = 0
+        self.futs: dict = {}                            # future -> (row, overrides, refs, folder, attempt)
+        self.sent_with: dict = {}                       # future's key -> the bundle future it depends on
+
+    def submit(self, row, ov, refs, attempt: int, folder: Path):
+        """Send one point (its `attempt`-th retry); the Dask future."""
+        t, reuse = (row, ov, refs, folder), self.reuse
+        group = reuse.group_of(t) if reuse else ""
+        pl, bundle = self.plans[self.plan_of(t).scene]
+        task = PointTask(ov, self.job, self.dask.threads, pl, refs, self.dask.versions, group,
+                         reuse.read_dirs() if group else (), folder.name, reuse.store_dir() if group else "")
+        renders = reuse.payload(self.client, t) if group else []
+        self.sends += 1
+        f = self.client.submit(run_point, task, bundle, renders, pure=False,
+                               key=f"poevp-point-{folder.name}-{self.run_id}-a{attempt}-s{self.sends}")
+        self.sent_with[f.key] = bundle
+        self.futs[f] = (*t, attempt)
+        return f
+
+    def taken(self, f) -> tuple:
+        """A finished future's point (row, overrides, refs, folder, attempt, the bundle it used)."""
+        return (*self.futs.pop(f), self.sent_with.pop(f.key, None))
+
+    def bundle_again(self, t, bundle, e) -> None:
+        """A point `t` the scheduler cancelled: its scene's bundle is sent again if the scheduler
+        lost it (unless it was sent again since `bundle`, the one `t` used), else ClusterError."""
+        scene, dask, hint = self.plan_of(t).scene, self.dask, self.resume_hint
+        lost_input = bundle is not None and getattr(e, "reason", None) in LOST_INPUT_REASONS
+        if lost_input and bundle is not self.plans[scene][1]:
+            return
+        if not lost_input or not dask.bundle_lost(scene):
+            why = getattr(e, "reason", None)
+            why = f"Dask's reason: {why}; " if why and why != "unknown" else ""
+            raise ClusterError(f"the Dask scheduler cancelled the sweep's tasks ({why}it closed, restarted or lost "
+                               f"this client); {hint}run the same command again to resume") from None
+        if dask.bundle_sends >= MAX_BUNDLE_SENDS:
+            raise ClusterError(f"the scene bundle was lost {dask.bundle_sends + 1} times with every worker that held "
+                               f"it; {hint}run the same command again to resume") from None
+        self.plans[scene] = dask.send_bundle_again(scene, self.log)
+
+
 def execute_points(todo: list, job: str, plan: InputPlan | Callable, dask: DaskSession, *, on_result: Callable,
                    reuse=None, progress: bool = True, log=print, resume_hint: str = "") -> None:
     """Run `todo` [(row, overrides, input refs, point folder)] on Dask with the scene's input plan
@@ -160,7 +250,9 @@ def execute_points(todo: list, job: str, plan: InputPlan | Callable, dask: DaskS
     task could not run, is a failed row). reuse: the RenderReuse (reuse.py) that holds points
     back until their render is stored, or None. A worker that refuses (other software or
     files) stops everything with ClusterError; so does a scheduler that cancels the tasks
-    (`resume_hint` says where the finished points are)."""
+    (`resume_hint` says where the finished points are), unless it cancelled them because it lost
+    the scene bundle with every worker that held it: then the bundle is sent again (at most
+    MAX_BUNDLE_SENDS times) and those points run again, no retry spent."""
     from distributed import as_completed
     from distributed.client import CancelledError
     from tqdm import tqdm
@@ -171,59 +263,39 @@ def execute_points(todo: list, job: str, plan: InputPlan | Callable, dask: DaskS
     if not cl.local and dask.workers_now == 0:
         log("poevp sweep: no worker has joined the scheduler yet; waiting for one")
         client.wait_for_workers(1)
-    plan_of = plan if callable(plan) else (lambda task: plan)
-    plans: dict[str, tuple] = {}                    # scene -> (plan with its bundle, bundle future)
-    for t in todo:
-        pl = plan_of(t)
-        if pl.scene not in plans:
-            refs = [r for u in todo if plan_of(u).scene == pl.scene for r in u[2]]
-            plans[pl.scene] = dask.bundle_for(pl, refs, log)
-    if any(pl.mode != "bundle" for pl, _ in plans.values()) and not cl.local and not dask.told_shared:
+    sender = PointSubmitter(todo, job, plan if callable(plan) else (lambda task: plan), dask, reuse, log, resume_hint)
+    if any(pl.mode != "bundle" for pl, _ in sender.plans.values()) and not cl.local and not dask.told_shared:
         log(f"poevp sweep: {dask.workers_now} workers now; they read this machine's paths "
             "(--shared-fs), verified on each worker")
         dask.told_shared = True
-    run_id = uuid.uuid4().hex[:8]
-
-    def submit(row, ov, refs, attempt, folder):
-        group = reuse.group_of((row, ov, refs, folder)) if reuse else ""
-        pl, bundle = plans[plan_of((row, ov, refs, folder)).scene]
-        task = PointTask(ov, job, dask.threads, pl, refs, dask.versions, group,
-                         reuse.read_dirs() if group else (), folder.name, reuse.store_dir() if group else "")
-        renders = reuse.payload(client, (row, ov, refs, folder)) if group else []
-        return client.submit(run_point, task, bundle, renders, pure=False,
-                             key=f"poevp-point-{folder.name}-{run_id}-a{attempt}")
-
-    first = reuse.initial(todo) if reuse else todo
-    futs = {submit(row, ov, refs, 0, folder): (row, ov, refs, folder, 0) for row, ov, refs, folder in first}
+    for row, ov, refs, folder in (reuse.initial(todo) if reuse else todo):
+        sender.submit(row, ov, refs, 0, folder)
     bar = tqdm(total=len(todo), desc="sweep", unit="point", disable=not progress or None)
-    pending = as_completed(list(futs))
+    pending = as_completed(list(sender.futs))
     for f in pending:
-        row, ov, refs, folder, attempt = futs.pop(f)
+        row, ov, refs, folder, attempt, bundle = sender.taken(f)
         try:
             res = f.result()
         except lost as e:
             if attempt < cl.retries:
                 log(f"poevp sweep: {_name(row, folder)}: its worker was lost "
                     f"({type(e).__name__}); running it again (retry {attempt + 1} of {cl.retries})")
-                nf = submit(row, ov, refs, attempt + 1, folder)
-                futs[nf] = (row, ov, refs, folder, attempt + 1)
-                pending.add(nf)
+                pending.add(sender.submit(row, ov, refs, attempt + 1, folder))
                 continue
             res = {"row": {"status": "failed", "error": f"worker lost {attempt + 1} times ({one_line(e)})"}}
-        except CancelledError:
-            raise ClusterError("the Dask scheduler cancelled the sweep's tasks (it closed, restarted or "
-                               f"lost this client); {resume_hint}run the same command again to resume") from None
+        except CancelledError as e:
+            sender.bundle_again((row, ov, refs, folder), bundle, e)
+            pending.add(sender.submit(row, ov, refs, attempt, folder))   # it never ran: no retry spent
+            continue
         except Exception as e:  # noqa: BLE001 - the task could not run at all
             res = {"row": {"status": "failed", "error": one_line(e)}}
         if res.get("refused"):
-            client.cancel(list(futs))
+            client.cancel(list(sender.futs))
             raise ClusterError(res["refused"])
         if res.get("archive") is not None:
             write_point(folder, res["archive"], job)
         for t in reuse.finished((row, ov, refs, folder), res, client) if reuse else ():
-            nf = submit(*t[:3], 0, t[3])
-            futs[nf] = (*t, 0)
-            pending.add(nf)
+            pending.add(sender.submit(*t[:3], 0, t[3]))
         on_result((row, ov, refs, folder), res)
         bar.update(1)
     bar.close()
