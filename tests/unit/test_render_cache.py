@@ -184,3 +184,32 @@ def test_a_point_without_the_clients_files_replays_the_render_it_was_sent(tmp_pa
     metrics = [k for k in fresh["row"] if k.startswith("metrics.")]
     assert metrics and all(got["row"][k] == fresh["row"][k] or (np.isnan(got["row"][k]) and np.isnan(fresh["row"][k]))
                            for k in metrics)
+
+
+def test_a_render_on_a_worker_that_left_is_given_up_not_waited_for(tmp_path, monkeypatch):
+    """Moving a render to or from a worker that left the cluster: the tasks pinned to it would
+    wait for it for ever; pull reports why (the group renders again) and push reports that it did
+    not arrive, each within a few checks, and no staging folder is left behind."""
+    import time
+
+    from distributed import Client
+
+    from poevp_optics.apps.sweep import reuse
+
+    monkeypatch.setattr(reuse, "WORKER_CHECK_S", 0.2)
+    gone = "tcp://127.0.0.1:1"                 # no worker listens there
+    src = tmp_path / "render"
+    src.mkdir()
+    (src / "frame_0000.npz").write_bytes(b"x" * 100)
+    with Client(processes=False, n_workers=1, threads_per_worker=1, dashboard_address=None) as client:
+        assert gone not in client.scheduler_info(n_workers=-1)["workers"]
+        t0 = time.monotonic()
+        folder, why = reuse.pull(client, {"worker": gone, "folder": "/nowhere/poevp-renders-x-1/k",
+                                          "files": [("frame_0000.npz", 100)]}, tmp_path / "store", "k")
+        assert folder is None and why == f"WorkerGone: worker {gone} left the cluster"
+        assert reuse.push(client, gone, src, "k") is False
+        assert time.monotonic() - t0 < 30
+        assert not list((tmp_path / "store").iterdir())
+        # the same calls on the worker that is there run its tasks
+        here = next(iter(client.scheduler_info(n_workers=-1)["workers"]))
+        assert reuse.on_worker(client, here, pow, 2, 10) == 1024

@@ -20,7 +20,10 @@ frames at 1080x1920 with K = 5 is ~4 GB), and travel by file, never whole in mem
   folder, verifies and renames it into place, then asks the worker to remove its copy; a stored
   render goes to every worker the same way, pushed in chunks (a small task per chunk pinned to
   that worker) into the worker's inbox folder, verified there and renamed into place, once per
-  render and worker; a worker that joins later renders for itself.
+  render and worker; a worker that joins later renders for itself. Each of those small tasks
+  checks that its worker is still in the cluster (a task pinned to a worker that left would wait
+  for it for ever): a render whose worker left is given up (its group renders again), and a
+  worker that left gets no push.
 
 At most a chunk of a render is in the client's memory at a time.
 
@@ -180,6 +183,31 @@ class RenderReuse:
 
 
 # ---------------------------------------------------------------------------- moving a render in chunks
+#: How often (s) a task pinned to one worker checks that the worker is still in the cluster.
+WORKER_CHECK_S = 1.0
+
+
+class WorkerGone(RuntimeError):
+    """The worker a render moves to or from left the cluster."""
+
+
+def on_worker(client, worker: str, fn, *args):
+    """fn(*args) run on `worker` alone; its result. The scheduler keeps a task pinned to a
+    worker that left waiting for it for ever, so while the task runs the worker's presence is
+    checked every WORKER_CHECK_S: WorkerGone (the task cancelled) once it has left."""
+    from distributed import wait
+
+    fut = client.submit(fn, *args, workers=[worker], allow_other_workers=False, pure=False)
+    while True:
+        try:
+            wait([fut], timeout=WORKER_CHECK_S)
+            return fut.result()
+        except TimeoutError:
+            if worker not in client.scheduler_info(n_workers=-1)["workers"]:
+                client.cancel([fut])
+                raise WorkerGone(f"worker {worker} left the cluster") from None
+
+
 def _plain(name: str) -> bool:
     return "/" not in name and "\\" not in name and not name.startswith(".")
 
@@ -222,15 +250,14 @@ def pull(client, remote: dict, store: Path, key: str) -> tuple[Path | None, str 
     `<store>/<key>`; the worker's copy is then removed. (folder, None) or (None, why)."""
     store.mkdir(parents=True, exist_ok=True)
     stage = Path(tempfile.mkdtemp(prefix=f".{key}.staging-{os.getpid()}-", dir=store))
-    where = dict(workers=[remote["worker"]], allow_other_workers=False, pure=False)
+    worker = remote["worker"]
     try:
         for name, size in remote["files"]:
             if not _plain(name):
                 return None, f"file {name!r} is not a plain file name"
             with open(stage / name, "wb") as fh:
                 for off in range(0, int(size), CHUNK_BYTES):
-                    fh.write(client.submit(read_chunk, f"{remote['folder']}/{name}", off, CHUNK_BYTES,
-                                           **where).result())
+                    fh.write(on_worker(client, worker, read_chunk, f"{remote['folder']}/{name}", off, CHUNK_BYTES))
         man, why = verify(stage)
         if man is None:
             return None, why
@@ -241,7 +268,7 @@ def pull(client, remote: dict, store: Path, key: str) -> tuple[Path | None, str 
         if stage.exists():
             shutil.rmtree(stage, ignore_errors=True)
         try:
-            client.submit(drop_folder, remote["folder"], **where).result()
+            on_worker(client, worker, drop_folder, remote["folder"])
         except Exception:  # noqa: BLE001 - the worker is gone, and its outbox with it at its next start
             pass
 
@@ -278,16 +305,15 @@ def finish_push(key: str) -> bool:
 def push(client, worker: str, folder: Path, key: str) -> bool:
     """The stored render `folder` pushed to `worker`'s inbox in chunks of CHUNK_BYTES, one in the
     client's memory at a time (module docstring); whether it arrived whole."""
-    where = dict(workers=[worker], allow_other_workers=False, pure=False)
     try:
         for p in sorted(folder.iterdir()):
             if p.is_file() and not p.is_symlink():
                 with open(p, "rb") as fh:
                     off = 0
                     while chunk := fh.read(CHUNK_BYTES):
-                        client.submit(write_chunk, key, p.name, off, chunk, **where).result()
+                        on_worker(client, worker, write_chunk, key, p.name, off, chunk)
                         off += len(chunk)
-        return bool(client.submit(finish_push, key, **where).result())
+        return bool(on_worker(client, worker, finish_push, key))
     except Exception:  # noqa: BLE001 - a worker gone meanwhile: its points render for themselves
         return False
 
