@@ -201,8 +201,7 @@ class PointSubmitter:
                 self.plans[pl.scene] = dask.bundle_for(pl, refs, log)
         self.run_id = uuid.uuid4().hex[:8]
         self.sends = 0
-        self.futs: dict = {}                            # future -> (row, overrides, refs, folder, attempt)
-        self.sent_with: dict = {}                       # future's key -> the bundle future it depends on
+        self.futs: dict = {}                            # future -> (row, overrides, refs, folder, attempt, bundle)
 
     def submit(self, row, ov, refs, attempt: int, folder: Path):
         """Send one point (its `attempt`-th retry); the Dask future."""
@@ -215,24 +214,18 @@ class PointSubmitter:
         self.sends += 1
         f = self.client.submit(run_point, task, bundle, renders, pure=False,
                                key=f"poevp-point-{folder.name}-{self.run_id}-a{attempt}-s{self.sends}")
-        self.sent_with[f.key] = bundle
-        self.futs[f] = (*t, attempt)
+        self.futs[f] = (*t, attempt, bundle)
         return f
-
-    def taken(self, f) -> tuple:
-        """A finished future's point (row, overrides, refs, folder, attempt, the bundle it used)."""
-        return (*self.futs.pop(f), self.sent_with.pop(f.key, None))
 
     def bundle_again(self, t, bundle, e) -> None:
         """A point `t` the scheduler cancelled: its scene's bundle is sent again if the scheduler
         lost it (unless it was sent again since `bundle`, the one `t` used), else ClusterError."""
-        scene, dask, hint = self.plan_of(t).scene, self.dask, self.resume_hint
-        lost_input = bundle is not None and getattr(e, "reason", None) in LOST_INPUT_REASONS
+        scene, dask, hint, reason = self.plan_of(t).scene, self.dask, self.resume_hint, getattr(e, "reason", None)
+        lost_input = bundle is not None and reason in LOST_INPUT_REASONS
         if lost_input and bundle is not self.plans[scene][1]:
             return
         if not lost_input or not dask.bundle_lost(scene):
-            why = getattr(e, "reason", None)
-            why = f"Dask's reason: {why}; " if why and why != "unknown" else ""
+            why = f"Dask's reason: {reason}; " if reason and reason != "unknown" else ""
             raise ClusterError(f"the Dask scheduler cancelled the sweep's tasks ({why}it closed, restarted or lost "
                                f"this client); {hint}run the same command again to resume") from None
         if dask.bundle_sends >= MAX_BUNDLE_SENDS:
@@ -273,7 +266,7 @@ def execute_points(todo: list, job: str, plan: InputPlan | Callable, dask: DaskS
     bar = tqdm(total=len(todo), desc="sweep", unit="point", disable=not progress or None)
     pending = as_completed(list(sender.futs))
     for f in pending:
-        row, ov, refs, folder, attempt, bundle = sender.taken(f)
+        row, ov, refs, folder, attempt, bundle = sender.futs.pop(f)
         try:
             res = f.result()
         except lost as e:
