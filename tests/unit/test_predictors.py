@@ -54,6 +54,63 @@ def test_forward_splat_keeps_a_standing_clipped_pixel_under_a_dimmer_landing():
     np.testing.assert_array_equal(out[0], [10.0, 10.0, 255.0, 30.0, 200.0])
 
 
+@pytest.mark.parametrize("corner", [(28, 43), (0, 0), (56, 86)])
+def test_forward_splat_background_is_the_whole_frame_erosion(corner):
+    """Where a moving pixel leaves, it shows the grey erosion of the whole frame over the
+    largest displacement + 1 px (BORDER_REPLICATE at the frame's edges): computed here on the
+    whole frame and compared with the splat, for a bright patch inside the frame and on two of
+    its corners, with the darkest pixels placed right at the erosion's reach from the patch."""
+    import cv2
+
+    rng = np.random.default_rng(sum(corner))
+    h, w = 64, 96
+    frame = rng.uniform(50, 120, (h, w)).astype(np.float32)
+    flow = np.zeros((h, w, 2), np.float32)
+    y0, x0 = corner
+    frame[y0:y0 + 8, x0:x0 + 10] = 200.0
+    flow[y0:y0 + 8, x0:x0 + 10] = (6.0, -4.0)
+    r = int(np.ceil(np.hypot(6.0, 4.0))) + 1                 # the erosion's reach: 9 px
+    for y, x in ((y0 + 3, x0 - r), (y0 + 3, x0 + 9 + r), (y0 - r, x0 + 4), (y0 + 7 + r, x0 + 4)):
+        if 0 <= y < h and 0 <= x < w:
+            frame[y, x] = 5.0                                 # darkest, right at the reach
+    out = forward_splat(frame, flow)
+    background = cv2.erode(frame, np.ones((2 * r + 1, 2 * r + 1), np.uint8), borderType=cv2.BORDER_REPLICATE)
+    moving = frame >= 128.0
+    ys, xs = np.nonzero(moving)
+    tx, ty = xs + 6, ys - 4
+    landed = np.zeros((h, w), bool)
+    ok = (tx >= 0) & (tx < w) & (ty >= 0) & (ty < h)
+    landed[ty[ok], tx[ok]] = True
+    left = moving & ~landed                                   # left behind, nothing lands there
+    assert left.sum() >= 20 and (background[left] == 5.0).any()
+    np.testing.assert_array_equal(out[left], background[left])
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_saturated_components_match_opencv_labelling(seed):
+    """Region boxes, areas and centroids of `saturated_components` equal OpenCV's 8-connected
+    labelling of the same map (its labels put in our raster order of first pixels)."""
+    import cv2
+
+    from poevp_optics.control.predictors.flow import saturated_components
+
+    rng = np.random.default_rng(seed)
+    sat = rng.random((60, 90)) > 0.93
+    sat[0:5, 0:7] = sat[50:60, 80:90] = True                 # regions on the frame's corners
+    n, labels, stats, cents, _ = saturated_components(sat)
+    m, cv_labels, cv_stats, cv_cents = cv2.connectedComponentsWithStats(sat.astype(np.uint8), connectivity=8)
+    assert n == m > 20
+    first = {}
+    for lab in cv_labels.ravel():                              # raster order of first pixels
+        if lab and lab not in first:
+            first[lab] = len(first) + 1
+    order = sorted(first, key=first.get)
+    np.testing.assert_array_equal(stats[1:], cv_stats[order])
+    np.testing.assert_allclose(cents[1:], cv_cents[order], rtol=0, atol=1e-9)
+    for ours, theirs in enumerate(order, 1):
+        np.testing.assert_array_equal(labels == ours, cv_labels == theirs)
+
+
 @pytest.mark.parametrize("d", [(2.5, -1.5), (-0.5, 3.5), (1.5, 0.0)])
 def test_forward_splat_moves_a_region_by_a_half_pixel_whole(d):
     """A clipped 5 x 5 region moved by a shift with half-pixel parts lands as one 5 x 5 block,
