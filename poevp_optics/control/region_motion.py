@@ -102,9 +102,12 @@ def _claim(k: int, dx: float, dy: float, labels, stats, prev_labels, prev_stats)
         return 0, 0.0
     moved = (labels[y:y + bh, x:x + bw] == k)[y0 - oy:y1 - oy, x0 - ox:x1 - ox]
     under = prev_labels[y0:y1, x0:x1][moved]
-    ids, counts = np.unique(under[under > 0], return_counts=True)
-    if ids.size == 0:
+    under = under[under > 0]
+    if under.size == 0:
         return 0, 0.0
+    per_label = np.bincount(under)                  # np.unique's ids and counts, without a sort
+    ids = np.flatnonzero(per_label)
+    counts = per_label[ids]
     iou = counts / (area + prev_stats[ids, 4] - counts)
     return int(ids[np.argmax(iou)]), float(iou.max())
 
