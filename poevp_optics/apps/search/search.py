@@ -39,6 +39,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from poevp_optics.apps.search.space import Objective, Param, metric_value, parse_param
+from poevp_optics.apps.sweep.cluster import worker_addresses
 from poevp_optics.apps.sweep.execute import (ClusterSettings, DaskSession, execute_points, sigterm_noted,
                                              stop_if_terminated)
 from poevp_optics.apps.sweep.sweep_grid import canonical, point_key
@@ -453,7 +454,7 @@ def _search_loop(sc, q: Question, out: Path, ctx: _Context, reuse_render: bool, 
                 ctx.reuse = RenderReuse(out, {}, ctx.plans[0].mode == "shared", log)
             client = ctx.dask.open()
             batch = max(1, len(ctx.dask.cluster.workers) if ctx.dask.cluster is not None
-                        else len(client.scheduler_info(n_workers=-1)["workers"]))
+                        else len(worker_addresses(client)))
             study = open_study(out, q, n_done)
             t0 = time.perf_counter()
             new = run_batch(study, sc, q, out, min(batch, q.trials - n_done), ctx)

@@ -189,6 +189,12 @@ def _local_security(required: str | None) -> dict:
                            "package (pip install cryptography), or give --scheduler tls://HOST:PORT") from None
 
 
+def worker_addresses(client) -> list[str]:
+    """The addresses of every worker in the cluster now (`n_workers=-1`: all of them, where some
+    distributed releases list only the first 5 by default)."""
+    return list(client.scheduler_info(n_workers=-1)["workers"])
+
+
 def check_workers(client, versions: dict[str, str]) -> int:
     """Every worker connected now runs the client's software; returns how many there are.
     Raises ClusterError naming the first worker that differs (or cannot answer)."""

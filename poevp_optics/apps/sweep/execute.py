@@ -14,7 +14,8 @@ from pathlib import Path
 from typing import Callable
 
 from poevp_optics.apps.sweep.bundle import InputPlan, InputRef, make_bundle, unpack_archive
-from poevp_optics.apps.sweep.cluster import ClusterError, check_workers, connect, dashboard_link, software_versions
+from poevp_optics.apps.sweep.cluster import (ClusterError, check_workers, connect, dashboard_link, software_versions,
+                                             worker_addresses)
 from poevp_optics.apps.sweep.point import PointTask, one_line, run_point
 from poevp_optics.core.io import MARKER, staged_dir
 from poevp_optics.core.runtime import Terminated
@@ -123,7 +124,7 @@ class DaskSession:
         names, plan, _fut, every, data = self._bundles[scene]
         self.bundle_sends += 1
         log("poevp sweep: the scene bundle was lost with every worker that held it; sending it again")
-        if not self.client.scheduler_info(n_workers=-1)["workers"]:
+        if not worker_addresses(self.client):
             log("poevp sweep: no worker is left; waiting for one")
             self.client.wait_for_workers(1)
         fut = self.client.scatter(data, broadcast=True, hash=False)

@@ -39,6 +39,7 @@ import os
 import shutil
 import tempfile
 
+from poevp_optics.apps.sweep.cluster import worker_addresses
 from poevp_optics.render.render_cache import clean_stale, install, render_group, verify
 
 #: The results table's columns for reuse (module docstring).
@@ -172,7 +173,7 @@ class RenderReuse:
         travels with the task)."""
         if self.shared:
             return []
-        workers = sorted(client.scheduler_info(n_workers=-1)["workers"])
+        workers = sorted(worker_addresses(client))
         for key in self.stored.get(self.group_of(task), []):
             sent = self._scattered.setdefault(key, set())
             for addr in workers:
@@ -203,7 +204,7 @@ def on_worker(client, worker: str, fn, *args):
             wait([fut], timeout=WORKER_CHECK_S)
             return fut.result()
         except TimeoutError:
-            if worker not in client.scheduler_info(n_workers=-1)["workers"]:
+            if worker not in worker_addresses(client):
                 client.cancel([fut])
                 raise WorkerGone(f"worker {worker} left the cluster") from None
 
