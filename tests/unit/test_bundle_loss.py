@@ -15,7 +15,7 @@ import pytest
 from distributed.client import FutureCancelledError
 
 from poevp_optics.apps.sweep.cluster import ClusterError
-from poevp_optics.apps.sweep.execute import MAX_BUNDLE_SENDS, ClusterSettings, DaskSession, PointSubmitter
+from poevp_optics.apps.sweep.execute import MAX_BUNDLE_SENDS, ClusterSettings, DaskSession, PointSubmitter, SentBundle
 
 SCENE = "/scenes/road/scene.toml"
 HINT = "the finished points are in out/results.parquet: "
@@ -62,7 +62,7 @@ def _sender(scheduler: Scheduler, bundle: Held | None):
     dask.client = scheduler
     plan = object()
     if bundle is not None:
-        dask._bundles[SCENE] = (set(), plan, bundle, [], b"zip")
+        dask._bundles[SCENE] = SentBundle(set(), plan, bundle, [], b"zip")
         scheduler.holders[bundle.key] = ["tcp://w1"]
     sender = PointSubmitter([], "render", lambda t: type("Plan", (), {"scene": SCENE})(), dask, None,
                             lines.append, HINT)

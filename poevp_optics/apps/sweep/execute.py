@@ -11,7 +11,7 @@ import os
 import uuid
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Callable
+from typing import Callable, NamedTuple
 
 from poevp_optics.apps.sweep.bundle import InputPlan, InputRef, make_bundle, unpack_archive
 from poevp_optics.apps.sweep.cluster import (ClusterError, check_workers, connect, dashboard_link, software_versions,
@@ -49,6 +49,18 @@ class ClusterSettings:
         return not (self.scheduler or self.scheduler_file)
 
 
+class SentBundle(NamedTuple):
+    """A scene's bundle as sent to the workers: the (source, sha256) of the scene and asset
+    files in it, the input plan carrying its hash, the Dask future of its bytes, the input refs
+    it was made from, and the bytes (to send again should the workers holding them all leave)."""
+
+    files: set
+    plan: InputPlan
+    future: object
+    refs: list
+    data: bytes
+
+
 class DaskSession:
     """A sweep's (or search's) Dask client, connected on first use (cluster.py): an external
     scheduler before anything is written, a LocalCluster only when points remain to run. Holds
@@ -61,7 +73,7 @@ class DaskSession:
         self.versions: dict[str, str] = {}
         self.threads = 1
         self.workers_now = 0
-        self._bundles: dict = {}           # scene -> (bundled files, plan, Dask future of the bytes, refs, bytes)
+        self._bundles: dict[str, SentBundle] = {}       # scene -> its bundle as sent
         self.bundle_sends = 0              # times a bundle was sent again after its holders were lost
         self.told_shared = False
 
@@ -95,16 +107,16 @@ class DaskSession:
             return plan, None
         names = {(r.source, r.sha256) for r in refs if r.kind in ("scene", "assets")}
         have = self._bundles.get(plan.scene)
-        if have is not None and names <= have[0]:
-            return have[1], have[2]
-        every = [*(have[3] if have else []), *refs]
+        if have is not None and names <= have.files:
+            return have.plan, have.future
+        every = [*(have.refs if have else []), *refs]
         b = make_bundle(plan, every)
         plan = replace(plan, bundle_sha256=b.sha256)
         log(f"poevp sweep: {self.workers_now} workers now; scene bundle of {b.files} files, "
             f"{len(b.data) / 1e6:.2f} MB (sha256 {b.sha256[:12]}), sent to the workers once")
         fut = self.client.scatter(b.data, broadcast=True, hash=True)
-        self._bundles[plan.scene] = ({(r.source, r.sha256) for r in every if r.kind in ("scene", "assets")},
-                                     plan, fut, every, b.data)
+        self._bundles[plan.scene] = SentBundle({(r.source, r.sha256) for r in every if r.kind in ("scene", "assets")},
+                                               plan, fut, every, b.data)
         return plan, fut
 
     def bundle_lost(self, scene: str) -> bool:
@@ -114,22 +126,22 @@ class DaskSession:
         have = self._bundles.get(scene)
         if have is None:
             return False
-        fut = have[2]
+        fut = have.future
         return fut.status != "finished" or not self.client.who_has([fut]).get(fut.key)
 
     def send_bundle_again(self, scene: str, log) -> tuple[InputPlan, object]:
         """`scene`'s bundle, the same bytes, sent under a new key (the lost one may still be known
         to this client) to the workers now present, once there is one; (plan, future) as
         `bundle_for`."""
-        names, plan, _fut, every, data = self._bundles[scene]
+        have = self._bundles[scene]
         self.bundle_sends += 1
         log("poevp sweep: the scene bundle was lost with every worker that held it; sending it again")
         if not worker_addresses(self.client):
             log("poevp sweep: no worker is left; waiting for one")
             self.client.wait_for_workers(1)
-        fut = self.client.scatter(data, broadcast=True, hash=False)
-        self._bundles[scene] = (names, plan, fut, every, data)
-        return plan, fut
+        fut = self.client.scatter(have.data, broadcast=True, hash=False)
+        self._bundles[scene] = have._replace(future=fut)
+        return have.plan, fut
 
     def close(self) -> None:
         if self.client is not None:
