@@ -56,6 +56,38 @@ def _loop_reference(img: np.ndarray, k: np.ndarray) -> np.ndarray:
     return out
 
 
+def _even_kernel(n: int, seed: int) -> np.ndarray:
+    """A random odd n x n kernel equal to its mirror image in each axis (not in the diagonal)."""
+    q = np.random.default_rng(seed).random((n // 2 + 1, n // 2 + 1)) * np.linspace(1, 2, n // 2 + 1)[:, None]
+    k = np.block([[q[:0:-1, :0:-1], q[:0:-1]], [q[:, :0:-1], q]])
+    return k / k.sum()
+
+
+@pytest.mark.parametrize("shape,n", [((19, 57), 41), ((23, 16), 21), ((7, 9), 61), ((64, 30), 17)])
+def test_even_kernels_go_by_dct_and_equal_the_reflect_padded_sum(shape, n):
+    """An even kernel (the glare halos) goes by the DCT-II path, without padding, and gives the
+    definition to 1e-12 of the image's scale: wider than the image in one or both axes (the
+    reach capped at H - 1, W - 1), on odd and even image sizes. A kernel not quite even (one tap
+    moved by 1e-9 of itself) goes by the FFT path and equals its own definition as well."""
+    from poevp_optics.camera.convolution import _dct_multiplier, is_even
+
+    img = np.random.default_rng(n).random(shape) ** 4 * 1e3
+    k = _even_kernel(n, n + 2)
+    assert is_even(k) and not np.array_equal(k, k.T)
+    c = n // 2
+    ry, rx = min(c, shape[0] - 1), min(c, shape[1] - 1)
+    assert _dct_multiplier(k, k[c - ry:c + ry + 1, c - rx:c + rx + 1], shape, 1) is not None
+    got = convolve_reflect(img, k)
+    ref = _loop_reference(img, k)
+    assert got.dtype == np.float64 and got.shape == img.shape
+    np.testing.assert_allclose(got, ref, rtol=1e-12, atol=1e-12 * np.abs(ref).max())
+    odd = k.copy()
+    odd[c - 1, c + 1] *= 1 + 1e-9
+    assert not is_even(odd)
+    np.testing.assert_allclose(convolve_reflect(img, odd), _loop_reference(img, odd), rtol=1e-12,
+                               atol=1e-12 * np.abs(ref).max())
+
+
 def test_the_loop_reference_is_ndimage_where_both_apply():
     img = np.random.default_rng(3).random((21, 30))
     k = _kernel(9, 4)
@@ -66,12 +98,13 @@ def test_the_loop_reference_is_ndimage_where_both_apply():
 def test_a_unit_sum_kernel_conserves_flux_on_a_mirror_symmetric_image(n):
     """On an image that is its own mirror image about both borders' reflection (a tile of a
     periodic, mirror-symmetric field), reflection loses and gains the same light: the total is
-    kept to rounding."""
+    kept to rounding, by the FFT path and by the DCT path (an even kernel)."""
     rng = np.random.default_rng(n)
     q = rng.random((16, 24)) ** 4
     img = np.block([[q, q[:, ::-1]], [q[::-1], q[::-1, ::-1]]])       # symmetric about its centre lines
-    out = convolve_reflect(img, _kernel(n, 7))
-    assert out.sum() == pytest.approx(img.sum(), rel=1e-12)
+    for k in (_kernel(n, 7), _even_kernel(n, 7)):
+        out = convolve_reflect(img, k)
+        assert out.sum() == pytest.approx(img.sum(), rel=1e-12)
 
 
 @dataclass
