@@ -202,19 +202,55 @@ def hat_weights(nodes: np.ndarray, coords: np.ndarray) -> np.ndarray:
     return wts
 
 
+#: Node kernels' spectra of the last field-varying convolutions: (kernels identity, image shape)
+#: -> (kernels, {(j, i): spectrum}); the entry holds the kernels, so the id stays theirs.
+_NODE_SPECTRA: dict = {}
+_NODE_ENTRIES = 2
+
+
 def field_convolve(image: np.ndarray, grid: KernelGrid) -> np.ndarray:
     """Spatially varying convolution (float64): sum over nodes of K_n * (w_n x), w_n bilinear
     hat weights over the node grid (clamped beyond it), on the image continued by reflection.
-    Each node convolves only the rows and columns where its weight is non-zero (overlap-add)."""
+    Each node convolves only the rows and columns where its weight is non-zero (overlap-add),
+    as scipy.signal.fftconvolve (mode "full") does, with each node kernel's spectrum at its
+    tile's FFT size kept for the next image of the same shape (`field_spectra_bytes`)."""
     from scipy import fft as sfft
-    from scipy.signal import fftconvolve
+
+    img = np.asarray(image, np.float64)
+    key = (id(grid.kernels), img.shape)
+    hit = _NODE_SPECTRA.get(key)
+    if hit is None or hit[0] is not grid.kernels:
+        if len(_NODE_SPECTRA) >= _NODE_ENTRIES:
+            _NODE_SPECTRA.pop(next(iter(_NODE_SPECTRA)))
+        hit = _NODE_SPECTRA[key] = (grid.kernels, {})
+    spectra = hit[1]
+
+    def node_convolve(j: int, i: int, part: np.ndarray, kern: np.ndarray) -> np.ndarray:
+        full = (part.shape[0] + kern.shape[0] - 1, part.shape[1] + kern.shape[1] - 1)
+        fshape = (sfft.next_fast_len(full[0], True), sfft.next_fast_len(full[1], True))
+        spec = spectra.get((j, i))
+        if spec is None or spec[0] != fshape:
+            spec = spectra[(j, i)] = (fshape, sfft.rfftn(kern, fshape))
+        return sfft.irfftn(sfft.rfftn(part, fshape) * spec[1], fshape)[:full[0], :full[1]]
 
     with sfft.set_workers(runtime.fft_workers()):
-        return _field_convolve(image, grid, fftconvolve)
+        return _field_convolve(img, grid, node_convolve)
 
 
-def _field_convolve(image: np.ndarray, grid: KernelGrid, fftconvolve) -> np.ndarray:
-    img = np.asarray(image, np.float64)
+def field_spectra_bytes(image_shape, nodes_y: np.ndarray, nodes_x: np.ndarray, kernel_px: int) -> int:
+    """Bytes of the node kernels' spectra `field_convolve` keeps for an image of `image_shape`
+    (its tiles' real-FFT half spectra, complex128), for nodes at `nodes_y`, `nodes_x` px."""
+    from scipy.fft import next_fast_len
+
+    ry, rx = reach_px(image_shape, kernel_px)
+    sizes = []
+    for nodes, size, r in ((nodes_y, int(image_shape[0]), ry), (nodes_x, int(image_shape[1]), rx)):
+        wts = hat_weights(np.asarray(nodes, float), np.arange(-r, size + r, dtype=float))
+        sizes.append([next_fast_len(int(np.ptp(np.flatnonzero(wn))) + 1 + 2 * r, True) for wn in wts if wn.any()])
+    return sum(fh * (fw // 2 + 1) * 16 for fh in sizes[0] for fw in sizes[1])
+
+
+def _field_convolve(img: np.ndarray, grid: KernelGrid, node_convolve) -> np.ndarray:
     h, w = img.shape
     r = grid.radius_px
     ry, rx = reach_px(img.shape, 2 * r + 1)
@@ -234,5 +270,5 @@ def _field_convolve(image: np.ndarray, grid: KernelGrid, fftconvolve) -> np.ndar
                 continue
             c0, c1 = cols[0], cols[-1] + 1
             part = padded[r0:r1, c0:c1] * (wy[j, r0:r1, None] * wx[i, None, c0:c1])
-            acc[r0:r1 + 2 * ry, c0:c1 + 2 * rx] += fftconvolve(part, kern[j, i], mode="full")
+            acc[r0:r1 + 2 * ry, c0:c1 + 2 * rx] += node_convolve(j, i, part, kern[j, i])
     return acc[2 * ry:2 * ry + h, 2 * rx:2 * rx + w]

@@ -139,6 +139,45 @@ def test_field_convolution_follows_the_node_kernels():
     np.testing.assert_allclose(out, _loop_reference(img, ks[0, 1]), atol=1e-15)
 
 
+def test_field_convolution_keeps_each_node_spectrum_and_the_estimate_counts_it():
+    """The node kernels' spectra are kept between images of one shape and rebuilt for another:
+    each image's result is the overlap-add of scipy.signal.fftconvolve over the nodes' tiles
+    (written here) to the last bit, and the bytes kept are `field_spectra_bytes` (the memory
+    estimate's term, apps/run/memory.py)."""
+    from scipy.signal import fftconvolve
+
+    from poevp_optics.camera import convolution as cv
+
+    def overlap_add(img, grid):
+        h, w = img.shape
+        r = grid.radius_px
+        ry, rx = cv.reach_px(img.shape, 2 * r + 1)
+        kern = grid.kernels[:, :, r - ry:r + ry + 1, r - rx:r + rx + 1]
+        pad = np.pad(img, ((ry, ry), (rx, rx)), mode="symmetric")
+        wy = cv.hat_weights(grid.node_y_px, np.arange(-ry, h + ry, dtype=float))
+        wx = cv.hat_weights(grid.node_x_px, np.arange(-rx, w + rx, dtype=float))
+        acc = np.zeros((h + 4 * ry, w + 4 * rx))
+        for j, wj in enumerate(wy):
+            rows = np.flatnonzero(wj)
+            for i, wi in enumerate(wx):
+                cols = np.flatnonzero(wi)
+                r0, r1, c0, c1 = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
+                part = pad[r0:r1, c0:c1] * (wj[r0:r1, None] * wi[None, c0:c1])
+                acc[r0:r1 + 2 * ry, c0:c1 + 2 * rx] += fftconvolve(part, kern[j, i], mode="full")
+        return acc[2 * ry:2 * ry + h, 2 * rx:2 * rx + w]
+
+    rng = np.random.default_rng(11)
+    ks = np.stack([np.stack([_kernel(9, 3 * j + i) for i in range(4)]) for j in range(3)])
+    for shape in ((40, 64), (40, 64), (33, 50)):
+        grid = _Grid(np.linspace(0, shape[0] - 1, 3), np.linspace(0, shape[1] - 1, 4), ks)
+        img = rng.random(shape) ** 3
+        np.testing.assert_array_equal(field_convolve(img, grid), overlap_add(img, grid))
+        kept = cv._NODE_SPECTRA[(id(ks), shape)][1]
+        assert len(kept) == 12
+        assert sum(v[1].nbytes for v in kept.values()) == cv.field_spectra_bytes(shape, grid.node_y_px,
+                                                                                 grid.node_x_px, 9)
+
+
 HALOS = {"power_law": PowerLawHalo(2.0, 30.0, 2.0), "gaussian": GaussianHalo(6.0, 0, 0.9995)}
 
 

@@ -10,7 +10,7 @@ on scenes/smoke (llvm_ad_mono, 2 cores, numpy 2, DrJit 1.x):
 | frame pipeline  | P (300 + 16 K): film, K sub-frames, MC splits, DMD weights, sensor draws, reconstruction, EXR/PNG/tone-map buffers | 280-300 B/px at K = 2 (256^2 ... 2048^2), +6.4 B/px per extra sub-frame; spp does not matter (one wavefront per pixel) |
 | held exposures  | compare only: frames x P (4 K + 8)                     | the exposures list it keeps  |
 | PSF             | kernel n^2 x 16 + build strips + FFT buffers (`relay.fft_bytes`) | +27 MB at 1024^2, sigma 20 |
-| objective       | `objective.memory_bytes`: PSF grid, field_convolve's float64 images, PSF and glare FFTs, K float32 DMD-plane images | bound from `objective.radius_bound_px` |
+| objective       | `objective.memory_bytes`: PSF grid, field_convolve's float64 images and kept node spectra, PSF and glare FFTs, K float32 DMD-plane images | bound from `objective.radius_bound_px` |
 | DMD tables      | 4 x V x S x (K + 1) x 8: V levels, S = bits + 3 segments (x2 with settle) | 2.9-3.7 copies (`transmission_table` alone, V = 256 ... 65536, K = 16 ... 4096) |
 | error target    | P x 16 K: each radiance sample's running mean and squared deviations (float64) while the frame renders to `render.target_rel_error` (render/progressive.py) | counted, not measured |
 | JIT kernels     | K x 200 KiB + K^2 x 600 B: DrJit traces one gather and one FMA per sub-frame into one kernel | +80 MB at K = 256, +780 MB at K = 1024 (8x8 px) |
