@@ -107,6 +107,31 @@ def apply_taps_numpy(image: np.ndarray, taps, sensor_shape) -> np.ndarray:
     return np.sum(flat[idx] * w, axis=1).reshape(sensor_shape)
 
 
+#: `to_mirror`'s sampling maps by (scale, rotation, offset, mirror shape, sensor shape): a
+#: camera's registration is fixed, and the loop samples several pictures a frame through it.
+_REMAP_MAPS: dict = {}
+_REMAP_ENTRIES = 2
+
+
+def _remap_maps(reg, mirror_shape, sensor_shape) -> tuple[np.ndarray, np.ndarray]:
+    """(x, y) float32 sensor-pixel coordinates of every mirror's centre, as cv2.remap reads them
+    (pixel centres at integers), built once per registration and shapes; read-only."""
+    key = (float(reg.scale), float(reg.rotation_deg), tuple(float(v) for v in reg.offset_px),
+           tuple(mirror_shape), tuple(sensor_shape))
+    hit = _REMAP_MAPS.get(key)
+    if hit is None:
+        hm, wm = mirror_shape
+        my, mx = np.meshgrid(np.arange(hm) + 0.5, np.arange(wm) + 0.5, indexing="ij")
+        sx, sy = _sensor_coords(reg, mx, my, mirror_shape, sensor_shape)
+        hit = ((sx - 0.5).astype(np.float32), (sy - 0.5).astype(np.float32))
+        for a in hit:
+            a.setflags(write=False)
+        if len(_REMAP_MAPS) >= _REMAP_ENTRIES:
+            _REMAP_MAPS.pop(next(iter(_REMAP_MAPS)))
+        _REMAP_MAPS[key] = hit
+    return hit
+
+
 def to_mirror(image: np.ndarray, reg, mirror_shape, sensor_shape) -> np.ndarray:
     """A sensor-grid picture sampled at every mirror's centre (bilinear, edges replicated)."""
     import cv2
@@ -114,11 +139,8 @@ def to_mirror(image: np.ndarray, reg, mirror_shape, sensor_shape) -> np.ndarray:
     img = np.asarray(image, dtype=np.float32)
     if is_identity(reg) and tuple(mirror_shape) == tuple(sensor_shape):
         return img
-    hm, wm = mirror_shape
-    my, mx = np.meshgrid(np.arange(hm) + 0.5, np.arange(wm) + 0.5, indexing="ij")
-    sx, sy = _sensor_coords(reg, mx, my, mirror_shape, sensor_shape)
-    return cv2.remap(img, (sx - 0.5).astype(np.float32), (sy - 0.5).astype(np.float32),
-                     interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    map_x, map_y = _remap_maps(reg, mirror_shape, sensor_shape)
+    return cv2.remap(img, map_x, map_y, interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
 
 
 def box_to_sensor(box, reg, mirror_shape, sensor_shape):

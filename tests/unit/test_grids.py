@@ -139,3 +139,18 @@ def test_loop_history_and_prediction_are_on_the_predictor_grid():
     assert [x.grid for x in step.history] == [Grid("predictor", (8, 12))]
     cmd = step.command(1)
     assert not cmd.record.get("init") and cmd.levels.grid == cam.mirror_grid
+
+
+def test_sampling_maps_are_kept_per_registration():
+    """`to_mirror` keeps its sampling maps per registration and shapes: cameras at scale 2 and
+    1.5, used in turn (A, B, A, B), each place the ramp f(x) = x at s = scale (m - wm/2) + w/2 - 0.5
+    (edge-replicated), their own closed form, every time."""
+    h, w = SHAPE
+    cams = [_camera(scale=s, psf="gaussian") for s in (2.0, 1.5)]
+    ramp = np.tile(np.arange(w, dtype=np.float32), (h, 1))
+    for cam in cams + cams:
+        scale = cam.registration.scale
+        hm, wm = cam.mirror_shape
+        placed = cam.to_mirror(OnGrid(ramp, cam.sensor_grid))
+        want = np.clip(scale * (np.arange(wm) + 0.5 - wm / 2) + w / 2 - 0.5, 0, w - 1)
+        assert np.allclose(placed.array, np.tile(want, (hm, 1)), atol=1e-4), scale
