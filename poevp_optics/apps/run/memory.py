@@ -14,7 +14,7 @@ on scenes/smoke (llvm_ad_mono, 2 cores, numpy 2, DrJit 1.x):
 | DMD tables      | 4 x V x S x (K + 1) x 8: V levels, S = bits + 3 segments (x2 with settle) | 2.9-3.7 copies (`transmission_table` alone, V = 256 ... 65536, K = 16 ... 4096) |
 | error target    | P x 16 K: each radiance sample's running mean and squared deviations (float64) while the frame renders to `render.target_rel_error` (render/progressive.py) | counted, not measured |
 | JIT kernels     | K x 200 KiB + K^2 x 600 B: DrJit traces one gather and one FMA per sub-frame into one kernel | +80 MB at K = 256, +780 MB at K = 1024 (8x8 px) |
-| registration    | P x 400 (area-weighted taps and their construction)    | 345 B/px at 1024^2           |
+| registration    | P x 400 (area-weighted taps and their construction; `to_mirror`'s two float32 sampling maps, 8 B a mirror, kept) | 345 B/px at 1024^2 (the taps) + 8 B/px (the maps) |
 | predictor       | `DMVFNConfig.activation_bytes` (upper bound), flow 100 B/px, track and track_net 160 B/px (they keep the last four frames' regions and outlines between calls) | dmvfn_lite 50 B/px; peak of one call at 368x640 (tracemalloc): flow 94, track_net 111, track 132 B/px |
 | chart captures  | chart only: repeats x P x 40 (stacked estimates, flags, electrons) | -                   |
 
