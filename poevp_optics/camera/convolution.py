@@ -94,16 +94,23 @@ def pad_to(kernel: np.ndarray, n: int) -> np.ndarray:
     return np.pad(kernel, p) if p else kernel
 
 
+def _kept(cache: dict, entries: int, key, owner, build):
+    """cache[key]'s value for `owner`, built by `build()` where missing or held for another
+    object (an entry holds its owner, so an id() in the key cannot be reused while it lives);
+    the oldest entry is dropped to keep at most `entries`."""
+    hit = cache.get(key)
+    if hit is None or hit[0] is not owner:
+        if len(cache) >= entries:
+            cache.pop(next(iter(cache)))
+        hit = cache[key] = (owner, build())
+    return hit[1]
+
+
 def _kernel_spectrum(kernel: np.ndarray, k: np.ndarray, shape, workers: int) -> np.ndarray:
     from scipy import fft as sfft
 
-    key = (id(kernel), k.shape, shape)
-    hit = _KERNEL_SPECTRA.get(key)
-    if hit is None or hit[0] is not kernel:
-        if len(_KERNEL_SPECTRA) >= _CACHE_ENTRIES:
-            _KERNEL_SPECTRA.pop(next(iter(_KERNEL_SPECTRA)))
-        hit = _KERNEL_SPECTRA[key] = (kernel, sfft.rfft2(k, s=shape, workers=workers))
-    return hit[1]
+    return _kept(_KERNEL_SPECTRA, _CACHE_ENTRIES, (id(kernel), k.shape, shape), kernel,
+                 lambda: sfft.rfft2(k, s=shape, workers=workers))
 
 
 def is_even(k: np.ndarray) -> bool:
@@ -122,20 +129,16 @@ def _dct_multiplier(kernel: np.ndarray, k: np.ndarray, image_shape, workers: int
     convolution)."""
     from scipy import fft as sfft
 
-    key = (id(kernel), k.shape, ("dct", *image_shape))
-    hit = _KERNEL_SPECTRA.get(key)
-    if hit is None or hit[0] is not kernel:
-        mult = None
-        if is_even(k):
-            h, w = int(image_shape[0]), int(image_shape[1])
-            ry, rx = k.shape[0] // 2, k.shape[1] // 2
-            wrapped = np.zeros((2 * h, 2 * w))
-            wrapped[np.ix_(np.arange(-ry, ry + 1) % (2 * h), np.arange(-rx, rx + 1) % (2 * w))] = k
-            mult = np.ascontiguousarray(sfft.rfft2(wrapped, workers=workers).real[:h, :w])
-        if len(_KERNEL_SPECTRA) >= _CACHE_ENTRIES:
-            _KERNEL_SPECTRA.pop(next(iter(_KERNEL_SPECTRA)))
-        hit = _KERNEL_SPECTRA[key] = (kernel, mult)
-    return hit[1]
+    def build():
+        if not is_even(k):
+            return None
+        h, w = int(image_shape[0]), int(image_shape[1])
+        ry, rx = k.shape[0] // 2, k.shape[1] // 2
+        wrapped = np.zeros((2 * h, 2 * w))
+        wrapped[np.ix_(np.arange(-ry, ry + 1) % (2 * h), np.arange(-rx, rx + 1) % (2 * w))] = k
+        return np.ascontiguousarray(sfft.rfft2(wrapped, workers=workers).real[:h, :w])
+
+    return _kept(_KERNEL_SPECTRA, _CACHE_ENTRIES, (id(kernel), k.shape, ("dct", *image_shape)), kernel, build)
 
 
 def convolve_reflect(image: np.ndarray, kernel: np.ndarray) -> np.ndarray:
@@ -217,13 +220,7 @@ def field_convolve(image: np.ndarray, grid: KernelGrid) -> np.ndarray:
     from scipy import fft as sfft
 
     img = np.asarray(image, np.float64)
-    key = (id(grid.kernels), img.shape)
-    hit = _NODE_SPECTRA.get(key)
-    if hit is None or hit[0] is not grid.kernels:
-        if len(_NODE_SPECTRA) >= _NODE_ENTRIES:
-            _NODE_SPECTRA.pop(next(iter(_NODE_SPECTRA)))
-        hit = _NODE_SPECTRA[key] = (grid.kernels, {})
-    spectra = hit[1]
+    spectra = _kept(_NODE_SPECTRA, _NODE_ENTRIES, (id(grid.kernels), img.shape), grid.kernels, dict)
 
     def node_convolve(j: int, i: int, part: np.ndarray, kern: np.ndarray) -> np.ndarray:
         full = (part.shape[0] + kern.shape[0] - 1, part.shape[1] + kern.shape[1] - 1)
@@ -245,9 +242,19 @@ def field_spectra_bytes(image_shape, nodes_y: np.ndarray, nodes_x: np.ndarray, k
     ry, rx = reach_px(image_shape, kernel_px)
     sizes = []
     for nodes, size, r in ((nodes_y, int(image_shape[0]), ry), (nodes_x, int(image_shape[1]), rx)):
-        wts = hat_weights(np.asarray(nodes, float), np.arange(-r, size + r, dtype=float))
-        sizes.append([next_fast_len(int(np.ptp(np.flatnonzero(wn))) + 1 + 2 * r, True) for wn in wts if wn.any()])
+        spans = hat_spans(hat_weights(np.asarray(nodes, float), np.arange(-r, size + r, dtype=float)))
+        sizes.append([next_fast_len(b - a + 2 * r, True) for a, b in filter(None, spans)])
     return sum(fh * (fw // 2 + 1) * 16 for fh in sizes[0] for fw in sizes[1])
+
+
+def hat_spans(weights: np.ndarray) -> list[tuple[int, int] | None]:
+    """Per node, (first, last + 1) of the coordinates where its hat weight is non-zero: the rows
+    or columns its tile covers (None where it covers none)."""
+    out = []
+    for wn in weights:
+        nz = np.flatnonzero(wn)
+        out.append((int(nz[0]), int(nz[-1]) + 1) if nz.size else None)
+    return out
 
 
 def _field_convolve(img: np.ndarray, grid: KernelGrid, node_convolve) -> np.ndarray:
@@ -259,16 +266,15 @@ def _field_convolve(img: np.ndarray, grid: KernelGrid, node_convolve) -> np.ndar
     wy = hat_weights(np.asarray(grid.node_y_px, float), np.arange(-ry, h + ry, dtype=float))
     wx = hat_weights(np.asarray(grid.node_x_px, float), np.arange(-rx, w + rx, dtype=float))
     acc = np.zeros((h + 4 * ry, w + 4 * rx))
-    for j in range(wy.shape[0]):
-        rows = np.flatnonzero(wy[j])
-        if rows.size == 0:
+    col_spans = hat_spans(wx)
+    for j, rows in enumerate(hat_spans(wy)):
+        if rows is None:
             continue
-        r0, r1 = rows[0], rows[-1] + 1
-        for i in range(wx.shape[0]):
-            cols = np.flatnonzero(wx[i])
-            if cols.size == 0:
+        r0, r1 = rows
+        for i, cols in enumerate(col_spans):
+            if cols is None:
                 continue
-            c0, c1 = cols[0], cols[-1] + 1
+            c0, c1 = cols
             part = padded[r0:r1, c0:c1] * (wy[j, r0:r1, None] * wx[i, None, c0:c1])
             acc[r0:r1 + 2 * ry, c0:c1 + 2 * rx] += node_convolve(j, i, part, kern[j, i])
     return acc[2 * ry:2 * ry + h, 2 * rx:2 * rx + w]
