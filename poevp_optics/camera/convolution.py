@@ -39,6 +39,7 @@ from typing import Protocol
 import numpy as np
 
 from poevp_optics.core import runtime
+from poevp_optics.core.memo import kept
 
 #: Widest kernel (px) applied directly; wider ones by FFT.
 DIRECT_MAX_PX = 15
@@ -94,22 +95,10 @@ def pad_to(kernel: np.ndarray, n: int) -> np.ndarray:
     return np.pad(kernel, p) if p else kernel
 
 
-def _kept(cache: dict, entries: int, key, owner, build):
-    """cache[key]'s value for `owner`, built by `build()` where missing or held for another
-    object (an entry holds its owner, so an id() in the key cannot be reused while it lives);
-    the oldest entry is dropped to keep at most `entries`."""
-    hit = cache.get(key)
-    if hit is None or hit[0] is not owner:
-        if len(cache) >= entries:
-            cache.pop(next(iter(cache)))
-        hit = cache[key] = (owner, build())
-    return hit[1]
-
-
 def _kernel_spectrum(kernel: np.ndarray, k: np.ndarray, shape, workers: int) -> np.ndarray:
     from scipy import fft as sfft
 
-    return _kept(_KERNEL_SPECTRA, _CACHE_ENTRIES, (id(kernel), k.shape, shape), kernel,
+    return kept(_KERNEL_SPECTRA, _CACHE_ENTRIES, (id(kernel), k.shape, shape), kernel,
                  lambda: sfft.rfft2(k, s=shape, workers=workers))
 
 
@@ -138,7 +127,7 @@ def _dct_multiplier(kernel: np.ndarray, k: np.ndarray, image_shape, workers: int
         wrapped[np.ix_(np.arange(-ry, ry + 1) % (2 * h), np.arange(-rx, rx + 1) % (2 * w))] = k
         return np.ascontiguousarray(sfft.rfft2(wrapped, workers=workers).real[:h, :w])
 
-    return _kept(_KERNEL_SPECTRA, _CACHE_ENTRIES, (id(kernel), k.shape, ("dct", *image_shape)), kernel, build)
+    return kept(_KERNEL_SPECTRA, _CACHE_ENTRIES, (id(kernel), k.shape, ("dct", *image_shape)), kernel, build)
 
 
 def convolve_reflect(image: np.ndarray, kernel: np.ndarray) -> np.ndarray:
@@ -220,7 +209,7 @@ def field_convolve(image: np.ndarray, grid: KernelGrid) -> np.ndarray:
     from scipy import fft as sfft
 
     img = np.asarray(image, np.float64)
-    spectra = _kept(_NODE_SPECTRA, _NODE_ENTRIES, (id(grid.kernels), img.shape), grid.kernels, dict)
+    spectra = kept(_NODE_SPECTRA, _NODE_ENTRIES, (id(grid.kernels), img.shape), grid.kernels, dict)
 
     def node_convolve(j: int, i: int, part: np.ndarray, kern: np.ndarray) -> np.ndarray:
         full = (part.shape[0] + kern.shape[0] - 1, part.shape[1] + kern.shape[1] - 1)

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from poevp_optics.core.memo import kept
 from poevp_optics.core.params import param
 
 
@@ -118,18 +119,17 @@ def _remap_maps(reg, mirror_shape, sensor_shape) -> tuple[np.ndarray, np.ndarray
     (pixel centres at integers), built once per registration and shapes; read-only."""
     key = (float(reg.scale), float(reg.rotation_deg), tuple(float(v) for v in reg.offset_px),
            tuple(mirror_shape), tuple(sensor_shape))
-    hit = _REMAP_MAPS.get(key)
-    if hit is None:
+
+    def build():
         hm, wm = mirror_shape
         my, mx = np.meshgrid(np.arange(hm) + 0.5, np.arange(wm) + 0.5, indexing="ij")
         sx, sy = _sensor_coords(reg, mx, my, mirror_shape, sensor_shape)
-        hit = ((sx - 0.5).astype(np.float32), (sy - 0.5).astype(np.float32))
-        for a in hit:
+        maps = ((sx - 0.5).astype(np.float32), (sy - 0.5).astype(np.float32))
+        for a in maps:
             a.setflags(write=False)
-        if len(_REMAP_MAPS) >= _REMAP_ENTRIES:
-            _REMAP_MAPS.pop(next(iter(_REMAP_MAPS)))
-        _REMAP_MAPS[key] = hit
-    return hit
+        return maps
+
+    return kept(_REMAP_MAPS, _REMAP_ENTRIES, key, None, build)
 
 
 def to_mirror(image: np.ndarray, reg, mirror_shape, sensor_shape) -> np.ndarray:
