@@ -152,9 +152,9 @@ def test_the_loop_predicts_with_track_net_without_torch():
 
 
 def test_dmvfn_without_weights_refuses_in_one_line(monkeypatch, tmp_path):
-    import poevp_optics.control.predictors.dmvfn as dm
+    import poevp_optics.core.paths as paths
 
-    monkeypatch.setattr(dm, "ASSETS", tmp_path)          # a checkout without the full weights
+    monkeypatch.setattr(paths, "PREDICTOR_WEIGHTS_DIR", tmp_path)   # a checkout without the full weights
     with pytest.raises(WeightsError) as e:
         make_predictor("dmvfn")
     msg = str(e.value)

@@ -205,7 +205,7 @@ def _source_inputs(f: _Finder, spec, toml_dir: Path, toml_real: Path) -> None:
 
 def scene_inputs(spec, *, _prefix: str = "", _may_override: bool = True) -> list[InputRef]:
     """Every file a run of `spec` reads besides the code, without hashes (`with_hashes`)."""
-    from poevp_optics.control.predictors.dmvfn import default_weights
+    from poevp_optics.core.paths import shipped_weights
     from poevp_optics.control.predictors import PREDICTORS
     from poevp_optics.scene.load import load_scene
     from poevp_optics.camera.sensor import SENSOR_PRESETS
@@ -241,10 +241,10 @@ def scene_inputs(spec, *, _prefix: str = "", _may_override: bool = True) -> list
             f.add("predictor.weights", str(Path(given).expanduser()), [toml_dir], lookup_bases=[toml_real],
                   assets=False)
         else:
-            w = default_weights(spec.predictor.name)
+            w = shipped_weights(spec.predictor.name)
             # `dmvfn` falls back to the lite weights when the full ones are not shipped; the
             # fallback cannot be pointed at a copy (control/predictors/dmvfn.py), so it is only verified
-            shipped = w if w.exists() or spec.predictor.name != "dmvfn" else default_weights("dmvfn_lite")
+            shipped = w if w.exists() or spec.predictor.name != "dmvfn" else shipped_weights("dmvfn_lite")
             f.add("predictor.weights", str(shipped.resolve().relative_to(f.assets_dir.resolve())), [],
                   assets=True, override="predictor.weights={}" if w.exists() else "")
     if spec.chart.reference_camera:

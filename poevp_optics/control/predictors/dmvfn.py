@@ -32,12 +32,10 @@ from poevp_optics.core.weights import (WeightsError, load_state, read_weights_fi
                                        write_weights_file)
 from poevp_optics.control.predictors.base import Predictor
 from poevp_optics.control.predictors.flow import SATURATED
-from poevp_optics.core.paths import ASSETS_DIR
+from poevp_optics.core.paths import shipped_weights
 from poevp_optics.core import runtime
 
 runtime.torch_threads()          # the run's thread count, where it was set before torch loaded
-
-ASSETS = ASSETS_DIR / "predictor"
 
 
 @dataclass(frozen=True)
@@ -307,7 +305,7 @@ def standing_regions(prev_sat: np.ndarray, cur_sat: np.ndarray) -> list[tuple[sl
 
 
 def default_weights(name: str) -> Path:
-    return ASSETS / f"{name}.safetensors"
+    return shipped_weights(name)
 
 
 def load_predictor(name: str, weights: Path | None) -> DMVFNPredictor:

@@ -58,7 +58,7 @@ from pathlib import Path
 import numpy as np
 
 from poevp_optics.control.predictors.track import MAX_CHAIN, RegionTrack, RegionTracker
-from poevp_optics.core.paths import ASSETS_DIR
+from poevp_optics.core.paths import shipped_weights
 from poevp_optics.core.weights import WeightsError, read_weights_file, weights_identity
 
 N_FEATURES = 15
@@ -93,11 +93,8 @@ def chain_arrays(tracks, relative: bool = False) -> tuple[np.ndarray, np.ndarray
 
 
 # ----------------------------------------------------------------------------- weights
-ASSETS = ASSETS_DIR / "predictor"
-
-
 def default_weights() -> Path:
-    return ASSETS / "track_net.safetensors"
+    return shipped_weights("track_net")
 
 
 def read_track_net(path: Path) -> tuple[list[tuple[np.ndarray, np.ndarray]], TrackNetConfig, dict]:
