@@ -246,7 +246,7 @@ def _predictor_part(spec, job: str) -> Part | None:
         return None
     h, w = spec.predictor.resolution
     if spec.predictor.name in ("dmvfn", "dmvfn_lite"):
-        from poevp_optics.control.predictors.dmvfn import FULL, LITE
+        from poevp_optics.control.predictors.dmvfn_config import FULL, LITE
 
         cfg = LITE if spec.predictor.name == "dmvfn_lite" else FULL
         return Part(cfg.activation_bytes(h, w) + TORCH_BYTES, "predictor.resolution")

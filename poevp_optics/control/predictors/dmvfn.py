@@ -11,7 +11,8 @@ at random even at inference, ours thresholds the routing probabilities at 0.5 (d
 
 `dmvfn_lite` (ours): the same blocks on single-channel frames at quarter resolution, 3 blocks of
 widths 64/48/32 with s = [4, 2, 1], no routing; its flow is upsampled x4 to warp the
-full-resolution frames. Torch code pairs functions with thin modules (STYLE.md 3).
+full-resolution frames. Torch code pairs functions with thin modules (STYLE.md 3). The settings
+(`DMVFNConfig`, `FULL`, `LITE`) live in dmvfn_config.py, readable without torch.
 
 A saturated region that stands still in both input frames is held where it is
 (`standing_regions`): the network warps a clipped region it sees standing by up to 4 px.
@@ -20,7 +21,7 @@ A saturated region that stands still in both input frames is held where it is
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -33,42 +34,10 @@ from poevp_optics.core.weights import (WeightsError, load_state, read_weights_fi
 from poevp_optics.control.predictors.base import Predictor
 from poevp_optics.control.predictors.flow import SATURATED
 from poevp_optics.core.paths import shipped_weights
+from poevp_optics.control.predictors.dmvfn_config import FULL, LITE, DMVFNConfig
 from poevp_optics.core import runtime
 
 runtime.torch_threads()          # the run's thread count, where it was set before torch loaded
-
-
-@dataclass(frozen=True)
-class DMVFNConfig:
-    channels: int = 3                     # image channels
-    scales: tuple[int, ...] = (4, 4, 4, 2, 2, 2, 1, 1, 1)
-    widths: tuple[int, ...] = (160, 160, 160, 80, 80, 80, 44, 44, 44)
-    depth: int = 4                        # 3x3 convolutions in each block's body
-    routing: bool = True
-    input_downsample: int = 1             # lite: blocks see the frames at 1/4 resolution
-
-    @property
-    def min_input_px(self) -> int:
-        """Smallest frame side (px) the network takes: its coarsest block works at
-        1/(input_downsample x scale) resolution and needs at least one pixel there."""
-        return self.input_downsample * max(self.scales)
-
-    def activation_bytes(self, h: int, w: int) -> int:
-        """Upper bound of inference memory (bytes) on h x w frames: the largest block's input,
-        encoder and body activations (float32; blocks run one after another) plus 30 float32
-        maps at full size (frames, flows, mask, warps, the OpenCV remap grids)."""
-        c_in = 4 * self.channels + 5
-        per_px = 0.0
-        for s, width in zip(self.scales, self.widths):
-            f = self.input_downsample * s
-            per_px = max(per_px, (c_in + 5) / f ** 2 + (width / 2) / (2 * f) ** 2
-                         + width * (self.depth + 2) / (4 * f) ** 2)
-        return int(4 * h * w * (per_px + 30))
-
-
-FULL = DMVFNConfig()
-LITE = DMVFNConfig(channels=1, scales=(4, 2, 1), widths=(64, 48, 32), depth=4, routing=False,
-                   input_downsample=4)
 
 
 def backward_warp(img: torch.Tensor, flow: torch.Tensor) -> torch.Tensor:
