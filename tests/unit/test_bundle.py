@@ -354,3 +354,28 @@ def test_a_frame_source_scene_sends_its_frames_and_csvs(tmp_path):
     worker_spec = load_scene(m.scene, ["timing.frames=2", *m.overrides])
     check_same_inputs(refs, worker_spec, m.path_map)
     _assert_worker_renders_like_the_client(tmp_path, spec, worker_spec, m.path_map)
+
+
+def test_a_sweep_client_reads_a_scenes_inputs_and_memory_without_torch():
+    """What a sweep's or search's client does before any point runs (list each scene's inputs,
+    the shipped predictor weights among them, and bound its memory) loads no torch, whichever
+    predictor the scene names: torch is loaded only where a network runs."""
+    import subprocess
+    import sys
+
+    code = ("import sys\n"
+            "from poevp_optics.apps.run.memory import estimate_run\n"
+            "from poevp_optics.apps.sweep.bundle import scene_inputs\n"
+            "from poevp_optics.scene.load import load_scene\n"
+            f"for name in ('highbeam_plate', 'night_road', 'smoke'):\n"
+            f"    spec = load_scene({str(SCENES)!r} + '/' + name)\n"
+            "    w = [r.asset for r in scene_inputs(spec) if r.key == 'predictor.weights']\n"
+            "    print(name, spec.predictor.name, w, estimate_run(spec).total_bytes > 0)\n"
+            "print('torch' in sys.modules)\n")
+    got = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert got.returncode == 0, got.stderr
+    lines = got.stdout.splitlines()
+    assert lines == ["highbeam_plate dmvfn_lite ['predictor/dmvfn_lite.safetensors'] True",
+                     "night_road track_net ['predictor/track_net.safetensors'] True",
+                     "smoke oracle [] True", "False"], got.stdout
+    assert (ASSETS_DIR / "predictor" / "dmvfn_lite.safetensors").is_file()
