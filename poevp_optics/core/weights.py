@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from poevp_optics.core.exceptions import UserError
-from poevp_optics.core.paths import ASSETS_DIR
+from poevp_optics.core.paths import PREDICTOR_WEIGHTS_DIR
 
 
 class WeightsError(UserError):
@@ -88,7 +88,7 @@ def weights_identity(path: Path | None) -> dict:
         return {"weights": None}
     path = Path(path).resolve()
     try:
-        shown = f"assets/predictor/{path.relative_to((ASSETS_DIR / 'predictor').resolve())}"
+        shown = f"assets/predictor/{path.relative_to(PREDICTOR_WEIGHTS_DIR.resolve())}"
     except ValueError:
         shown = str(path)
     return {"weights": shown, "weights_sha256": hashlib.sha256(path.read_bytes()).hexdigest()[:16]}

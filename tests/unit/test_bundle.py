@@ -367,7 +367,7 @@ def test_a_sweep_client_reads_a_scenes_inputs_and_memory_without_torch():
             "from poevp_optics.apps.run.memory import estimate_run\n"
             "from poevp_optics.apps.sweep.bundle import scene_inputs\n"
             "from poevp_optics.scene.load import load_scene\n"
-            f"for name in ('highbeam_plate', 'night_road', 'smoke'):\n"
+            "for name in ('highbeam_plate', 'night_road', 'smoke'):\n"
             f"    spec = load_scene({str(SCENES)!r} + '/' + name)\n"
             "    w = [r.asset for r in scene_inputs(spec) if r.key == 'predictor.weights']\n"
             "    print(name, spec.predictor.name, w, estimate_run(spec).total_bytes > 0)\n"
