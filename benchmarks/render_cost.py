@@ -79,6 +79,9 @@ def stages(h: int, w: int, frames: int, extra: list[str]) -> dict:
     from poevp_optics.apps.run.render_run import BackgroundWriter
 
     BackgroundWriter.in_line = True                       # so the writing's CPU clock is its own
+    from poevp_optics.render.ahead import RenderAhead
+
+    RenderAhead.enabled = False                           # and the render's (no frame rendered ahead)
     from poevp_optics.cli import main
 
     with tempfile.TemporaryDirectory() as d:

@@ -105,7 +105,9 @@ def _add_run_options(p: argparse.ArgumentParser) -> None:
 
 def _add_job_options(p: argparse.ArgumentParser, out_help: str) -> None:
     p.add_argument("--out", help=out_help)
-    p.add_argument("--threads", type=_threads, help="DrJit/torch/OpenCV threads (default: all cores)")
+    p.add_argument("--threads", type=_threads,
+                   help="DrJit/torch/OpenCV threads (default: all cores); with 2 or more a render run "
+                        "renders the next frame while the camera runs this one")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 

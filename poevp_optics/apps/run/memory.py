@@ -9,6 +9,7 @@ on scenes/smoke (llvm_ad_mono, 2 cores, numpy 2, DrJit 1.x):
 | libraries       | 640 MiB (Python, Mitsuba/DrJit LLVM, colour, OpenCV), + 180 MiB where a torch network runs (`dmvfn`, `dmvfn_lite`) | 345 MiB at 64x64 here, 523 MiB with torch loaded; the CI runner (2 cores) peaked 140 MB above this machine on the same 512^2 run |
 | frame pipeline  | P (300 + 16 K): film, K sub-frames, MC splits, DMD weights, sensor draws, reconstruction, EXR/PNG/tone-map buffers | 280-300 B/px at K = 2 (256^2 ... 2048^2), +6.4 B/px per extra sub-frame; spp does not matter (one wavefront per pixel) |
 | held exposures  | compare only: frames x P (4 K + 8)                     | the exposures list it keeps  |
+| exposure ahead  | render only: P (4 K + 8), the next frame rendered while the camera runs this one (render/ahead.py) | one frame of the list above |
 | PSF             | kernel n^2 x 16 + build strips + FFT buffers (`relay.fft_bytes`) | +27 MB at 1024^2, sigma 20 |
 | objective       | `objective.memory_bytes`: PSF grid, field_convolve's float64 images and kept node spectra, PSF and glare FFTs, K float32 DMD-plane images | bound from `objective.radius_bound_px` |
 | DMD tables      | 4 x V x S x (K + 1) x 8: V levels, S = bits + 3 segments (x2 with settle) | 2.9-3.7 copies (`transmission_table` alone, V = 256 ... 65536, K = 16 ... 4096) |
@@ -270,6 +271,8 @@ def estimate_run(spec, job: str = "render") -> MemoryEstimate:
                                     "render.subframes")
     if job == "compare":
         parts["held exposures"] = Part(spec.timing.frames * px * (4 * k + 8), "timing.frames")
+    if job == "render":
+        parts["exposure ahead"] = Part(px * (4 * k + 8), "render.resolution")
     if job == "chart":
         parts["chart captures"] = Part(spec.chart.repeats * px * CHART_BYTES_PER_PX_REPEAT, "chart.repeats")
     optional = {"PSF": _psf_part(spec), "objective": _objective_part(spec, k), "DMD tables": _dmd_part(spec, k),

@@ -27,6 +27,7 @@ from poevp_optics.core.exceptions import SceneError
 from poevp_optics.core.report import write_report
 from poevp_optics.core.seeds import ENCODED_STREAM, LDR_STREAM, capture_seed
 from poevp_optics.core.frame import RenderedExposure
+from poevp_optics.render.ahead import RenderAhead
 from poevp_optics.render.progressive import pixel_rel_errors, rel_error_unclipped
 from poevp_optics.render.radiance import open_source
 
@@ -74,6 +75,7 @@ class RunResult:
     write_seconds: float = 0.0           # the writer's own time (on its thread: BackgroundWriter)
     write_wait_seconds: float = 0.0      # the frame loop's time waiting for the writer
     timeline: str | None = None          # the timeline figure's file name (apps/run/timeline.py)
+    render_wait_seconds: float | None = None  # the loop's wait for frames rendered ahead (None: in line)
     extensions: list = field(default_factory=list)   # the scene's report extensions and their state
 
 
@@ -380,8 +382,17 @@ def run_frames(spec, out_dir: Path, progress: bool = True, *, renderer=None,
     step = loop_step_of(spec, camera)
     setup_s = time.perf_counter() - t_run
     writer = OutputWriter(spec, camera, renderer, out_dir) if write_images else None
-    res = simulate(spec, camera, step, exposures if exposures is not None else renderer.exposures(progress),
-                   writer=writer, keep_frames=keep_frames)
+    frames = exposures if exposures is not None else renderer.exposures(progress)
+    ahead = None
+    if exposures is None and RenderAhead.wanted():
+        ahead = frames = RenderAhead(frames)          # the next frame renders while the camera runs this one
+    try:
+        res = simulate(spec, camera, step, frames, writer=writer, keep_frames=keep_frames)
+    finally:
+        if ahead is not None:
+            ahead.close()
+    if ahead is not None:
+        res.render_wait_seconds = ahead.wait_seconds
     if writer is not None:
         writer.finish()
         if step is not None and step.clock is not None and step.clock.records:
