@@ -32,9 +32,8 @@ CASES = {
                    "--set", "chart.repeats=4", "--set", "chart.roi_inset_px=2"],
 }
 
-#: report.json keys that measure time or describe the machine, not the physics (whether the run
-#: rendered ahead follows its thread count: render/ahead.py).
-VOLATILE = ("seconds", "scene_file", "variant", "libllvm", "version", "cameras", "rendered_ahead")
+#: report.json keys that measure time or describe the machine, not the physics.
+VOLATILE = ("seconds", "scene_file", "variant", "libllvm", "version", "cameras")
 
 
 def _strip(obj):

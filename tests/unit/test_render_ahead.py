@@ -92,6 +92,5 @@ def test_a_run_rendering_ahead_writes_the_reference_bytes(tmp_path, monkeypatch,
     ref = json.loads(REFERENCE.read_text())["cases"]["highbeam_plate"]
     assert got == ref, sorted(k for k in ref if ref[k] != got.get(k))
     render = json.loads((tmp_path / "highbeam_plate" / "report.json").read_text())["stages"]["render"]
-    assert render["rendered_ahead"] is enabled
-    assert (render["loop_wait_seconds"] is not None) is enabled
+    assert (render["ahead_wait_seconds"] is not None) is enabled
     assert _no_ahead_thread()

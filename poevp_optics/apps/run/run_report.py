@@ -235,9 +235,9 @@ def stage_sections(spec, renderer, step, res, setup_s: float, causal: bool) -> d
         "render": {
             "seconds": stats.seconds + setup_s, "mitsuba_seconds": stats.seconds,
             "setup_seconds": setup_s, "calls": stats.calls,
-            # rendered one frame ahead on a thread of its own (render/ahead.py): the Mitsuba seconds
-            # overlap the camera's stages, and the loop waited loop_wait_seconds of them
-            "rendered_ahead": res.render_wait_seconds is not None, "loop_wait_seconds": res.render_wait_seconds,
+            # the loop's wait for frames rendered one ahead on a thread of their own (render/ahead.py:
+            # the Mitsuba seconds overlap the camera's stages); None: rendered in line (one thread)
+            "ahead_wait_seconds": res.render_wait_seconds,
             "rel_error": mean_of([f["rel_error"] for f in per_frame]),
             "rel_error_roi": mean_of([f["rel_error_roi"] for f in per_frame]),
             "rel_error_unclipped": mean_of([f.get("rel_error_unclipped") for f in per_frame]),
