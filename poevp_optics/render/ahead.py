@@ -5,9 +5,9 @@ The render is open loop (render/exposures.py reads only the scene and the frame 
 capture or prediction reaches it), so rendering ahead changes no number: every frame draws its
 own seeds (core/seeds.py), and the run writes the same bytes as one that renders in line
 (tests/unit/test_render_ahead.py). It pays where the camera's stages leave a core idle: NumPy's
-array passes run on one thread while Mitsuba's kernels use every DrJit thread. On the default
-scene (1920x1080, 21 frames, 2 cores) the run took 174.8 s against 188.2 s rendered in line,
-the same outputs byte for byte.
+array passes run on one thread while Mitsuba's kernels use every DrJit thread. night_road at
+540x960 (21 frames, 2 cores, four runs of each, interleaved): median 43.6 s against 49.0 s in
+line, the same CPU time and the same outputs byte for byte (docs/physics/render-speed.md).
 
 At most one frame is held beyond the one the loop works on (the memory estimate counts it:
 apps/run/memory.py "exposure ahead"). A source error reaches the loop when it asks for that
