@@ -94,3 +94,26 @@ def test_a_run_rendering_ahead_writes_the_reference_bytes(tmp_path, monkeypatch,
     render = json.loads((tmp_path / "highbeam_plate" / "report.json").read_text())["stages"]["render"]
     assert (render["ahead_wait_seconds"] is not None) is enabled
     assert _no_ahead_thread()
+
+
+def test_a_render_whose_source_fails_on_a_later_frame_leaves_earlier_output(tmp_path, monkeypatch, capsys):
+    """Rendering ahead, the render fails on frame 2 while the camera works on frame 1: one line,
+    exit 1, the earlier output untouched, no staging folder, no render or writer thread left."""
+    from poevp_optics.render import radiance
+    from tests.regression.test_interrupts import earlier_output
+    from tests.unit.test_background_writer import render_fails_leaving
+
+    out = tmp_path / "out"
+    kept = earlier_output(out, "render")
+    real = radiance.render_exposures
+
+    def fails_at_frame_2(scene, renderer, progress=True):
+        for ex in real(scene, renderer, progress):
+            if ex.index == 2:
+                raise RuntimeError("jit_malloc(): out of memory while rendering frame 2")
+            yield ex
+
+    monkeypatch.setattr(radiance, "render_exposures", fails_at_frame_2)
+    monkeypatch.setattr(RenderAhead, "enabled", True)
+    render_fails_leaving(out, kept, 4, "RuntimeError: jit_malloc(): out of memory while rendering frame 2", capsys)
+    assert _no_ahead_thread()
