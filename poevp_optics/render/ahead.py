@@ -9,6 +9,10 @@ array passes run on one thread while Mitsuba's kernels use every DrJit thread. n
 540x960 (21 frames, 2 cores, four runs of each, interleaved): median 43.6 s against 49.0 s in
 line, the same CPU time and the same outputs byte for byte (docs/physics/render-speed.md).
 
+A run whose loop budget is measured (`[budget] compute = "measured"`: the mask is late or on
+time by this run's own predictor and mask wall time) renders in line, so that the time it
+measures is not the render's contention for the cores.
+
 At most one frame is held beyond the one the loop works on (the memory estimate counts it:
 apps/run/memory.py "exposure ahead"). A source error reaches the loop when it asks for that
 frame, as it would in line; a loop that stops early (an error, Ctrl-C, SIGTERM) stops the thread

@@ -117,3 +117,23 @@ def test_a_render_whose_source_fails_on_a_later_frame_leaves_earlier_output(tmp_
     monkeypatch.setattr(RenderAhead, "enabled", True)
     render_fails_leaving(out, kept, 4, "RuntimeError: jit_malloc(): out of memory while rendering frame 2", capsys)
     assert _no_ahead_thread()
+
+
+def test_a_loop_timed_by_its_own_wall_clock_renders_in_line(tmp_path, monkeypatch):
+    """`[budget] compute = "measured"` decides late masks by this run's predictor and mask wall
+    time: such a run renders in line (rendering ahead would time the render's contention for the
+    cores), and the same run on a device budget renders ahead."""
+    from poevp_optics.cli import main
+    from tests.conftest import SCENES
+
+    monkeypatch.setattr(RenderAhead, "enabled", True)
+    waits = {}
+    for compute in ("measured", "fpga_zynq"):
+        out = tmp_path / compute
+        args = ["render", str(SCENES / "highbeam_plate"), "--out", str(out), "--quiet", "--resolution", "46x80",
+                "--frames", "3", "--spp", "2", "--set", f"budget.compute='{compute}'"]
+        assert main(args) == 0
+        report = json.loads((out / "report.json").read_text())
+        assert report["timing_budget"]["compute"] == compute
+        waits[compute] = report["stages"]["render"]["ahead_wait_seconds"]
+    assert waits["measured"] is None and waits["fpga_zynq"] is not None, waits

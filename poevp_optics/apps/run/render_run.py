@@ -384,7 +384,8 @@ def run_frames(spec, out_dir: Path, progress: bool = True, *, renderer=None,
     writer = OutputWriter(spec, camera, renderer, out_dir) if write_images else None
     frames = exposures if exposures is not None else renderer.exposures(progress)
     ahead = None
-    if exposures is None and RenderAhead.wanted():
+    timed = step is not None and step.clock is not None and step.clock.spec.compute == "measured"
+    if exposures is None and RenderAhead.wanted() and not timed:   # a measured budget times the loop alone
         ahead = frames = RenderAhead(frames)          # the next frame renders while the camera runs this one
     try:
         res = simulate(spec, camera, step, frames, writer=writer, keep_frames=keep_frames)
