@@ -2,7 +2,7 @@
 
 | name           | operator                                   | reference |
 |----------------|--------------------------------------------|-----------|
-| reinhard2004   | `tonemapping_operator_Reinhard2004`        | Reinhard & Devlin (2005), IEEE TVCG 11(1) |
+| reinhard2004   | `tonemapping_operator_Reinhard2004`'s grey case | Reinhard & Devlin (2005), IEEE TVCG 11(1) |
 | filmic         | `tonemapping_operator_filmic`              | Hable (2010), Uncharted 2 filmic curve |
 | logarithmic    | `tonemapping_operator_logarithmic`         | Drago et al. (2003) family, colour-hdri |
 | linear         | clip(L / L_99.9 %), no compression         | - |
@@ -27,9 +27,21 @@ def _rgb(x):
 
 
 def _reinhard2004(x):
-    import colour_hdri
+    """Reinhard & Devlin (2005) at colour-hdri's defaults (f = 0, m = 0.3, a = 0, c = 0) on a
+    grey image: with no light adaptation (a = 0) and no chromatic adaptation (c = 0) the operator
+    is C / (C + (f L_lav)^m) with L_lav the log-average of the image's luminance, one global
+    number, so each channel of a grey image is x / (x + L_lav^0.3). L_lav is colour-hdri's own
+    `log_average` of colour's `RGB_luminance` (sRGB primaries), as the operator computes it; the
+    result is the operator's channel 0 bit for bit (tests/unit/test_tonemap.py), without its
+    three-channel intermediates (0.49-0.69 -> 0.15 s a call at 1920x1080)."""
+    from colour.models import RGB_COLOURSPACES, RGB_luminance
+    from colour_hdri.tonemapping.global_operators.operators import log_average
 
-    return colour_hdri.tonemapping_operator_Reinhard2004(_rgb(x))[..., 0]
+    srgb = RGB_COLOURSPACES["sRGB"]
+    l_lav = log_average(RGB_luminance(_rgb(x), srgb.primaries, srgb.whitepoint))
+    # the power of a one-element array, as the operator takes it of an array: NumPy's vector
+    # pow (SIMD) and Python's scalar pow differ in the last bit for ~6 % of arguments
+    return x / (x + np.power(np.full(1, np.exp(-0.0) * l_lav), 0.3))
 
 
 def _filmic(x):
