@@ -47,8 +47,8 @@ Spatially varying blur: the PSF is computed at a grid of field nodes and the ima
 sum_n K_n * (w_n x), w_n the bilinear hat weights of node n (a partition of unity): each source
 point's PSF is the bilinear interpolation of its four neighbouring node PSFs, so every source
 keeps its flux and a constant PSF gives exactly the plain convolution (Nagy & O'Leary, SIAM J.
-Sci. Comput. 19(4), 1998, "Restoring images degraded by spatially variant blur"). Each node is
-an overlap-add of FFT convolutions (float64) over the tiles its weight covers. The convolutions
+Sci. Comput. 19(4), 1998, "Restoring images degraded by spatially variant blur"). Each node
+convolves the tile its weight covers (OpenCV filter2D, float64), the tiles overlap-added. The convolutions
 are camera/convolution.py's, shared with the relay (`convolve_reflect`, `field_convolve`).
 
 Borders, as in relay.convolve: the image is continued by reflection over the kernel's reach;

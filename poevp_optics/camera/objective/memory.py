@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 
-from poevp_optics.camera.convolution import fft_bytes, field_spectra_bytes
+from poevp_optics.camera.convolution import fft_bytes, field_tile_bytes
 from poevp_optics.camera.glare import glare_radii_px
 from poevp_optics.camera.kernels import max_radius_px
 from poevp_optics.camera.objective.params import ObjectiveParams, band
@@ -38,8 +38,8 @@ def psf_radius_bound_px(params: ObjectiveParams, image_shape) -> int:
 def memory_bytes(params: ObjectiveParams, image_shape, subframes: int) -> int:
     """Peak bytes of the stage on an image of `image_shape` (upper bound, from `radius_bound_px`):
     the PSF grid, the reflected and accumulated float64 images of `field_convolve`, one full-size
-    FFT each for the PSF and the glare (convolution.fft_bytes), the node kernels' spectra the
-    field-varying convolution keeps (convolution.field_spectra_bytes, at the PSF's own radius
+    FFT each for the PSF and the glare (convolution.fft_bytes), the largest node tile of the
+    field-varying convolution in flight (convolution.field_tile_bytes, at the PSF's own radius
     bound), the relative illumination, the camera's float32 outputs of `subframes` images (kept
     for the frame's captures), and with glare the frame's float64 glare veil (kept for its report
     record: camera.py `dmd_image`)."""
@@ -51,7 +51,7 @@ def memory_bytes(params: ObjectiveParams, image_shape, subframes: int) -> int:
     total = nodes * n * n * 8 + (h + 2 * r) * (w + 2 * r) * 8 + (h + 4 * r) * (w + 4 * r) * 8
     total += fft_bytes((h, w), n) * (2 if params.glare_fraction > 0 else 1) + 2 * h * w * 8
     if params.psf != "delta":
-        total += field_spectra_bytes((h, w), node_positions_px(samples, h), node_positions_px(samples, w),
-                                     2 * psf_radius_bound_px(params, image_shape) + 1)
+        total += field_tile_bytes((h, w), node_positions_px(samples, h), node_positions_px(samples, w),
+                                  2 * psf_radius_bound_px(params, image_shape) + 1)
     veil = h * w * 8 if params.glare_fraction > 0 else 0
     return int(total + subframes * h * w * 4 + veil)
