@@ -375,6 +375,20 @@ def test_guard_band_makes_the_footprint_independent_of_beyond():
     assert np.abs(out_short / out_big - 1).max() > 1e-9
 
 
+@pytest.mark.parametrize("shape", [(40, 60), (12, 9), (400, 700)])
+def test_the_glare_radius_without_a_kernel_is_the_kernels(shape):
+    """`glare_radius_px` (the guard's share, no kernel built) is the radius of the kernel
+    `glare_kernel` builds: the halo's outer radius + 1 px rounded up, capped at the image's
+    extent (12 x 9: the 12 px halo capped at 11), and 0 without glare."""
+    from poevp_optics.camera.objective.glare import glare_radius_px
+
+    base = ob.ObjectiveParams()
+    p = ob.ObjectiveParams(glare_fraction=0.04, glare_core_radius_deg=deg_for_px(1.0, base),
+                           glare_outer_radius_deg=deg_for_px(10.6, base))
+    assert glare_radius_px(p, shape) == ob.glare_kernel(p, shape).radius_px == min(12, max(shape) - 1)
+    assert glare_radius_px(dataclasses.replace(p, glare_fraction=0.0), shape) == 0
+
+
 def test_psf_grid_is_cached_on_disk(cache):
     p = ob.ObjectiveParams(psf="prescription", prescription="double_gauss", field_samples=1, band_samples=1,
                            pupil_rays=48)

@@ -8,7 +8,7 @@ import functools
 import math
 
 from poevp_optics.camera.glare import GLARE_MODELS, GlareKernel, glare_radii_px
-from poevp_optics.camera.kernels import max_radius_px
+from poevp_optics.camera.kernels import capped_radius, max_radius_px
 from poevp_optics.camera.objective.params import ObjectiveParams
 
 
@@ -24,6 +24,14 @@ def glare_kernel(params: ObjectiveParams, image_shape) -> GlareKernel | None:
     if params.glare_fraction <= 0:
         return None
     return _kernel(params, max_radius_px((int(image_shape[0]), int(image_shape[1]))))
+
+
+def glare_radius_px(params: ObjectiveParams, image_shape) -> int:
+    """The radius (px) of `glare_kernel(params, image_shape)` without building it: the halo's
+    own radius capped at the image's extent; 0 without glare."""
+    if params.glare_fraction <= 0:
+        return 0
+    return capped_radius(glare_halo(params).radius_px(), max_radius_px((int(image_shape[0]), int(image_shape[1]))))
 
 
 @functools.lru_cache(maxsize=4)

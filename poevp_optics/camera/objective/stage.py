@@ -9,7 +9,7 @@ import numpy as np
 
 from poevp_optics.camera.convolution import convolve_reflect, field_convolve
 from poevp_optics.camera.glare import GlareKernel
-from poevp_optics.camera.objective.glare import glare_kernel
+from poevp_optics.camera.objective.glare import glare_kernel, glare_radius_px
 from poevp_optics.camera.objective.params import ObjectiveParams, band
 from poevp_optics.camera.objective.prescriptions import corner_radius_m
 from poevp_optics.camera.objective.psfs import PSFGrid, psf_grid
@@ -31,8 +31,7 @@ def radius_px(params: ObjectiveParams, image_shape, *, rendered_px: int = 0, cap
     (the grid the camera then uses). The kernels only widen with the field, so once the radius
     reaches `cap_px` (the caller's cap, e.g. objective.guard_max_px) no grid is needed beyond."""
     h, w = int(image_shape[0]), int(image_shape[1])
-    g = glare_kernel(params, (h, w))
-    rg = g.radius_px if g is not None else 0
+    rg = glare_radius_px(params, (h, w))
     if params.psf == "delta" or (cap_px is not None and rg >= cap_px):
         return rg
     r = max(0, int(rendered_px), rg)
