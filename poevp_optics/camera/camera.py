@@ -105,14 +105,10 @@ class Camera:
 
     def __init__(self, sensor: SensorSpec, dmd: DMDSpec, relay: RelaySpec, objective: ObjectiveSpec,
                  timing: TimingSpec, shape: tuple[int, int], accuracy: Accuracy = Accuracy(), *,
-                 base_dir=None, flicker=None, switches: NoiseSwitches | None = None,
-                 defer_objective: bool = False):
+                 base_dir=None, flicker=None, switches: NoiseSwitches | None = None):
         """A camera from its stages' params (no scene file needed; `Camera.from_params` takes them
         as one `CameraParams`). shape: the sensor's (H, W); base_dir: where relative files (a
-        measured PSF) are read; flicker: PWM-lamp drives by emitter name (basis_tables);
-        defer_objective: leave the objective's PSF grid, glare kernel and relative illumination
-        for `build_objective` (the guard band is known without them), so a run can start its
-        render first."""
+        measured PSF) are read; flicker: PWM-lamp drives by emitter name (basis_tables)."""
         self.timing, self.dmd_spec, self.relay_spec = timing, dmd, relay
         self.accuracy = accuracy
         objective = obj.with_accuracy(objective, accuracy)       # the run's numerics for the objective too
@@ -127,19 +123,17 @@ class Camera:
         reg = dmd.registration if self.dmd else _IDENTITY
         self._init_objective(objective, dmd, self._relay_guards(reg)[1])
         self._init_grids(reg)
-        if not defer_objective:
-            self.build_objective()
+        self._build_objective()
         self.etendue_m2_sr = pixel_etendue_m2_sr(self.params)
         # lens transmission (objective) x relay transmission; DMD throughput is in the exposure
         self.throughput = self.params.optical_throughput * (relay.transmission if self.dmd else 1.0)
 
     @classmethod
-    def from_params(cls, p: CameraParams, switches: NoiseSwitches | None = None, *,
-                    defer_objective: bool = False) -> "Camera":
+    def from_params(cls, p: CameraParams, switches: NoiseSwitches | None = None) -> "Camera":
         """The camera `p` describes (scene/resolve.py builds `p` from a scene's [sensor], [dmd],
-        [relay], [objective], [timing]); defer_objective as in `__init__`."""
+        [relay], [objective], [timing])."""
         return cls(p.sensor, p.dmd, p.relay, p.objective, p.timing, p.shape, p.accuracy, base_dir=p.base_dir,
-                   flicker=p.flicker, switches=switches, defer_objective=defer_objective)
+                   flicker=p.flicker, switches=switches)
 
     def _init_objective(self, spec: ObjectiveSpec, dmd: DMDSpec, relay_guard_px: int) -> None:
         """The objective's resolved params (None: identity, the stage is skipped) and its guard
@@ -159,20 +153,13 @@ class Camera:
         self.objective_guard_px = min(obj.radius_px(self.objective, self.shape, rendered_px=relay_guard_px,
                                                     cap_px=spec.guard_max_px), spec.guard_max_px)
 
-    def build_objective(self) -> None:
-        """PSF grid, glare kernel and relative illumination for the mirror grid (built once; a
-        camera made with defer_objective builds them here, or at its first objective image)."""
-        if self.objective is None or self._objective_parts is not None:
+    def _build_objective(self) -> None:
+        """PSF grid, glare kernel and relative illumination for the mirror grid (built once)."""
+        if self.objective is None:
             return
         p, shape = self.objective, self.mirror_shape
         self._objective_parts = {"grid": obj.psf_grid(p, shape), "glare": obj.glare_kernel(p, shape),
                                  "ri": obj.relative_illumination(p, shape)}
-
-    @property
-    def _parts(self) -> dict:
-        """The objective's parts (`build_objective`), built on first use."""
-        self.build_objective()
-        return self._objective_parts
 
     def _relay_guards(self, reg) -> tuple[int, int]:
         """(sensor pixels, mirrors) of the guard band the relay PSF needs (capped at guard_max_px):
@@ -209,7 +196,7 @@ class Camera:
         if self.objective is None:
             return radiance
         kept = self._kept_image(radiance)
-        want_veil = keep_veil and self._parts["glare"] is not None and self._veil_of(radiance) is None
+        want_veil = keep_veil and self._objective_parts["glare"] is not None and self._veil_of(radiance) is None
         if kept is not None and not want_veil:
             return kept
         out, veil = self._form(radiance)
@@ -228,7 +215,7 @@ class Camera:
             return radiance
         if len(samples) != len(weights) or not samples:
             raise ValueError(f"dmd_image_of_average: {len(samples)} samples, {len(weights)} weights")
-        want_veil = keep_veil and self._parts["glare"] is not None
+        want_veil = keep_veil and self._objective_parts["glare"] is not None
         kept = self._kept_image(radiance)
         if kept is not None and not (want_veil and self._veil_of(radiance) is None):
             return kept
@@ -249,7 +236,7 @@ class Camera:
 
     def _form(self, radiance: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
         """(the objective's image of `radiance`, its float64 glare term or None), the image kept."""
-        parts = self._parts
+        parts = self._objective_parts
         out, veil = obj.apply_with_veil(np.asarray(radiance, dtype=np.float32), self.objective, grid=parts["grid"],
                                         glare=parts["glare"], ri=parts["ri"])
         self._remember(radiance, out)
@@ -268,15 +255,15 @@ class Camera:
     def glare_veil(self, radiance: np.ndarray) -> np.ndarray | None:
         """The objective's veiling-glare part of `dmd_image` (mirror grid): g H * (V x); None
         without glare. No mask lowers it: it is in the image the mirrors see."""
-        if self.objective is None or self._parts["glare"] is None:
+        if self.objective is None or self._objective_parts["glare"] is None:
             return None
         kept = self._veil_of(radiance)
         if kept is not None:
             return kept
         x = np.asarray(radiance, dtype=np.float64)
-        ri = self._parts["ri"]
+        ri = self._objective_parts["ri"]
         v = x * ri if ri is not None else x
-        return self.objective.glare_fraction * obj.convolve_reflect(v, self._parts["glare"].kernel)
+        return self.objective.glare_fraction * obj.convolve_reflect(v, self._objective_parts["glare"].kernel)
 
     def _veil_of(self, radiance) -> np.ndarray | None:
         kept = self._kept_veil

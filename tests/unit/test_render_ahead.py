@@ -137,34 +137,3 @@ def test_a_loop_timed_by_its_own_wall_clock_renders_in_line(tmp_path, monkeypatc
         assert report["timing_budget"]["compute"] == compute
         waits[compute] = report["stages"]["render"]["ahead_wait_seconds"]
     assert waits["measured"] is None and waits["fpga_zynq"] is not None, waits
-
-
-def test_rendering_ahead_the_objective_builds_while_the_first_frame_renders(tmp_path, monkeypatch):
-    """night_road (the Double Gauss objective with glare) at 1/6 scale, 3 frames: rendering
-    ahead, the objective's PSF grid, glare kernel and relative illumination are built once the
-    render thread runs (the guard band needs none of them), and every output array and the
-    report's physics equal the run rendered in line, which builds them with the camera."""
-    from poevp_optics.camera.camera import Camera
-    from poevp_optics.cli import main
-    from tests.conftest import SCENES
-    from tests.regression.bit_identical import hash_outputs
-
-    real = Camera.build_objective
-    seen = []
-
-    def build(self):
-        if self.objective is not None and self._objective_parts is None:
-            seen.append(any(t.name == "poevp-render-ahead" for t in threading.enumerate()))
-        real(self)
-
-    monkeypatch.setattr(Camera, "build_objective", build)
-    hashes = {}
-    for enabled in (True, False):
-        monkeypatch.setattr(RenderAhead, "enabled", enabled)
-        out = tmp_path / str(enabled)
-        assert main(["render", str(SCENES / "night_road"), "--out", str(out), "--quiet", "--scale", "1/6",
-                     "--frames", "3", "--spp", "2", "--set", "render.roi_spp=4"]) == 0
-        hashes[enabled] = hash_outputs(out)
-    assert seen == [True, False]
-    assert hashes[True] == hashes[False], sorted(k for k in hashes[True] if hashes[True][k] != hashes[False].get(k))
-    assert _no_ahead_thread()

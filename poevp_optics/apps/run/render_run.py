@@ -373,8 +373,7 @@ def run_frames(spec, out_dir: Path, progress: bool = True, *, renderer=None,
     is stored for the next run with the same render inputs."""
     out_dir = Path(out_dir)
     t_run = time.perf_counter()
-    # rendering ahead, the objective's tables build while the first frame renders (below)
-    camera = Camera.from_params(spec.resolved.camera, defer_objective=exposures is None and RenderAhead.wanted())
+    camera = Camera.from_params(spec.resolved.camera)
     if render_cache is not None and renderer is None and exposures is None:
         renderer = render_cache.open(spec.resolved.render, camera.guard_px)   # stored or recorded
     renderer = renderer or open_source(spec.resolved.render, camera.guard_px)       # the scene's [source] kind
@@ -389,9 +388,6 @@ def run_frames(spec, out_dir: Path, progress: bool = True, *, renderer=None,
     if exposures is None and RenderAhead.wanted() and not timed:   # a measured budget times the loop alone
         ahead = frames = RenderAhead(frames)          # the next frame renders while the camera runs this one
     try:
-        t_objective = time.perf_counter()
-        camera.build_objective()
-        setup_s += time.perf_counter() - t_objective
         res = simulate(spec, camera, step, frames, writer=writer, keep_frames=keep_frames)
     finally:
         if ahead is not None:
