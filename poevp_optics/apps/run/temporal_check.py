@@ -27,16 +27,6 @@ def _plane_coefficients(camera, mask, frame_index: int, nodes_rel: np.ndarray) -
     return table[inv.reshape(lv.shape)]
 
 
-def _render_region(renderer, seed: int, spp: int, roi) -> np.ndarray:
-    """One render of the pixels the check reads (float64): the ROI's box alone where there is one
-    and the render path is mono (Renderer.render_box: the estimator of a whole-frame render
-    restricted to those pixels, at a cost set by the box: the default scene's plate box is 1-2 %
-    of its 1128 x 1968 rendered pixels), else the whole frame cropped to the ROI."""
-    if roi is not None and renderer.plan.mode == "mono":
-        return renderer.render_box(seed, spp, roi)
-    return crop(renderer.render_once(seed, spp).astype(np.float64), roi)
-
-
 def temporal_error(spec, renderer, camera, ex=None, mask=None) -> dict:
     """Step-halving estimate of the time-quadrature error of the encoded capture on one frame.
 
@@ -50,8 +40,7 @@ def temporal_error(spec, renderer, camera, ex=None, mask=None) -> dict:
     the white one (`rel_ldr`), over the ROI (or the frame): RMS over pixels relative to the mean.
     Rendered plates are not smooth in time (texture edges crossing pixels put kinks in L(t)):
     benchmarks/subframes_error.md measures this estimate against 256-sample references.
-    Cost: 2 N - 1 renders at the scene's spp for one frame of N nodes, of the ROI's box alone
-    where there is one (`_render_region`).
+    Cost: 2 N - 1 renders at the scene's spp for one frame of N nodes.
     """
     k = spec.render.subframes
     if spec.geometry_static or ex is None or k < 2:
@@ -78,7 +67,7 @@ def temporal_error(spec, renderer, camera, ex=None, mask=None) -> dict:
     for i, t in enumerate(refined_t):
         renderer.set_time(float(t))
         for sp in range(n):
-            img = _render_region(renderer, seeds[sp], sizes[sp], ex.roi)
+            img = crop(renderer.render_once(seeds[sp], sizes[sp]).astype(np.float64), ex.roi)
             for cf, cr, pf, pr in planes.values():
                 j = fine_at.get(float(t))
                 if j is not None:
