@@ -41,7 +41,7 @@ def _reinhard2004(x):
     l_lav = log_average(RGB_luminance(_rgb(x), srgb.primaries, srgb.whitepoint))
     # the power of a one-element array, as the operator takes it of an array: NumPy's vector
     # pow (SIMD) and Python's scalar pow differ in the last bit for ~6 % of arguments
-    return x / (x + np.power(np.full(1, np.exp(-0.0) * l_lav), 0.3))
+    return x / (x + np.power(np.full(1, l_lav), 0.3))          # f = 0: brightness exp(-f) = 1
 
 
 def _filmic(x):

@@ -145,7 +145,7 @@ def convolve_reflect(image: np.ndarray, kernel: np.ndarray) -> np.ndarray:
     multiplier or spectrum cached. No clipping, no normalisation."""
     img = np.asarray(image, np.float64)
     if kernel.shape[0] <= DIRECT_MAX_PX:
-        return _filter2d_reflect(img, kernel)
+        return _filter2d(img, kernel)
     from scipy import fft as sfft
 
     h, w = img.shape
@@ -159,7 +159,7 @@ def convolve_reflect(image: np.ndarray, kernel: np.ndarray) -> np.ndarray:
         spec *= mult
         return sfft.idctn(spec, type=2, workers=workers, overwrite_x=True)
     if kernel.shape[0] <= BLOCK_DFT_MAX_PX and (ry, rx) == (c, c):
-        return _filter2d_reflect(img, kernel)
+        return _filter2d(img, kernel)
     shape = fft_shape(img.shape, kernel.shape[0])
     spec = sfft.rfft2(reflect_into(img, ry, rx, shape), workers=workers)
     spec *= _kernel_spectrum(kernel, k, shape, workers)
@@ -167,13 +167,14 @@ def convolve_reflect(image: np.ndarray, kernel: np.ndarray) -> np.ndarray:
     return full[2 * ry:2 * ry + h, 2 * rx:2 * rx + w]
 
 
-def _filter2d_reflect(img: np.ndarray, kernel: np.ndarray) -> np.ndarray:
-    """OpenCV's filter2D (float64) with BORDER_REFLECT (...cba|abc...: the module's reflection
-    while the kernel's radius stays within the image); OpenCV correlates, so the kernel is
-    flipped for a convolution."""
+def _filter2d(img: np.ndarray, kernel: np.ndarray, border: str = "reflect") -> np.ndarray:
+    """Same-size convolution by OpenCV's filter2D (float64), the image continued by reflection
+    (border "reflect", ...cba|abc...: the module's reflection while the kernel's radius stays
+    within the image) or by zeros ("zero"); OpenCV correlates, so the kernel is flipped."""
     import cv2
 
-    return cv2.filter2D(img, -1, np.ascontiguousarray(kernel[::-1, ::-1]), borderType=cv2.BORDER_REFLECT)
+    flag = {"reflect": cv2.BORDER_REFLECT, "zero": cv2.BORDER_CONSTANT}[border]
+    return cv2.filter2D(img, -1, np.ascontiguousarray(kernel[::-1, ::-1]), borderType=flag)
 
 
 def reflect_into(img: np.ndarray, ry: int, rx: int, shape) -> np.ndarray:
@@ -223,9 +224,7 @@ def field_convolve(image: np.ndarray, grid: KernelGrid) -> np.ndarray:
 
     def node_convolve(part: np.ndarray, kern: np.ndarray) -> np.ndarray:
         ky, kx = kern.shape[0] // 2, kern.shape[1] // 2
-        tile = cv2.copyMakeBorder(part, ky, ky, kx, kx, cv2.BORDER_CONSTANT, value=0.0)
-        # OpenCV correlates: the flipped kernel convolves
-        return cv2.filter2D(tile, -1, np.ascontiguousarray(kern[::-1, ::-1]), borderType=cv2.BORDER_CONSTANT)
+        return _filter2d(cv2.copyMakeBorder(part, ky, ky, kx, kx, cv2.BORDER_CONSTANT, value=0.0), kern, "zero")
 
     return _field_convolve(np.asarray(image, np.float64), grid, node_convolve)
 
