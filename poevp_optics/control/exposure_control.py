@@ -104,6 +104,8 @@ class ExposureController:
         self.rel: np.ndarray | None = None
         self.extrapolate = bool(extrapolate)
         self.prev_demand_e: np.ndarray | None = None
+        # per region of the last capture, the sigma its miss asks for (envelope.region_sigma), mirrors
+        self.region_sigma: np.ndarray | None = None
 
     def observe(self, e_white: np.ndarray, clipped: np.ndarray, rel: np.ndarray) -> None:
         """Take one capture in (mirror grid): e_white, the all-white electrons it implies (the

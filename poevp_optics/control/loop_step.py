@@ -37,9 +37,10 @@ import numpy as np
 from poevp_optics.camera.attenuator import AttenuatorSpec, AttenuatorState, choose_transmission
 from poevp_optics.camera.dmd import displayed_levels
 from poevp_optics.control import exposure_time
+from poevp_optics.control.envelope import region_radii, region_sigma
 from poevp_optics.control.exposure_control import ExposureController
-from poevp_optics.control.masks import (ATTENUATED_LAWS, MaskSpec, envelope_sigma, highlight_miss_px, mask_levels,
-                                        predicted_electrons, reach_electrons)
+from poevp_optics.control.masks import (ATTENUATED_LAWS, ENVELOPE_FLOOR_SIGMA, MaskSpec, envelope_sigma,
+                                        highlight_miss_px, mask_levels, predicted_electrons, reach_electrons)
 from poevp_optics.control.timing_budget import BudgetSpec, MaskClock
 from poevp_optics.control.predictors import PREDICTORS, PredictorSpec, checked_prediction, make_predictor
 from poevp_optics.core.grids import Grid, GridError, OnGrid
@@ -457,7 +458,7 @@ class LoopStep:
     def frame_mask(self) -> MaskSpec:
         """The mask settings of the next decision: under `mask.envelope = "predictor_error"` the
         envelope's sigma from the last miss, and the exposure controller's carry radius with it."""
-        if self.mask.envelope == "fixed":
+        if self.mask.envelope != "predictor_error":
             return self.mask
         if self.controller is not None:
             self.controller.radius_px = self.envelope_px()
@@ -487,6 +488,8 @@ class LoopStep:
             rec["exposure_time"] = {**fx.record(), "nd_transmission": g}
         if self.mask.envelope != "fixed" and (not decision.init or decision.metered):
             rec["envelope_px"] = self.envelope_px()
+            if self.mask.envelope == "region_body":
+                rec["region_envelope_px"] = region_radii(self.controller.region_sigma)
         late = shown.late is not None
         mirror = self.camera.mirror_grid
         return DMDCommand(OnGrid(shown.levels, mirror), OnGrid(shown.late, mirror) if late else None,
@@ -512,7 +515,11 @@ class LoopStep:
         if self.controller is not None:
             self.controller.observe(*controller_view(self.camera, enc, est, flags, index))
             if self._aimed is not None:              # where the highlight was against where the mask aimed
-                miss = highlight_miss_px(self._aimed, self.controller.demand_e >= self.controller.saturation_e)
+                captured = self.controller.demand_e >= self.controller.saturation_e
+                if self.mask.envelope == "region_body":
+                    self.controller.region_sigma = region_sigma(self._aimed, captured, self.mask.smooth_px,
+                                                                ENVELOPE_FLOOR_SIGMA)
+                miss = highlight_miss_px(self._aimed, captured)
                 self.miss_px = self.miss_px if miss is None else miss
         if self.model is None:
             return

@@ -56,6 +56,10 @@ misses by more (hold, flow at speed) the fixed envelope; the oracle, which misse
 relay's blur, the floor (R = 3).
 Causal: the miss is measured on the frame already captured (the demodulated capture is where
 the highlight really was), and the exposure controller's carry radius follows the same R.
+With "region_body" (exposure controller only) each bright region's body, its median demand,
+takes the fixed envelope, and its brighter parts the envelope the region's own last miss asks
+for (control/envelope.py): a plate partly in a shadow keeps the dimming its lit part needs on
+that part, while several highlights are each sized by their own prediction's miss.
 """
 
 from __future__ import annotations
@@ -64,29 +68,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from poevp_optics.control.envelope import body_envelope, smooth_envelope
 from poevp_optics.core.params import param
 from poevp_optics.core.registry import Registry
 
 
-def smooth_envelope(frame: np.ndarray, smooth_px: float) -> np.ndarray:
-    """Smooth upper envelope (>= frame): dilation of radius ceil(3 sigma), then a Gaussian of
-    sigma = smooth_px truncated at that radius (see module docstring)."""
-    import cv2
-
-    if smooth_px <= 0:
-        return np.asarray(frame, dtype=np.float32)
-    f = np.asarray(frame, dtype=np.float32)        # float32: 2x faster in OpenCV, 1e-7 relative
-    r = int(np.ceil(3 * smooth_px))
-    size = 2 * r + 1
-    square = np.ones((size, size), np.uint8)        # covers the square blur window exactly
-    dil = cv2.dilate(f, square, borderType=cv2.BORDER_REPLICATE)
-    env = cv2.GaussianBlur(dil, (size, size), sigmaX=smooth_px, borderType=cv2.BORDER_REPLICATE)
-    # float32 kernel weights sum to 1 within a few ulp: lift by 1e-6 to keep env >= frame
-    return env * np.float32(1 + 1e-6)
-
-
 #: How the envelope's radius is chosen (module docstring).
-ENVELOPE_MODES = ("fixed", "predictor_error")
+ENVELOPE_MODES = ("fixed", "predictor_error", "region_body")
 #: The envelope's smallest sigma under "predictor_error", mirrors (module docstring): R = 3.
 ENVELOPE_FLOOR_SIGMA = 1.0
 
@@ -113,9 +101,10 @@ def highlight_miss_px(predicted: np.ndarray, captured: np.ndarray) -> float | No
 
 def envelope_sigma(spec, miss_px: float | None) -> float:
     """The envelope's sigma (mirrors) for one frame (module docstring): smooth_px under "fixed"
-    or before any miss was measured; else the miss within [min(ENVELOPE_FLOOR_SIGMA,
-    smooth_px), smooth_px] (the radius ceil(3 sigma) covers the miss with 2 sigma to spare)."""
-    if spec.envelope == "fixed" or miss_px is None:
+    and "region_body" (its regions' brighter parts sized apart: envelope.py) or before any miss
+    was measured; else the miss within [min(ENVELOPE_FLOOR_SIGMA, smooth_px), smooth_px] (the
+    radius ceil(3 sigma) covers the miss with 2 sigma to spare)."""
+    if spec.envelope != "predictor_error" or miss_px is None:
         return float(spec.smooth_px)
     floor = min(ENVELOPE_FLOOR_SIGMA, spec.smooth_px)
     return float(min(max(miss_px, floor), spec.smooth_px))
@@ -298,11 +287,18 @@ def reach_electrons(spec, top: int, level_exposure: np.ndarray, sensor) -> float
 
 def _controller_law(spec, top: int, x: MaskInput) -> np.ndarray:
     """exposure_control.py: the demand (`controller_demand_e`) through the attenuator's
-    transmission, smooth envelope, then the level putting the signal in the band
-    [band_low, band_high] x full scale, aiming at `target`."""
+    transmission, smooth envelope (under `mask.envelope = "region_body"` each bright region's
+    body and its brighter parts apart: control/envelope.py), then the level putting the signal
+    in the band [band_low, band_high] x full scale, aiming at `target`."""
     from poevp_optics.control.exposure_control import full_scale_electrons
 
-    env = smooth_envelope(controller_demand_e(spec, x) * x.transmission, spec.smooth_px)
+    demand = controller_demand_e(spec, x)
+    if spec.envelope == "region_body":
+        sigma = None if x.controller is None else x.controller.region_sigma
+        env = body_envelope(demand * x.transmission, demand >= x.sensor.saturation_capacity_e, sigma,
+                            spec.smooth_px)
+    else:
+        env = smooth_envelope(demand * x.transmission, spec.smooth_px)
     e_low, e_aim, e_high = full_scale_electrons(x.sensor, [spec.band_low, spec.target, spec.band_high])
     return band_levels(env, x.level_exposure, e_low, e_aim, e_high, min(spec.min_level, top),
                        nearest=spec.aim_rounding == "nearest")

@@ -88,7 +88,9 @@ NOTES = {
     "mask.smooth_px": "sigma of the band-limiting blur before any law (the envelope keeps the mask >= the frame)",
     "mask.envelope": ("the envelope's radius: `fixed` ceil(3 smooth_px) mirrors; `predictor_error` how far the "
                       "last captured highlight reached beyond the bright region its mask aimed at, as the "
-                      "envelope's sigma within [1, smooth_px] mirrors (control/masks.py)"),
+                      "envelope's sigma within [1, smooth_px] mirrors (control/masks.py); `region_body` each bright "
+                      "region's body (its median demand) at the fixed radius, its brighter parts at half its own "
+                      "last miss (exposure_controller only: control/envelope.py)"),
     "predictor.name": "video predictor (`PREDICTORS`)",
     "predictor.resolution": "[height, width] the predictor runs at",
     "loop.mode": "what the predictor sees (`LOOP_MODES`)",

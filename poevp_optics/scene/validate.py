@@ -94,6 +94,9 @@ def check_dmd_use(ctx, dmd: DMDSpec, t: TimingSpec, mask: MaskSpec):
     if mask.law == "exposure_controller" and not mask.band_low < mask.target < mask.band_high:
         raise ctx.fail("mask.target", f"the exposure controller aims inside its band: need band_low < "
                        f"target < band_high, got {mask.band_low:g} < {mask.target:g} < {mask.band_high:g}")
+    if mask.envelope == "region_body" and mask.law != "exposure_controller":
+        raise ctx.fail("mask.envelope", f"\"region_body\" splits the regions the exposure controller "
+                       f"measured: it needs mask.law = \"exposure_controller\", got \"{mask.law}\"")
     top = (1 << dmd.bits) - 1
     if mask.law != "white" and mask.min_level >= top:
         raise ctx.fail("mask.min_level", f"must be < {top}, the white level of a {dmd.bits}-bit DMD "
