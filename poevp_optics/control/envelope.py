@@ -31,7 +31,7 @@ all-white mask:
   lit part; one that outran its prediction by 2 smooth_px or more gets the fixed envelope back.
 The envelope is the larger of the two, >= the demand on every mirror (each is >= its own part):
 no mirror whose demand is known is under-attenuated. Where nothing was measured yet, or every
-region's miss reaches smooth_px, it is the fixed envelope bit for bit. What it gives up: a
+region's sigma reaches smooth_px (its miss 2 smooth_px), it is the fixed envelope bit for bit. What it gives up: a
 brighter part that the prediction misplaces by more than its region's last miss lands under the
 body's dimming, over-exposed by at most its ratio to the body.
 

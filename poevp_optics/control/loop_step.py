@@ -516,11 +516,12 @@ class LoopStep:
             self.controller.observe(*controller_view(self.camera, enc, est, flags, index))
             if self._aimed is not None:              # where the highlight was against where the mask aimed
                 captured = self.controller.demand_e >= self.controller.saturation_e
-                if self.mask.envelope == "region_body":
+                if self.mask.envelope == "region_body":        # each region's own miss, no global one
                     self.controller.region_sigma = region_sigma(self._aimed, captured, self.mask.smooth_px,
                                                                 ENVELOPE_FLOOR_SIGMA)
-                miss = highlight_miss_px(self._aimed, captured)
-                self.miss_px = self.miss_px if miss is None else miss
+                else:
+                    miss = highlight_miss_px(self._aimed, captured)
+                    self.miss_px = self.miss_px if miss is None else miss
         if self.model is None:
             return
         x = predictor_input(self.loop.mode, self.camera, ldr, enc, est, flags, index, self.lift)

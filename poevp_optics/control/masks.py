@@ -75,7 +75,8 @@ from poevp_optics.core.registry import Registry
 
 #: How the envelope's radius is chosen (module docstring).
 ENVELOPE_MODES = ("fixed", "predictor_error", "region_body")
-#: The envelope's smallest sigma under "predictor_error", mirrors (module docstring): R = 3.
+#: The envelope's smallest sigma under "predictor_error" and for a region's brighter parts under
+#: "region_body", mirrors (module docstring): R = 3.
 ENVELOPE_FLOOR_SIGMA = 1.0
 
 
